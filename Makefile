@@ -1,0 +1,23 @@
+# Two entry points do all the set-up on a fresh machine (see README):
+#   make demo   set up, then run the main job on the embedded synthetic scene
+#   make test   set up, then run the whole test suite
+.PHONY: setup demo test lint bench clean
+PY := .venv/bin/python
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(PY) -m app.cli eval --scene apartment --json out/eval.json
+
+test: setup
+	$(PY) -m pytest -q
+
+lint: setup
+	.venv/bin/ruff check . && .venv/bin/ruff format --check .
+
+bench: setup
+	$(PY) -m bench.mapping --json out/bench_mapping.json
+
+clean:
+	rm -rf .venv out .pytest_cache .hypothesis

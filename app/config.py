@@ -1,0 +1,161 @@
+"""Knobs: one typed dataclass, a docstring per field, the single source of their defaults.
+
+The names and defaults follow the paper's Table 3 (see DESIGN.md "Knobs"). The CLI help and
+the server's validation are generated from this module, so a knob is documented once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+Mode = Literal["semanticxr", "baseline"]
+MODES: tuple[str, ...] = ("semanticxr", "baseline")
+
+
+class KnobError(ValueError):
+    """An unknown knob or a value out of range; the message names the knob."""
+
+
+@dataclass
+class Knobs:
+    """Per-session settings of the mapping pipeline and the device."""
+
+    net_latency_switch_threshold_ms: float = 100.0
+    """Device switches from server query (SQ) to local query (LQ) above this smoothed RTT."""
+
+    skip_mapping_set: list[str] = field(default_factory=list)
+    """Labels the server never maps (compared case-insensitively)."""
+
+    max_object_points_server: int = 2000
+    """Per-object point cap on the server (semanticxr mode); holds after every merge."""
+
+    max_object_points_client: int = 200
+    """Per-object point cap in downstream updates and on the device."""
+
+    priority_class: list[str] = field(default_factory=list)
+    """Classes the device keeps first when its local map is over budget."""
+
+    distance_threshold_m: float | None = None
+    """Device keeps objects within this distance of the user before farther ones."""
+
+    local_map_budget_mb: float = 500.0
+    """Device local-map memory budget; over it, the lowest-priority objects are evicted."""
+
+    local_map_update_frequency: int = 2
+    """Keyframes between downstream updates."""
+
+    min_mapping_bbox_area: int = 2000
+    """Detections whose mask bounding box is smaller than this (px at RGB size) are deferred."""
+
+    depth_downsampling_ratio: int = 5
+    """Per-dimension depth downsampling on the device before upload."""
+
+    keyframe_interval: int = 5
+    """Every n-th received frame is mapped (a keyframe)."""
+
+    min_observations: int = 3
+    """Frames an object must be seen in before it is confirmed (queryable, published)."""
+
+    association_threshold: float = 1.2
+    """Match a detection to an object when spatial + semantic similarity reaches this."""
+
+    voxel_size_m: float = 0.025
+    """Voxel for spatial similarity and point de-duplication."""
+
+    max_depth_m: float = 8.0
+    """Depth beyond this is treated as invalid."""
+
+    min_detection_points: int = 30
+    """Detections that lift to fewer valid points are skipped."""
+
+    cleanup_interval: int = 10
+    """Keyframes between map clean-ups (outlier removal, merge of duplicates, pruning)."""
+
+    transient_max_age: int = 10
+    """Unconfirmed objects not seen for this many keyframes are pruned as transients."""
+
+
+_RANGES: dict[str, tuple[float, float]] = {
+    "net_latency_switch_threshold_ms": (0, 60_000),
+    "max_object_points_server": (10, 1_000_000),
+    "max_object_points_client": (1, 1_000_000),
+    "distance_threshold_m": (0, 10_000),
+    "local_map_budget_mb": (0.001, 1_000_000),
+    "local_map_update_frequency": (1, 10_000),
+    "min_mapping_bbox_area": (0, 100_000_000),
+    "depth_downsampling_ratio": (1, 32),
+    "keyframe_interval": (1, 10_000),
+    "min_observations": (1, 10_000),
+    "association_threshold": (0, 2),
+    "voxel_size_m": (0.001, 1),
+    "max_depth_m": (0.1, 1000),
+    "min_detection_points": (1, 1_000_000),
+    "cleanup_interval": (1, 10_000),
+    "transient_max_age": (1, 1_000_000),
+}
+
+KNOB_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Knobs))
+
+
+def knob_docs() -> dict[str, str]:
+    """Knob name -> its docstring, read from the source of this module."""
+    import ast
+    import inspect
+
+    tree = ast.parse(inspect.getsource(Knobs))
+    docs: dict[str, str] = {}
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    for node, nxt in zip(body, body[1:], strict=False):
+        if isinstance(node, ast.AnnAssign) and isinstance(nxt, ast.Expr):
+            docs[node.target.id] = str(nxt.value.value)  # type: ignore[union-attr]
+    return docs
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    if isinstance(default, list) or name in ("skip_mapping_set", "priority_class"):
+        if isinstance(value, str):
+            value = [v for v in value.split(",") if v.strip()]
+        if not isinstance(value, list | tuple) or not all(isinstance(v, str) for v in value):
+            raise KnobError(f"knob {name!r} must be a list of strings, got {value!r}")
+        if len(value) > 1000 or any(len(v) > 200 for v in value):
+            raise KnobError(f"knob {name!r} is too long")
+        return [v.strip() for v in value]
+    if value is None:
+        if name == "distance_threshold_m":
+            return None
+        raise KnobError(f"knob {name!r} cannot be null")
+    if isinstance(value, bool):
+        raise KnobError(f"knob {name!r} must be a number, got a boolean")
+    is_int = isinstance(default, int) and not isinstance(default, bool)
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise KnobError(f"knob {name!r} must be a number, got {value!r}") from None
+    if number != number or number in (float("inf"), float("-inf")):
+        raise KnobError(f"knob {name!r} must be finite, got {value!r}")
+    if is_int:
+        if number != int(number):
+            raise KnobError(f"knob {name!r} must be an integer, got {value!r}")
+        number = int(number)
+    lo, hi = _RANGES.get(name, (float("-inf"), float("inf")))
+    if not lo <= number <= hi:
+        raise KnobError(f"knob {name!r} must be within [{lo:g}, {hi:g}], got {value!r}")
+    return number
+
+
+def updated_knobs(knobs: Knobs, changes: dict[str, Any]) -> Knobs:
+    """A copy of `knobs` with `changes` applied and validated; raises KnobError naming the knob."""
+    if not isinstance(changes, dict):
+        raise KnobError("knobs must be an object of {name: value}")
+    new = dataclasses.replace(knobs)
+    for name, value in changes.items():
+        if name not in KNOB_NAMES:
+            raise KnobError(f"unknown knob {name!r}; known knobs: {', '.join(KNOB_NAMES)}")
+        setattr(new, name, _coerce(name, value, getattr(Knobs(), name)))
+    return new
+
+
+def knobs_to_dict(knobs: Knobs) -> dict[str, Any]:
+    return dataclasses.asdict(knobs)

@@ -1,0 +1,1 @@
+"""The object-level mapping engine: geometry, association, merge, deltas, query."""

@@ -1,0 +1,411 @@
+"""The mapping engine: per-frame detections -> a persistent, versioned map of objects.
+
+One algorithm, two organisations (DESIGN.md "Two system organisations"):
+
+- `semanticxr`: per-object work batched across the objects of a frame (one lifting pass for
+  all detections, one similarity matrix for association) and per-object geometry capped at
+  `max_object_points_server`.
+- `baseline`: frame-level, objects one at a time (a full-image mask and lift per
+  detection, a pair-by-pair association loop), geometry uncapped.
+
+Both call the same geometry, similarity and merge functions, so they differ in how the
+work is organised and how much geometry is kept, never in what is computed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.config import MODES, Knobs, Mode
+from app.mapping import geometry as geo
+from app.mapping.deltas import Delta, DeltaLog
+from app.mapping.object import MapObject
+from app.perception.base import Detection, FrameDetections, FrameInput, InputError
+from app.perception.detections import DetectionsBackend
+from app.semantics import TextEncoder
+
+MERGE_OVERLAP = 0.7
+"""Clean-up merges two objects when this fraction of the smaller one lies on the larger..."""
+MERGE_SEMANTIC = 0.8
+"""...and their embeddings agree at least this much (ConceptGraphs' defaults)."""
+OUTLIER_EPS_M = 0.1
+"""DBSCAN radius for outlier removal on changed objects."""
+
+
+@dataclass
+class IntegrationStats:
+    """What one keyframe did to the map."""
+
+    seq: int
+    keyframe: int
+    detections: int = 0
+    skipped: int = 0
+    deferred: int = 0
+    too_small: int = 0
+    created: int = 0
+    matched: int = 0
+    removed: int = 0
+    objects: int = 0
+    confirmed: int = 0
+    cleanup: bool = False
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class QueryHit:
+    object: MapObject
+    score: float
+
+
+@dataclass
+class _Observation:
+    """A lifted detection, ready to associate. points: float32 [N, 3] (de-duplicated)."""
+
+    detection: Detection
+    points: np.ndarray
+    embedding: np.ndarray
+    bbox: np.ndarray
+
+
+class MappingEngine:
+    """Fuses frames into a map of objects. Not thread-safe: one frame at a time per map."""
+
+    def __init__(
+        self,
+        encoder: TextEncoder,
+        knobs: Knobs | None = None,
+        mode: Mode = "semanticxr",
+        seed: int = 0,
+    ):
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        self.encoder = encoder
+        self.knobs = knobs or Knobs()
+        self.mode = mode
+        self.backend = DetectionsBackend()
+        self.objects: dict[int, MapObject] = {}
+        self.log = DeltaLog()
+        self.keyframes = 0
+        self._next_id = 1
+        self._rng = np.random.default_rng(seed)
+        self._changed_since_cleanup: set[int] = set()
+        self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
+
+    # ------------------------------------------------------------------ validation
+    def validate_frame(self, frame: FrameInput) -> None:
+        """Raise InputError naming the field if the frame cannot be mapped."""
+        pose = np.asarray(frame.pose)
+        if pose.shape != (4, 4):
+            raise InputError("pose", f"must be 4x4, got shape {pose.shape}")
+        if not np.all(np.isfinite(pose)):
+            raise InputError("pose", "not finite (NaN or inf)")
+        rot = pose[:3, :3]
+        if not np.allclose(pose[3], [0, 0, 0, 1], atol=1e-4):
+            raise InputError("pose", f"last row must be [0, 0, 0, 1], got {pose[3].tolist()}")
+        if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
+            raise InputError("pose", "not rigid: rotation is not orthonormal with det +1")
+        intr = frame.intrinsics
+        if len(intr) != 4 or not all(isinstance(v, int | float) and math.isfinite(v) for v in intr):
+            raise InputError("intrinsics", "must be 4 finite numbers [fx, fy, cx, cy]")
+        if intr[0] <= 0 or intr[1] <= 0:
+            raise InputError("intrinsics", "fx and fy must be positive")
+        width, height = frame.rgb_size
+        if width <= 0 or height <= 0:
+            raise InputError("rgb", f"image size must be positive, got {width}x{height}")
+        if frame.rgb is not None and frame.rgb.shape[:2] != (height, width):
+            raise InputError(
+                "rgb", f"is {frame.rgb.shape[1]}x{frame.rgb.shape[0]}, expected {width}x{height}"
+            )
+        depth = frame.depth_m
+        if not isinstance(depth, np.ndarray) or depth.ndim != 2:
+            raise InputError("depth", "must be a 2-D array")
+        if depth.dtype != np.float32:
+            raise InputError("depth", f"must be float32 metres, got {depth.dtype}")
+        h, w = depth.shape
+        ratio = max(1, round(width / max(w, 1)))
+        if w == 0 or h == 0 or width // ratio != w or height // ratio != h:
+            raise InputError(
+                "depth",
+                f"is {w}x{h}, which is not the RGB size {width}x{height} divided by an integer ratio",
+            )
+
+    # ------------------------------------------------------------------ integration
+    def integrate(
+        self, frame: FrameInput, detections: FrameDetections | None = None
+    ) -> IntegrationStats:
+        """Map one keyframe. Raises InputError (map unchanged) on bad input."""
+        t0 = time.perf_counter()
+        self.validate_frame(frame)
+        if detections is None:
+            detections = self.backend.detect(frame)
+        elif detections.instance_image.shape != (frame.rgb_size[1], frame.rgb_size[0]):
+            raise InputError("detections", "instance image size does not match the RGB size")
+        t1 = time.perf_counter()
+
+        self.keyframes += 1
+        stats = IntegrationStats(seq=self.log.seq, keyframe=self.keyframes)
+        stats.detections = len(detections.detections)
+        observations = self._observe(frame, detections, stats)
+        t2 = time.perf_counter()
+
+        if self.mode == "semanticxr":
+            matches = self._associate_batched(observations)
+        else:
+            matches = self._associate_one_by_one(observations)
+        t3 = time.perf_counter()
+
+        touched = self._apply(observations, matches, stats)
+        removed: set[int] = set()
+        if self.keyframes % self.knobs.cleanup_interval == 0:
+            removed = self._cleanup(touched)
+            stats.cleanup = True
+        t4 = time.perf_counter()
+
+        published = self._confirm(touched - removed)
+        stats.removed = len(removed)
+        stats.seq = self.log.commit(published, removed)
+        if published or removed:
+            self._confirmed_matrix = None
+        stats.objects = len(self.objects)
+        stats.confirmed = sum(o.confirmed for o in self.objects.values())
+        t5 = time.perf_counter()
+        stats.timings_ms = {
+            "perception": (t1 - t0) * 1e3,
+            "lift": (t2 - t1) * 1e3,
+            "associate": (t3 - t2) * 1e3,
+            "merge": (t4 - t3) * 1e3,
+            "publish": (t5 - t4) * 1e3,
+            "total": (t5 - t0) * 1e3,
+        }
+        return stats
+
+    def _observe(
+        self, frame: FrameInput, detections: FrameDetections, stats: IntegrationStats
+    ) -> list[_Observation]:
+        """Filter (skip set, deferral), lift, de-duplicate and embed the frame's detections."""
+        skip = {label.lower() for label in self.knobs.skip_mapping_set}
+        kept: list[Detection] = []
+        for det in detections.detections:
+            if det.label.lower() in skip:
+                stats.skipped += 1
+            elif det.bbox_area_px < self.knobs.min_mapping_bbox_area:
+                stats.deferred += 1  # too small to map well at this depth resolution
+            else:
+                kept.append(det)
+        if not kept:
+            return []
+
+        args = (
+            frame.depth_m,
+            frame.intrinsics,
+            np.asarray(frame.pose, np.float64),
+            self.knobs.max_depth_m,
+        )
+        if self.mode == "semanticxr":
+            ids = [d.instance_id for d in kept]
+            lifted = geo.lift_instances_batched(detections.instance_image, ids, *args)
+            points = [lifted[d.instance_id] for d in kept]
+        else:
+            points = [geo.lift_detection(detections.mask(d), *args) for d in kept]
+
+        text_rows = self.encoder.encode([d.label for d in kept])
+        observations = []
+        for det, pts, text_row in zip(kept, points, text_rows, strict=True):
+            if len(pts) < self.knobs.min_detection_points:
+                stats.too_small += 1
+                continue
+            pts = geo.voxel_downsample(pts, self.knobs.voxel_size_m)
+            emb = text_row if det.embedding is None else det.embedding
+            observations.append(_Observation(det, pts, emb.astype(np.float32), geo.bbox_of(pts)))
+        return observations
+
+    # ------------------------------------------------------------------ association
+    def _similarity(self, obs: _Observation, obj: MapObject, semantic: float) -> float:
+        """Spatial + semantic similarity of one observation and one object (ConceptGraphs).
+
+        Spatial: the fraction of the observation's points within one voxel of the object's
+        points, the voxel being the object's own sampling (coarser once capped).
+        """
+        radius = max(self.knobs.voxel_size_m, obj.resolution_m)
+        spatial = geo.overlap_fraction(obs.points, obj.tree, radius)
+        return spatial + semantic if spatial > 0 else -math.inf
+
+    def _associate_batched(self, observations: list[_Observation]) -> list[int | None]:
+        """Object id per observation (None = new object), all observations at once."""
+        if not observations or not self.objects:
+            return [None] * len(observations)
+        objects = list(self.objects.values())
+        obs_boxes = np.stack([o.bbox for o in observations])
+        obj_boxes = np.stack([o.bbox for o in objects])
+        candidates = geo.bbox_intersects_matrix(obs_boxes, obj_boxes, self.knobs.voxel_size_m)
+        semantic = (
+            np.stack([o.embedding for o in observations])
+            @ np.stack([o.embedding for o in objects]).T
+        )
+        matches: list[int | None] = []
+        for i, obs in enumerate(observations):
+            best, best_score = None, self.knobs.association_threshold
+            for j in np.flatnonzero(candidates[i]):
+                score = self._similarity(obs, objects[j], float(semantic[i, j]))
+                if score >= best_score:
+                    best, best_score = objects[j].id, score
+            matches.append(best)
+        return matches
+
+    def _associate_one_by_one(self, observations: list[_Observation]) -> list[int | None]:
+        """Object id per observation (None = new object), pair by pair."""
+        matches: list[int | None] = []
+        margin = self.knobs.voxel_size_m
+        for obs in observations:
+            best, best_score = None, self.knobs.association_threshold
+            for obj in self.objects.values():
+                if not geo.bbox_intersects_matrix(obs.bbox[None], obj.bbox[None], margin)[0, 0]:
+                    continue
+                score = self._similarity(obs, obj, float(obs.embedding @ obj.embedding))
+                if score >= best_score:
+                    best, best_score = obj.id, score
+            matches.append(best)
+        return matches
+
+    # ------------------------------------------------------------------ merging
+    def _cap(self, points: np.ndarray) -> tuple[np.ndarray, float]:
+        max_points = self.knobs.max_object_points_server if self.mode == "semanticxr" else 1 << 62
+        return geo.cap_points(points, max_points, self.knobs.voxel_size_m, self._rng)
+
+    def _apply(
+        self, observations: list[_Observation], matches: list[int | None], stats: IntegrationStats
+    ) -> set[int]:
+        """Merge matched observations, create new objects; returns the ids touched."""
+        touched: set[int] = set()
+        seen_this_frame: set[int] = set()
+        for obs, match in zip(observations, matches, strict=True):
+            if match is None:
+                obj = MapObject(id=self._next_id, first_seen=self.keyframes)
+                self._next_id += 1
+                self.objects[obj.id] = obj
+                obj.set_points(*self._cap(obs.points))
+                obj.embedding_sum = obs.embedding.copy()
+                stats.created += 1
+            else:
+                obj = self.objects[match]
+                obj.set_points(*self._cap(np.concatenate([obj.points, obs.points])))
+                obj.embedding_sum = obj.embedding_sum + obs.embedding
+                stats.matched += 1
+            obj.label_counts[obs.detection.label] += 1
+            obj.n_obs += 1
+            obj.last_seen = self.keyframes
+            obj.version += 1
+            if obj.id not in seen_this_frame:
+                obj.frames_seen += 1
+                seen_this_frame.add(obj.id)
+            touched.add(obj.id)
+        self._changed_since_cleanup |= touched
+        return touched
+
+    def _merge_objects(self, keep: MapObject, gone: MapObject) -> None:
+        keep.set_points(*self._cap(np.concatenate([keep.points, gone.points])))
+        keep.embedding_sum = keep.embedding_sum + gone.embedding_sum
+        keep.label_counts.update(gone.label_counts)
+        keep.n_obs += gone.n_obs
+        keep.frames_seen += gone.frames_seen
+        keep.first_seen = min(keep.first_seen, gone.first_seen)
+        keep.last_seen = max(keep.last_seen, gone.last_seen)
+        keep.version += 1
+        del self.objects[gone.id]
+
+    def _cleanup(self, touched: set[int]) -> set[int]:
+        """Outlier removal on changed objects, merge of duplicates, pruning of transients.
+
+        Adds the objects it changes to `touched`; returns the ids of published objects it
+        removed (others were never sent downstream).
+        """
+        removed: set[int] = set()
+        for oid in sorted(self._changed_since_cleanup):
+            obj = self.objects.get(oid)
+            if obj is not None:
+                kept = geo.remove_outliers(obj.points, OUTLIER_EPS_M)
+                if len(kept) < len(obj.points):
+                    obj.set_points(kept, obj.resolution_m)
+                    obj.version += 1
+                    touched.add(oid)
+        self._changed_since_cleanup.clear()
+
+        objects = sorted(self.objects.values(), key=lambda o: o.id)
+        if objects:
+            boxes = np.stack([o.bbox for o in objects])
+            overlapping = geo.bbox_intersects_matrix(boxes, boxes, 0.0)
+            semantic = np.stack([o.embedding for o in objects])
+            semantic = semantic @ semantic.T
+            for i, j in zip(*np.nonzero(np.triu(overlapping, 1)), strict=True):
+                a, b = objects[i], objects[j]
+                if a.id not in self.objects or b.id not in self.objects:
+                    continue
+                if semantic[i, j] < MERGE_SEMANTIC:
+                    continue
+                small, large = (a, b) if len(a.points) <= len(b.points) else (b, a)
+                if (
+                    geo.overlap_fraction(small.points, large.tree, self.knobs.voxel_size_m)
+                    < MERGE_OVERLAP
+                ):
+                    continue
+                keep, gone = (a, b) if a.id < b.id else (b, a)  # the older id survives
+                self._merge_objects(keep, gone)
+                touched.add(keep.id)
+                touched.discard(gone.id)
+                if gone.confirmed:
+                    removed.add(gone.id)
+
+        for obj in list(self.objects.values()):
+            if not obj.confirmed and self.keyframes - obj.last_seen >= self.knobs.transient_max_age:
+                del self.objects[obj.id]
+                touched.discard(obj.id)
+        return removed
+
+    def _confirm(self, touched: set[int]) -> set[int]:
+        """Confirm objects seen often enough; returns the confirmed ids that changed."""
+        published = set()
+        for oid in touched:
+            obj = self.objects.get(oid)
+            if obj is None:
+                continue
+            if not obj.confirmed and obj.frames_seen >= self.knobs.min_observations:
+                obj.confirmed = True
+            if obj.confirmed:
+                published.add(oid)
+        return published
+
+    # ------------------------------------------------------------------ reading the map
+    def confirmed_objects(self) -> list[MapObject]:
+        """Confirmed objects in id order (what queries and subscribers see)."""
+        return [o for _, o in sorted(self.objects.items()) if o.confirmed]
+
+    def delta_since(self, since: int | None) -> Delta:
+        return self.log.since(since)
+
+    def query(self, text: str, k: int = 5) -> list[QueryHit]:
+        """Top-k confirmed objects by cosine similarity to the text, best first."""
+        return self.query_embedding(self.encoder.encode_query(text), k)
+
+    def query_embedding(self, embedding: np.ndarray, k: int = 5) -> list[QueryHit]:
+        if self._confirmed_matrix is None:
+            objs = self.confirmed_objects()
+            matrix = (
+                np.stack([o.embedding for o in objs]).astype(np.float32)
+                if objs
+                else np.zeros((0, self.encoder.dim), np.float32)
+            )
+            self._confirmed_matrix = (objs, matrix)
+        objs, matrix = self._confirmed_matrix
+        if not objs or k <= 0:
+            return []
+        scores = matrix @ embedding.astype(np.float32)
+        top = np.argsort(-scores, kind="stable")[:k]
+        return [QueryHit(objs[i], float(scores[i])) for i in top]
+
+    def label_counts(self) -> Counter:
+        return Counter(o.label for o in self.confirmed_objects())

@@ -1,0 +1,100 @@
+"""The `detections` backend: the device sends its detections with the frame.
+
+Real devices can (ARKit / Quest scene understanding, an on-device detector); the device
+emulator renders ground truth through a noise model. The server only validates and indexes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+
+from app.perception.base import (
+    Detection,
+    FrameDetections,
+    FrameInput,
+    InputError,
+    PerceptionBackend,
+)
+
+MAX_INSTANCES = 1024
+MAX_LABEL_CHARS = 200
+
+
+def detections_from_instance_image(
+    instance_image: np.ndarray, instances: list[dict], rgb_size: tuple[int, int]
+) -> FrameDetections:
+    """Validate a device's instance image + instance list and index it as detections.
+
+    instance_image: uint16 [H, W] at RGB size; every non-zero id must have an entry.
+    Instances listed but absent from the image are dropped (nothing to map).
+    """
+    width, height = rgb_size
+    if not isinstance(instance_image, np.ndarray) or instance_image.ndim != 2:
+        raise InputError("detections", "instance image must be a 2-D array")
+    if instance_image.shape != (height, width):
+        raise InputError(
+            "detections",
+            f"instance image is {instance_image.shape[1]}x{instance_image.shape[0]}, "
+            f"RGB is {width}x{height}; they must match",
+        )
+    if instance_image.dtype != np.uint16:
+        raise InputError("detections", f"instance image must be uint16, got {instance_image.dtype}")
+    if not isinstance(instances, list) or len(instances) > MAX_INSTANCES:
+        raise InputError("detections.instances", f"must be a list of at most {MAX_INSTANCES}")
+
+    by_id: dict[int, dict] = {}
+    for i, inst in enumerate(instances):
+        where = f"detections.instances[{i}]"
+        if not isinstance(inst, dict):
+            raise InputError(where, "must be an object with id, label, score")
+        iid, label, score = inst.get("id"), inst.get("label"), inst.get("score", 1.0)
+        if isinstance(iid, bool) or not isinstance(iid, int) or not 1 <= iid <= 65535:
+            raise InputError(f"{where}.id", f"must be an integer in [1, 65535], got {iid!r}")
+        if iid in by_id:
+            raise InputError(f"{where}.id", f"duplicate instance id {iid}")
+        if not isinstance(label, str) or not label.strip() or len(label) > MAX_LABEL_CHARS:
+            raise InputError(
+                f"{where}.label",
+                f"must be a non-empty string of at most {MAX_LABEL_CHARS} characters",
+            )
+        if (
+            isinstance(score, bool)
+            or not isinstance(score, int | float)
+            or not math.isfinite(score)
+            or not 0 <= score <= 1
+        ):
+            raise InputError(f"{where}.score", f"must be a number in [0, 1], got {score!r}")
+        by_id[iid] = {"label": label.strip(), "score": float(score)}
+
+    # One pass over the image for every instance's bounding box.
+    slices = ndimage.find_objects(instance_image)
+    present = [i + 1 for i, s in enumerate(slices) if s is not None]
+    unlabelled = [iid for iid in present if iid not in by_id]
+    if unlabelled:
+        raise InputError(
+            "detections.instances",
+            f"instance ids {unlabelled[:10]} appear in the instance image but have no label",
+        )
+    detections = []
+    for iid in present:
+        ys, xs = slices[iid - 1]
+        meta = by_id[iid]
+        detections.append(
+            Detection(iid, meta["label"], meta["score"], (xs.start, ys.start, xs.stop, ys.stop))
+        )
+    return FrameDetections(instance_image, detections)
+
+
+class DetectionsBackend(PerceptionBackend):
+    """Client-supplied detections (the embedded default)."""
+
+    name = "detections"
+
+    def detect(self, frame: FrameInput) -> FrameDetections:
+        width, height = frame.rgb_size
+        if frame.instance_ids is None:
+            return FrameDetections(np.zeros((height, width), np.uint16), [])
+        return detections_from_instance_image(frame.instance_ids, frame.instances, frame.rgb_size)

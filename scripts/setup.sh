@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Idempotent set-up from a fresh clone: .venv with the CPU torch pin, the package in
+# editable mode with dev extras, and Debian's libusb when open3d cannot load without it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+  echo "[setup] creating .venv with $($PYTHON --version)"
+  "$PYTHON" -m venv .venv
+fi
+
+stamp=.venv/.semanticxr-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "[setup] installing dependencies (torch==2.13.0 CPU build first)"
+  # pip.conf on this machine lists local indexes that may be absent; drop that noise.
+  .venv/bin/pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | grep -v "is ignored" || true
+  .venv/bin/pip install -q --disable-pip-version-check -e ".[dev]" 2>&1 | grep -v "is ignored" || true
+  .venv/bin/python -c "import torch, numpy, fastapi, msgpack" # fail loudly if the install failed
+  touch "$stamp"
+fi
+
+# open3d 0.20 links against libusb-1.0 from the system.
+if ! .venv/bin/python -c "import open3d" >/dev/null 2>&1; then
+  if .venv/bin/python -c "import open3d" 2>&1 | grep -q "libusb"; then
+    if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+      echo "[setup] installing Debian's libusb-1.0-0 for open3d"
+      (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1) || \
+        (apt-get update -q >/dev/null && apt-get install -y -q libusb-1.0-0 >/dev/null)
+    else
+      echo "[setup] open3d needs libusb-1.0: run 'sudo apt-get install libusb-1.0-0'" >&2
+      exit 1
+    fi
+  fi
+  .venv/bin/python -c "import open3d" # fail loudly with the real error otherwise
+fi
+echo "[setup] ok"
