@@ -1,0 +1,112 @@
+"""Geometry properties (hypothesis): lifting, batching, de-duplication, caps, boxes."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from app.mapping import geometry as geo
+
+finite = st.floats(-50, 50, allow_nan=False, width=32)
+clouds = arrays(np.float32, st.tuples(st.integers(1, 300), st.just(3)), elements=finite)
+
+
+def random_pose(rng: np.random.Generator) -> np.ndarray:
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    if np.linalg.det(q) < 0:
+        q[:, 0] *= -1
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = q, rng.normal(size=3)
+    return pose
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), ratio=st.sampled_from([1, 2, 3, 5]))
+def test_batched_lifting_equals_lifting_each_mask(seed, ratio):
+    rng = np.random.default_rng(seed)
+    width, height = 60, 45
+    ids = rng.integers(0, 5, size=(height, width)).astype(np.uint16)
+    depth = rng.uniform(0.0, 6.0, size=(height // ratio, width // ratio)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = 0.0
+    intr, pose = (50.0, 52.0, 29.5, 22.0), random_pose(rng)
+    batched = geo.lift_instances_batched(ids, [1, 2, 3, 4], depth, intr, pose, 5.0)
+    for iid in (1, 2, 3, 4):
+        single = geo.lift_detection(ids == iid, depth, intr, pose, 5.0)
+        np.testing.assert_allclose(np.sort(batched[iid], axis=0), np.sort(single, axis=0), atol=1e-5)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_lifted_points_project_back_to_their_pixels_at_their_depth(seed):
+    rng = np.random.default_rng(seed)
+    pose, intr = random_pose(rng), (60.0, 60.0, 19.5, 14.5)
+    depth = rng.uniform(0.5, 4.0, size=(30, 40)).astype(np.float32)
+    pts = geo.lift_detection(np.ones((30, 40), bool), depth, intr, pose, 10.0)
+    cam = (pts.astype(np.float64) - pose[:3, 3]) @ pose[:3, :3]
+    u = cam[:, 0] / cam[:, 2] * intr[0] + intr[2]
+    v = cam[:, 1] / cam[:, 2] * intr[1] + intr[3]
+    vv, uu = np.nonzero(np.ones((30, 40), bool))
+    np.testing.assert_allclose(u, uu, atol=1e-2)
+    np.testing.assert_allclose(v, vv, atol=1e-2)
+    np.testing.assert_allclose(cam[:, 2], depth[vv, uu], rtol=1e-4)
+
+
+def test_invalid_depth_is_dropped():
+    depth = np.array([[0.0, np.nan, np.inf, 9.0, 2.0, -1.0]], np.float32)
+    pts = geo.lift_detection(np.ones((1, 6), bool), depth, (10.0, 10.0, 0.0, 0.0), np.eye(4), 8.0)
+    assert len(pts) == 1 and pts[0, 2] == np.float32(2.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(points=clouds, voxel=st.floats(0.01, 2.0))
+def test_voxel_downsample_keeps_one_point_per_voxel_inside_the_box(points, voxel):
+    out = geo.voxel_downsample(points, voxel)
+    assert 1 <= len(out) <= len(points)
+    assert len(np.unique(geo._voxel_keys(out, voxel))) == len(out)
+    box = geo.bbox_of(points)
+    assert np.all(out >= box[:3] - 1e-3) and np.all(out <= box[3:] + 1e-3)
+
+
+@settings(max_examples=60, deadline=None)
+@given(points=clouds, cap=st.integers(1, 100), seed=st.integers(0, 1000))
+def test_cap_always_holds_and_stays_within_the_object(points, cap, seed):
+    out, spacing = geo.cap_points(points, cap, 0.05, np.random.default_rng(seed))
+    assert 1 <= len(out) <= cap and spacing >= 0.05
+    box = geo.bbox_of(points)
+    assert np.all(out >= box[:3] - 1e-3) and np.all(out <= box[3:] + 1e-3)
+
+
+boxes = st.lists(finite, min_size=6, max_size=6).map(
+    lambda v: np.array([min(v[0], v[3]), min(v[1], v[4]), min(v[2], v[5]),
+                        max(v[0], v[3]), max(v[1], v[4]), max(v[2], v[5])])
+)
+
+
+@settings(max_examples=80, deadline=None)
+@given(a=boxes, b=boxes)
+def test_box_intersection_is_symmetric_and_agrees_with_iou(a, b):
+    ab = geo.bbox_intersects_matrix(a[None], b[None], 0.0)[0, 0]
+    assert ab == geo.bbox_intersects_matrix(b[None], a[None], 0.0)[0, 0]
+    assert geo.bbox_iou(a, b) == geo.bbox_iou(b, a)
+    if geo.bbox_iou(a, b) > 0:
+        assert ab
+    assert 0.0 <= geo.bbox_iou(a, b) <= 1.0 + 1e-9
+
+
+def test_overlap_fraction_counts_points_within_the_radius():
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(np.zeros((1, 3)))
+    pts = np.array([[0.01, 0, 0], [0.02, 0, 0], [0.5, 0, 0], [0, 0, 0.024]])
+    assert geo.overlap_fraction(pts, tree, 0.025) == 0.75
+
+
+def test_outlier_removal_drops_a_far_stray_cluster():
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.arange(20) * 0.025, np.arange(20) * 0.025)
+    body = np.stack([u.ravel(), v.ravel(), np.zeros(400)], axis=1).astype(np.float32)
+    stray = rng.uniform(3, 3.05, size=(20, 3)).astype(np.float32)
+    kept = geo.remove_outliers(np.concatenate([body, stray]), eps_m=0.1)
+    assert len(kept) == 400 and kept.max() <= 0.5
