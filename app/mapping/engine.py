@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.codecs import validate_rigid_pose
 from app.config import MODES, Knobs, Mode
 from app.mapping import geometry as geo
 from app.mapping.deltas import Delta, DeltaLog
@@ -99,16 +100,7 @@ class MappingEngine:
     # ------------------------------------------------------------------ validation
     def validate_frame(self, frame: FrameInput) -> None:
         """Raise InputError naming the field if the frame cannot be mapped."""
-        pose = np.asarray(frame.pose)
-        if pose.shape != (4, 4):
-            raise InputError("pose", f"must be 4x4, got shape {pose.shape}")
-        if not np.all(np.isfinite(pose)):
-            raise InputError("pose", "not finite (NaN or inf)")
-        rot = pose[:3, :3]
-        if not np.allclose(pose[3], [0, 0, 0, 1], atol=1e-4):
-            raise InputError("pose", f"last row must be [0, 0, 0, 1], got {pose[3].tolist()}")
-        if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
-            raise InputError("pose", "not rigid: rotation is not orthonormal with det +1")
+        validate_rigid_pose(np.asarray(frame.pose, np.float64))
         intr = frame.intrinsics
         if len(intr) != 4 or not all(isinstance(v, int | float) and math.isfinite(v) for v in intr):
             raise InputError("intrinsics", "must be 4 finite numbers [fx, fy, cx, cy]")

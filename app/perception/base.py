@@ -7,13 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.errors import InputError
 
-class InputError(ValueError):
-    """Bad input from a device; `field` names what is wrong. The map is left unchanged."""
-
-    def __init__(self, field_name: str, message: str):
-        super().__init__(f"{field_name}: {message}")
-        self.field = field_name
+__all__ = ["Detection", "FrameDetections", "FrameInput", "InputError", "PerceptionBackend"]
 
 
 @dataclass

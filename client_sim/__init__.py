@@ -1,0 +1,1 @@
+"""The device emulator: frame sources, encoder, streaming client, local map, querying."""

@@ -1,0 +1,234 @@
+"""Device-side frame encoding: the one owner of each representation that goes upstream.
+
+`downsample_depth` owns the downsampled depth, `depth_to_uint16` its wire units, and
+`FrameEncoder.encode` turns full-resolution sensor data into a protocol-v1 "frame" message.
+The encoder downsamples depth itself and only ever packs the downsampled image, so the
+original can never be sent by mistake.
+
+Depth/RGB pixel correspondence after downsampling by `ratio` (exact, both methods):
+depth pixel (u_d, v_d) stands for RGB pixel (u_d * ratio + ratio // 2, v_d * ratio + ratio // 2),
+the centre of its ratio x ratio block. With RGB intrinsics (fx, fy, cx, cy), the depth image's
+intrinsics are therefore (fx / ratio, fy / ratio, (cx - ratio // 2) / ratio,
+(cy - ratio // 2) / ratio).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import msgpack
+import numpy as np
+
+from app.codecs import (
+    DEPTH_CODECS,
+    encode_jpeg,
+    encode_uint16_image,
+    pose_to_bytes,
+    validate_rigid_pose,
+)
+
+DEPTH_DOWNSAMPLING_METHODS: tuple[str, ...] = ("nearest", "min")
+"""'nearest': the block's centre pixel; 'min': the block's nearest valid depth."""
+
+MAX_UINT16 = 65535
+
+
+def downsample_depth(depth_m: np.ndarray, ratio: int, method: str = "nearest") -> np.ndarray:
+    """Depth [H, W] (metres) -> [H // ratio, W // ratio], one pixel per ratio x ratio block.
+
+    "nearest" keeps the pixel at (v_d * ratio + ratio // 2, u_d * ratio + ratio // 2);
+    "min" keeps the smallest valid (> 0, finite) depth of the block, 0 if it has none.
+    Neither method averages: a mean across an object's silhouette would invent depths that
+    belong to no surface (flying pixels). Trailing rows/columns that do not fill a whole
+    block are dropped. `ratio` 1 returns `depth_m` itself.
+    """
+    if isinstance(ratio, bool) or not isinstance(ratio, int | np.integer) or ratio < 1:
+        raise ValueError(f"depth downsampling ratio must be a positive integer, got {ratio!r}")
+    if method not in DEPTH_DOWNSAMPLING_METHODS:
+        raise ValueError(f"unknown method {method!r}, expected one of {DEPTH_DOWNSAMPLING_METHODS}")
+    depth_m = np.asarray(depth_m)
+    if depth_m.ndim != 2:
+        raise ValueError(f"depth must be [H, W], got shape {list(depth_m.shape)}")
+    if ratio == 1:
+        return depth_m
+    height_px, width_px = depth_m.shape
+    out_height, out_width = height_px // ratio, width_px // ratio
+    if out_height == 0 or out_width == 0:
+        raise ValueError(f"ratio {ratio} is larger than the {width_px}x{height_px} depth image")
+
+    if method == "nearest":
+        centre = ratio // 2
+        picked = depth_m[centre::ratio, centre::ratio][:out_height, :out_width]
+        return np.ascontiguousarray(picked, dtype=np.float32)
+
+    blocks = depth_m[: out_height * ratio, : out_width * ratio].astype(np.float32)
+    blocks = blocks.reshape(out_height, ratio, out_width, ratio)
+    with np.errstate(invalid="ignore"):  # NaN comparisons are expected: NaN is invalid depth
+        valid = np.isfinite(blocks) & (blocks > 0)
+    nearest_valid = np.where(valid, blocks, np.inf).min(axis=(1, 3))
+    nearest_valid[~np.isfinite(nearest_valid)] = 0.0
+    return nearest_valid
+
+
+def depth_to_uint16(depth_m: np.ndarray, scale_m: float = 0.001) -> np.ndarray:
+    """Depth [h, w] in metres -> uint16 [h, w] in units of `scale_m` metres (rounded).
+
+    Invalid depth (0, negative, NaN, inf) becomes 0, the protocol's "no depth"; depth beyond
+    65535 units is clipped to 65535.
+    """
+    if not (np.isfinite(scale_m) and scale_m > 0):
+        raise ValueError(f"depth scale must be a positive number of metres, got {scale_m!r}")
+    depth_m = np.asarray(depth_m, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(depth_m) & (depth_m > 0)
+    units = np.rint(np.where(valid, depth_m, 0.0) / scale_m)
+    return np.clip(units, 0, MAX_UINT16).astype(np.uint16)
+
+
+@dataclass
+class EncodedFrame:
+    """One encoded frame and what each part of it costs on the wire."""
+
+    message: dict
+    """The protocol-v1 "frame" message, ready for `msgpack.packb`."""
+
+    bytes_by_kind: dict[str, int] = field(default_factory=dict)
+    """Payload bytes of "rgb", "depth", "detections" (0 if absent) and "pose"; "total" is
+    the size of the whole msgpack-packed message (payloads + framing)."""
+
+
+class FrameEncoder:
+    """Encodes full-resolution device frames into protocol-v1 "frame" messages."""
+
+    def __init__(
+        self,
+        depth_downsampling_ratio: int = 5,
+        jpeg_quality: int = 85,
+        depth_codec: str = "zstd",
+        detections_codec: str = "zstd",
+        depth_scale_m: float = 0.001,
+        depth_method: str = "nearest",
+    ) -> None:
+        if depth_codec not in DEPTH_CODECS:
+            raise ValueError(f"unknown depth codec {depth_codec!r}, expected one of {DEPTH_CODECS}")
+        if detections_codec not in DEPTH_CODECS:
+            raise ValueError(
+                f"unknown detections codec {detections_codec!r}, expected one of {DEPTH_CODECS}"
+            )
+        if depth_method not in DEPTH_DOWNSAMPLING_METHODS:
+            raise ValueError(
+                f"unknown depth method {depth_method!r}, "
+                f"expected one of {DEPTH_DOWNSAMPLING_METHODS}"
+            )
+        if (
+            isinstance(depth_downsampling_ratio, bool)
+            or not isinstance(depth_downsampling_ratio, int)
+            or depth_downsampling_ratio < 1
+        ):
+            raise ValueError(
+                f"depth_downsampling_ratio must be a positive integer, "
+                f"got {depth_downsampling_ratio!r}"
+            )
+        if not (np.isfinite(depth_scale_m) and depth_scale_m > 0):
+            raise ValueError(f"depth_scale_m must be positive, got {depth_scale_m!r}")
+        self.depth_downsampling_ratio = depth_downsampling_ratio
+        self.jpeg_quality = jpeg_quality
+        self.depth_codec = depth_codec
+        self.detections_codec = detections_codec
+        self.depth_scale_m = float(depth_scale_m)
+        self.depth_method = depth_method
+
+    def encode(
+        self,
+        seq: int,
+        t: float,
+        rgb: np.ndarray,
+        depth_m: np.ndarray,
+        pose: np.ndarray,
+        intrinsics: tuple,
+        instance_ids: np.ndarray | None = None,
+        instances: list[dict] | None = None,
+    ) -> EncodedFrame:
+        """The wire message of one frame.
+
+        rgb: uint8 [H, W, 3]. depth_m: float [H, W] metres, registered to the RGB image
+        (0/NaN = no depth); it is downsampled here. pose: camera-to-world [4, 4], rigid.
+        intrinsics: (fx, fy, cx, cy) of the RGB image in pixels. instance_ids: optional
+        integer [H, W], instance id per pixel (0 = none, at most 65535), described by
+        `instances` = [{"id", "label", "score"}].
+        """
+        rgb = np.asarray(rgb)
+        if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+            raise ValueError(f"rgb must be uint8 [H, W, 3], got {rgb.dtype} {list(rgb.shape)}")
+        rgb_size_hw = rgb.shape[:2]
+        depth_m = np.asarray(depth_m)
+        if depth_m.shape != rgb_size_hw:
+            # The pixel correspondence (module docstring) assumes depth registered at RGB size.
+            raise ValueError(
+                f"depth {list(depth_m.shape)} must be at RGB size {list(rgb_size_hw)} "
+                f"before downsampling"
+            )
+        if len(intrinsics) != 4:
+            raise ValueError(f"intrinsics must be (fx, fy, cx, cy), got {intrinsics!r}")
+        if instances is not None and instance_ids is None:
+            raise ValueError("instances given without an instance_ids image")
+
+        rgb_jpeg = encode_jpeg(rgb, self.jpeg_quality)
+        depth_small_m = downsample_depth(depth_m, self.depth_downsampling_ratio, self.depth_method)
+        depth_units = depth_to_uint16(depth_small_m, self.depth_scale_m)
+        depth_data = encode_uint16_image(depth_units, self.depth_codec)
+        pose_data = pose_to_bytes(validate_rigid_pose(pose))
+
+        message: dict = {
+            "type": "frame",
+            "seq": int(seq),
+            "t": float(t),
+            "pose": pose_data,
+            "intrinsics": [float(value) for value in intrinsics],
+            "rgb": {"codec": "jpeg", "data": rgb_jpeg},
+            "depth": {
+                "codec": self.depth_codec,
+                "w": int(depth_units.shape[1]),
+                "h": int(depth_units.shape[0]),
+                "scale": self.depth_scale_m,
+                "data": depth_data,
+            },
+        }
+        detections_bytes = 0
+        if instance_ids is not None:
+            message["detections"] = self._encode_detections(instance_ids, instances or [], rgb)
+            detections_bytes = len(message["detections"]["data"])
+
+        bytes_by_kind = {
+            "rgb": len(rgb_jpeg),
+            "depth": len(depth_data),
+            "detections": detections_bytes,
+            "pose": len(pose_data),
+            "total": len(msgpack.packb(message, use_bin_type=True)),
+        }
+        return EncodedFrame(message=message, bytes_by_kind=bytes_by_kind)
+
+    def _encode_detections(
+        self, instance_ids: np.ndarray, instances: list[dict], rgb: np.ndarray
+    ) -> dict:
+        """The "detections" part: the instance-id image (at RGB size) and its instances."""
+        instance_ids = np.asarray(instance_ids)
+        if instance_ids.shape != rgb.shape[:2] or instance_ids.dtype.kind not in "iu":
+            raise ValueError(
+                f"instance_ids must be integer [H, W] at RGB size {list(rgb.shape[:2])}, "
+                f"got {instance_ids.dtype} {list(instance_ids.shape)}"
+            )
+        if instance_ids.size and (instance_ids.min() < 0 or instance_ids.max() > MAX_UINT16):
+            raise ValueError("instance ids must lie in 0..65535 (0 = no instance)")
+        wire_instances = [
+            {"id": int(inst["id"]), "label": str(inst["label"]), "score": float(inst["score"])}
+            for inst in instances
+        ]
+        height_px, width_px = instance_ids.shape
+        return {
+            "codec": self.detections_codec,
+            "w": int(width_px),
+            "h": int(height_px),
+            "data": encode_uint16_image(instance_ids.astype(np.uint16), self.detections_codec),
+            "instances": wire_instances,
+        }
