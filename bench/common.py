@@ -1,0 +1,41 @@
+"""Shared bench helpers: targets checked and printed, JSON written, plots saved."""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+from pathlib import Path
+
+
+def machine() -> dict:
+    import os
+
+    return {
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "platform": platform.platform(),
+    }
+
+
+def check(name: str, value: float, op: str, target: float, unit: str = "") -> dict:
+    """A target verdict, printed as it is measured."""
+    ok = value <= target if op == "<=" else value >= target
+    print(f"  [{'PASS' if ok else 'MISS'}] {name}: {value:.2f}{unit} (target {op} {target}{unit})")
+    return {"name": name, "value": value, "op": op, "target": target, "unit": unit, "ok": ok}
+
+
+def write_outputs(out_dir: str, stem: str, document: dict) -> Path:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{stem}.json"
+    path.write_text(json.dumps(document, indent=2) + "\n")
+    print(f"wrote {path}", file=sys.stderr)
+    return path
+
+
+def save_plot(fig, out_dir: str, stem: str) -> Path:
+    path = Path(out_dir) / f"{stem}.png"
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    print(f"wrote {path}", file=sys.stderr)
+    return path

@@ -1,0 +1,64 @@
+"""Mapping speed and quality: semanticxr vs baseline on the same keyframes (issue 2 targets).
+
+    python -m bench.mapping [--scene apartment] [--frames 400] [--out out/]
+
+Targets (DESIGN.md "Targets"): semanticxr at least 3x faster per keyframe (p50) than the
+baseline with F-mIoU within 1 point of it, and semanticxr p50 <= 40 ms per keyframe,
+at 640x480 RGB, depth ÷5, noise `standard`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from bench.common import check, machine, save_plot, write_outputs
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--scene", default="apartment")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--frames", type=int, default=400)
+    parser.add_argument("--noise", default="standard")
+    parser.add_argument("--out", default="out", help="folder for mapping.json and mapping.png")
+    args = parser.parse_args(argv)
+
+    from app.semantics import get_text_encoder
+    from client_sim.evaluation import EvalConfig, run_eval
+
+    cfg = EvalConfig(scene=args.scene, seed=args.seed, frames=args.frames, noise=args.noise)
+    result = run_eval(cfg, get_text_encoder(), keep_latencies=True)
+    sx, bl = result["modes"]["semanticxr"], result["modes"]["baseline"]
+    print(
+        f"mapping on {args.scene}: {result['keyframes']} keyframes, 640x480, depth ÷5, noise {args.noise}"
+    )
+    targets = [
+        check("speed-up p50 (baseline / semanticxr)", result["speedup_p50"], ">=", 3.0, "x"),
+        check("F-mIoU gap (baseline - semanticxr)", bl["F_mIoU"] - sx["F_mIoU"], "<=", 1.0, " pts"),
+        check("semanticxr p50 per keyframe", sx["latency_ms"]["p50"], "<=", 40.0, " ms"),
+    ]
+    document = {"bench": "mapping", "machine": machine(), "targets": targets, "eval": result}
+    write_outputs(args.out, "mapping", document)
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for mode, style in (("baseline", "tab:red"), ("semanticxr", "tab:blue")):
+        ax.plot(result["modes"][mode]["latencies_ms"], color=style, label=mode, lw=1)
+    ax.set_xlabel("keyframe")
+    ax.set_ylabel("mapping latency (ms)")
+    ax.set_title(f"{args.scene}: speed-up {result['speedup_p50']:.1f}x at p50")
+    ax.legend()
+    save_plot(fig, args.out, "mapping")
+    return 0 if all(t["ok"] for t in targets) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
