@@ -74,6 +74,38 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_serve(args: argparse.Namespace) -> int:
+    import logging
+
+    import uvicorn
+
+    from app.server.app import create_app
+    from app.server.settings import ServerSettings
+
+    settings = ServerSettings.from_env(
+        host=args.host,
+        port=args.port,
+        data_dir=args.data_dir,
+        api_key=args.api_key,
+        max_message_bytes=args.max_message_bytes,
+        mapping_workers=args.mapping_workers,
+        log_level=args.log_level,
+    )
+    logging.basicConfig(
+        level=settings.log_level.upper(), format="%(levelname)s %(name)s: %(message)s"
+    )
+    print(f"SemanticXR on http://{settings.host}:{settings.port}  (data in {settings.data_dir})")
+    uvicorn.run(
+        create_app(settings),
+        host=settings.host,
+        port=settings.port,
+        log_level=settings.log_level,
+        ws_max_size=settings.max_message_bytes,
+        ws_per_message_deflate=False,  # payloads are JPEG/zstd already
+    )
+    return 0
+
+
 def format_eval_table(result: dict) -> str:
     lines = [
         f"scene {result['scene']}: {result['keyframes']} keyframes of {result['frames']} frames, "
@@ -105,9 +137,11 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run the full pipeline (render, encode, decode, map) on a synthetic scene "
         "for one or both system organisations and report semantic quality and speed.",
     )
-    from client_sim.world.scene import SCENE_NAMES
-
-    ev.add_argument("--scene", default="apartment", choices=SCENE_NAMES, help="synthetic scene")
+    ev.add_argument(
+        "--scene",
+        default="apartment",
+        help="synthetic scene: living_room, kitchen, office, bedroom or apartment",
+    )
     ev.add_argument("--seed", type=int, default=0, help="scene, trajectory and noise seed")
     ev.add_argument("--frames", type=int, default=400, help="input frames of the walk")
     ev.add_argument("--width", type=int, default=640, help="RGB width in pixels")
@@ -119,6 +153,24 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--json", metavar="PATH", help="write the results as JSON here")
     add_knob_flags(ev)
     ev.set_defaults(func=cmd_eval)
+
+    sv = sub.add_parser(
+        "serve",
+        help="run the SemanticXR server (REST + WebSockets, wire protocol v1)",
+        description="Serve the wire protocol v1. Flags override SEMANTICXR_* environment variables.",
+    )
+    sv.add_argument("--host", help="interface to listen on (default 127.0.0.1)")
+    sv.add_argument("--port", type=int, help="TCP port (default 8000)")
+    sv.add_argument("--data-dir", help="folder of the SQLite database (default ./data)")
+    sv.add_argument(
+        "--api-key", help="key required to create/list sessions (env SEMANTICXR_API_KEY)"
+    )
+    sv.add_argument(
+        "--max-message-bytes", type=int, help="largest WebSocket message (default 8 MiB)"
+    )
+    sv.add_argument("--mapping-workers", type=int, help="threads that decode and map (default 2)")
+    sv.add_argument("--log-level", help="uvicorn log level (default info)")
+    sv.set_defaults(func=cmd_serve)
     return parser
 
 

@@ -54,6 +54,10 @@ class IntegrationStats:
     objects: int = 0
     confirmed: int = 0
     cleanup: bool = False
+    published_ids: list[int] = field(default_factory=list)
+    """Confirmed objects this keyframe created or changed (at log seq `seq`)."""
+    removed_ids: list[int] = field(default_factory=list)
+    """Published objects this keyframe removed."""
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -92,10 +96,20 @@ class MappingEngine:
         self.objects: dict[int, MapObject] = {}
         self.log = DeltaLog()
         self.keyframes = 0
-        self._next_id = 1
+        self.next_object_id = 1
         self._rng = np.random.default_rng(seed)
         self._changed_since_cleanup: set[int] = set()
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
+
+    def restore(
+        self, objects: list[MapObject], log: DeltaLog, keyframes: int, next_object_id: int
+    ) -> None:
+        """Resume from persisted state (confirmed objects and the delta log)."""
+        self.objects = {o.id: o for o in objects}
+        self.log = log
+        self.keyframes = keyframes
+        self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
+        self._confirmed_matrix = None
 
     # ------------------------------------------------------------------ validation
     def validate_frame(self, frame: FrameInput) -> None:
@@ -161,6 +175,7 @@ class MappingEngine:
         published = self._confirm(touched - removed)
         stats.removed = len(removed)
         stats.seq = self.log.commit(published, removed)
+        stats.published_ids, stats.removed_ids = sorted(published), sorted(removed)
         if published or removed:
             self._confirmed_matrix = None
         stats.objects = len(self.objects)
@@ -277,8 +292,8 @@ class MappingEngine:
         seen_this_frame: set[int] = set()
         for obs, match in zip(observations, matches, strict=True):
             if match is None:
-                obj = MapObject(id=self._next_id, first_seen=self.keyframes)
-                self._next_id += 1
+                obj = MapObject(id=self.next_object_id, first_seen=self.keyframes)
+                self.next_object_id += 1
                 self.objects[obj.id] = obj
                 obj.set_points(*self._cap(obs.points))
                 obj.embedding_sum = obs.embedding.copy()

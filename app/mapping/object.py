@@ -35,6 +35,7 @@ class MapObject:
     """Spacing the points sample the surface at (grows when the cap coarsens them)."""
     _tree: cKDTree | None = field(default=None, repr=False)
     _bbox: np.ndarray | None = field(default=None, repr=False)
+    _client_cache: tuple | None = field(default=None, repr=False)
 
     @property
     def embedding(self) -> np.ndarray:

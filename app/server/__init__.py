@@ -1,0 +1,1 @@
+"""The service: FastAPI app, sessions, persistence (SQLite store), REST and WebSocket routes."""

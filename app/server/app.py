@@ -1,0 +1,81 @@
+"""The FastAPI application: factory, lifespan, routers, limits."""
+
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse, PlainTextResponse
+
+from app import __version__
+from app.semantics import TextEncoder, get_text_encoder
+from app.server.metrics import make_metrics
+from app.server.routes import rest, ws
+from app.server.sessions import SessionManager
+from app.server.settings import ServerSettings
+from app.server.store import Store
+
+log = logging.getLogger("semanticxr")
+
+
+def create_app(
+    settings: ServerSettings | None = None, encoder: TextEncoder | None = None
+) -> FastAPI:
+    """The service; state (store, sessions, encoder) lives from lifespan start to end."""
+    settings = settings or ServerSettings.from_env()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        data_dir = Path(settings.data_dir)
+        data_dir.mkdir(parents=True, exist_ok=True)
+        store = Store(data_dir / "semanticxr.sqlite3")
+        manager = SessionManager(settings, store, encoder or get_text_encoder(), make_metrics())
+        restored = manager.restore()
+        app.state.settings, app.state.manager = settings, manager
+        if settings.api_key is None:
+            log.warning(
+                "no API key set: the server runs OPEN (anyone can create and read sessions)"
+            )
+        log.info("data in %s; %d sessions restored", data_dir.resolve(), restored)
+        try:
+            yield
+        finally:
+            manager.close()
+            store.close()
+
+    app = FastAPI(
+        title="SemanticXR",
+        version=__version__,
+        description="Real-time, open-vocabulary 3D semantic mapping for XR devices (wire protocol v1).",
+        lifespan=lifespan,
+    )
+
+    @app.middleware("http")
+    async def limit_body(request: Request, call_next):
+        length = request.headers.get("content-length")
+        if length is not None and (not length.isdigit() or int(length) > settings.max_body_bytes):
+            return JSONResponse(
+                {"detail": f"request body over {settings.max_body_bytes} bytes"}, 413
+            )
+        return await call_next(request)
+
+    @app.get("/healthz", summary="Liveness")
+    def healthz() -> dict:
+        return {"status": "ok", "version": __version__}
+
+    @app.get("/metrics", response_class=PlainTextResponse, summary="Prometheus metrics")
+    def metrics(request: Request) -> str:
+        manager: SessionManager = request.app.state.manager
+        sessions = list(manager.sessions.values())
+        return manager.metrics.render(
+            {
+                "semanticxr_sessions": len(sessions),
+                "semanticxr_subscribers": sum(s.subscribers for s in sessions),
+            }
+        )
+
+    app.include_router(rest.router)
+    app.include_router(ws.router)
+    return app

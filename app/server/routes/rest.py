@@ -1,0 +1,209 @@
+"""REST: sessions, knobs, objects, queries (DESIGN.md "Wire protocol v1", REST)."""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Literal
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
+from pydantic import BaseModel, Field
+
+from app.config import KnobError, knobs_to_dict
+from app.mapping.object import MapObject
+from app.mapping.publish import client_points
+from app.server.auth import authorize_session, bearer, require_api_key
+from app.server.sessions import Session, SessionManager
+
+router = APIRouter(prefix="/v1")
+MAX_QUERY_CHARS = 500
+
+
+class CreateSession(BaseModel):
+    name: str | None = Field(None, max_length=200, description="Human-readable name")
+    mode: Literal["semanticxr", "baseline"] = Field("semanticxr", description="System organisation")
+    knobs: dict[str, Any] = Field(
+        default_factory=dict, description="Knob overrides (see GET knobs)"
+    )
+
+
+class Embedding(BaseModel):
+    model: str
+    dim: int
+
+
+class CreatedSession(BaseModel):
+    session_id: str
+    token: str = Field(description="Bearer token for everything under this session; shown once")
+    embedding: Embedding
+    knobs: dict[str, Any]
+
+
+class SessionSummary(BaseModel):
+    session_id: str
+    name: str
+    mode: str
+    objects: int
+    frames: int
+    keyframes: int
+    fps: float
+    update_seq: int
+
+
+class ObjectOut(BaseModel):
+    id: int
+    version: int
+    label: str
+    bbox: list[float] = Field(description="[x0, y0, z0, x1, y1, z1] metres, world frame")
+    centroid: list[float]
+    n_obs: int
+    points: list[list[float]] | None = Field(
+        None, description="[[x, y, z], ...] at client resolution"
+    )
+
+
+class QueryResult(BaseModel):
+    id: int
+    label: str
+    score: float = Field(description="Cosine similarity of the query and the object's embedding")
+    bbox: list[float]
+    centroid: list[float]
+    points: list[list[float]] | None = None
+
+
+class QueryAnswer(BaseModel):
+    text: str
+    results: list[QueryResult]
+    latency_ms: float
+
+
+def manager(request: Request) -> SessionManager:
+    return request.app.state.manager
+
+
+def session_for(request: Request, sid: str) -> Session:
+    return authorize_session(manager(request), sid, bearer(request.headers, request.query_params))
+
+
+def _points(obj: MapObject, session: Session) -> list[list[float]]:
+    pts = client_points(obj, session.knobs.max_object_points_client)
+    return pts.round(4).tolist()
+
+
+def _object_out(obj: MapObject, session: Session, with_points: bool) -> dict:
+    return {
+        "id": obj.id,
+        "version": obj.version,
+        "label": obj.label,
+        "bbox": [round(float(v), 4) for v in obj.bbox],
+        "centroid": [round(float(v), 4) for v in obj.centroid],
+        "n_obs": obj.n_obs,
+        "points": _points(obj, session) if with_points else None,
+    }
+
+
+@router.post(
+    "/sessions",
+    status_code=201,
+    response_model=CreatedSession,
+    dependencies=[Depends(require_api_key)],
+    summary="Create a session",
+)
+def create_session(body: CreateSession, request: Request) -> dict:
+    try:
+        session, token = manager(request).create(body.name, body.mode, body.knobs)
+    except KnobError as exc:
+        raise HTTPException(422, str(exc)) from None
+    except OverflowError as exc:
+        raise HTTPException(503, str(exc)) from None
+    encoder = session.engine.encoder
+    return {
+        "session_id": session.id,
+        "token": token,
+        "embedding": {"model": encoder.model_id, "dim": encoder.dim},
+        "knobs": knobs_to_dict(session.knobs),
+    }
+
+
+@router.get(
+    "/sessions",
+    response_model=list[SessionSummary],
+    dependencies=[Depends(require_api_key)],
+    summary="List sessions",
+)
+def list_sessions(request: Request) -> list[dict]:
+    return [s.stats() for s in list(manager(request).sessions.values())]
+
+
+@router.get("/sessions/{sid}", summary="Session statistics")
+def get_session(sid: str, request: Request) -> dict:
+    return session_for(request, sid).stats()
+
+
+@router.get("/sessions/{sid}/knobs", summary="Knobs in force")
+def get_knobs(sid: str, request: Request) -> dict:
+    return knobs_to_dict(session_for(request, sid).knobs)
+
+
+@router.patch("/sessions/{sid}/knobs", summary="Change knobs at run time")
+def patch_knobs(sid: str, changes: dict[str, Any], request: Request) -> dict:
+    session = session_for(request, sid)
+    try:
+        return knobs_to_dict(manager(request).set_knobs(session, changes))
+    except KnobError as exc:
+        raise HTTPException(422, str(exc)) from None
+
+
+@router.get(
+    "/sessions/{sid}/objects",
+    response_model=list[ObjectOut],
+    response_model_exclude_none=True,
+    summary="Confirmed objects",
+)
+def list_objects(
+    sid: str, request: Request, points: bool = Query(False, description="include points")
+) -> list[dict]:
+    session = session_for(request, sid)
+    return [_object_out(o, session, points) for o in session.objects()]
+
+
+@router.get(
+    "/sessions/{sid}/query",
+    response_model=QueryAnswer,
+    response_model_exclude_none=True,
+    summary="Natural-language query, best matches first",
+)
+def query(
+    sid: str,
+    request: Request,
+    text: str = Query(
+        ..., min_length=1, max_length=MAX_QUERY_CHARS, description="what to look for"
+    ),
+    k: int = Query(5, ge=1, le=100, description="how many results"),
+    points: bool = Query(True, description="include each result's points"),
+) -> dict:
+    session = session_for(request, sid)
+    t0 = time.perf_counter()
+    hits = session.query(text, k)
+    results = []
+    for hit in hits:
+        out = _object_out(hit.object, session, points)
+        results.append(
+            {
+                "id": out["id"],
+                "label": out["label"],
+                "score": round(hit.score, 5),
+                "bbox": out["bbox"],
+                "centroid": out["centroid"],
+                "points": out["points"],
+            }
+        )
+    latency_ms = (time.perf_counter() - t0) * 1e3
+    manager(request).metrics.observe_ms("semanticxr_query_latency_ms", latency_ms)
+    return {"text": text, "results": results, "latency_ms": latency_ms}
+
+
+@router.delete("/sessions/{sid}", status_code=204, summary="Delete a session and its map")
+def delete_session(sid: str, request: Request) -> Response:
+    session_for(request, sid)
+    manager(request).delete(sid)
+    return Response(status_code=204)

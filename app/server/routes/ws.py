@@ -1,0 +1,174 @@
+"""WebSockets: frame ingest (device -> server) and map updates (server -> subscribers)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+
+import msgpack
+from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
+
+from app.errors import InputError
+from app.perception.base import FrameInput
+from app.protocol import decode_frame
+from app.server.auth import authorize_session, bearer
+from app.server.sessions import Session, SessionManager, ack, error
+
+router = APIRouter(prefix="/v1")
+SEND_TIMEOUT_S = 30.0
+CLOSE_POLICY, CLOSE_TOO_BIG, CLOSE_TRY_LATER, CLOSE_GOING_AWAY = 1008, 1009, 1013, 1001
+
+
+async def _authorize(ws: WebSocket, sid: str) -> Session | None:
+    manager: SessionManager = ws.app.state.manager
+    try:
+        return authorize_session(manager, sid, bearer(ws.headers, ws.query_params))
+    except HTTPException as exc:
+        # Before accept(): the client sees an HTTP 403 and nothing about the session.
+        await ws.close(code=CLOSE_POLICY, reason=str(exc.detail)[:120])
+        return None
+
+
+def _payload_bytes(message: dict) -> dict[str, int]:
+    sizes = {}
+    for kind in ("rgb", "depth", "detections"):
+        part = message.get(kind)
+        if isinstance(part, dict) and isinstance(part.get("data"), bytes):
+            sizes[kind] = len(part["data"])
+    return sizes
+
+
+def _decode_and_validate(message: dict, session: Session) -> FrameInput:
+    """In a worker thread: everything the engine would refuse is refused here, for every frame."""
+    frame = decode_frame(message)
+    session.engine.validate_frame(frame)
+    session.engine.backend.detect(frame)
+    return frame
+
+
+@router.websocket("/sessions/{sid}/stream")
+async def stream(ws: WebSocket, sid: str) -> None:
+    """Frames in, exactly one ack or error out per frame."""
+    session = await _authorize(ws, sid)
+    if session is None:
+        return
+    manager: SessionManager = ws.app.state.manager
+    settings = manager.settings
+    await ws.accept()
+    send_lock = asyncio.Lock()
+
+    async def reply(message: dict) -> None:
+        async with send_lock:
+            with contextlib.suppress(Exception):  # the client may be gone; the map is not affected
+                await asyncio.wait_for(ws.send_bytes(msgpack.packb(message)), SEND_TIMEOUT_S)
+
+    bad_in_a_row = 0
+    try:
+        while not session._closed:
+            event = await ws.receive()
+            if event["type"] == "websocket.disconnect":
+                break
+            data = event.get("bytes")
+            if data is None:
+                manager.metrics.inc("semanticxr_frames_total", outcome="bad")
+                await reply(
+                    error(None, "bad_message", "frames must be binary msgpack messages, got text")
+                )
+                bad_in_a_row += 1
+            elif len(data) > settings.max_message_bytes:
+                await reply(
+                    error(
+                        None,
+                        "too_big",
+                        f"message of {len(data)} bytes exceeds {settings.max_message_bytes}",
+                    )
+                )
+                await ws.close(code=CLOSE_TOO_BIG, reason="message too big")
+                return
+            else:
+                try:
+                    message = msgpack.unpackb(data, raw=False, strict_map_key=False)
+                except Exception as exc:
+                    message = None
+                    await reply(
+                        error(None, "bad_message", f"message: not msgpack ({type(exc).__name__})")
+                    )
+                    bad_in_a_row += 1
+                if message is not None:
+                    seq = message.get("seq") if isinstance(message, dict) else None
+                    seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
+                    try:
+                        frame = await manager.decode(
+                            lambda m=message: _decode_and_validate(m, session)
+                        )
+                    except InputError as exc:
+                        manager.metrics.inc("semanticxr_frames_total", outcome="bad")
+                        await reply(error(seq, "bad_frame", str(exc)))
+                        bad_in_a_row += 1
+                    else:
+                        bad_in_a_row = 0
+                        manager.metrics.inc("semanticxr_frames_total", outcome="ok")
+                        if manager.count_frame(session, _payload_bytes(message)):
+                            await manager.submit_keyframe(session, frame, reply)
+                        else:
+                            await reply(ack(frame.seq, keyframe=False))
+            if bad_in_a_row >= settings.max_bad_frames:
+                await ws.close(code=CLOSE_POLICY, reason=f"{bad_in_a_row} bad messages in a row")
+                return
+    except WebSocketDisconnect:
+        return
+    if session._closed:
+        with contextlib.suppress(Exception):
+            await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")
+
+
+@router.websocket("/sessions/{sid}/updates")
+async def updates(ws: WebSocket, sid: str) -> None:
+    """Per-object deltas since `since`, then one per publication, coalesced per object."""
+    session = await _authorize(ws, sid)
+    if session is None:
+        return
+    manager: SessionManager = ws.app.state.manager
+    raw_since = ws.query_params.get("since")
+    try:
+        since = None if raw_since in (None, "") else int(raw_since)
+    except ValueError:
+        await ws.close(code=CLOSE_POLICY, reason="since must be an integer")
+        return
+    if session.subscribers >= manager.settings.max_subscribers:
+        await ws.close(code=CLOSE_TRY_LATER, reason="too many subscribers")
+        return
+    await ws.accept()
+    session.subscribers += 1
+    gone = asyncio.Event()
+
+    async def watch_disconnect() -> None:
+        with contextlib.suppress(Exception):
+            while (await ws.receive())["type"] != "websocket.disconnect":
+                pass  # subscribers have nothing to say; ignore whatever they send
+        gone.set()
+
+    watcher = asyncio.create_task(watch_disconnect())
+    try:
+        first = True
+        while not session._closed and not gone.is_set():
+            published = session.wait_published()  # taken before building: no publication is missed
+            message = await asyncio.to_thread(session.build_delta, since)
+            if first or message["full"] or message["upserts"] or message["removed"]:
+                data = msgpack.packb(message)
+                await asyncio.wait_for(ws.send_bytes(data), SEND_TIMEOUT_S)
+                session.bytes_out["updates"] += len(data)
+                manager.metrics.inc("semanticxr_bytes_out_total", len(data), kind="updates")
+                first = False
+            since = message["seq"]
+            waiter = asyncio.create_task(published.wait())
+            await asyncio.wait({waiter, watcher}, return_when=asyncio.FIRST_COMPLETED)
+            waiter.cancel()
+    except (TimeoutError, WebSocketDisconnect, RuntimeError):
+        pass
+    finally:
+        session.subscribers -= 1
+        watcher.cancel()
+        if session._closed:
+            with contextlib.suppress(Exception):
+                await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")

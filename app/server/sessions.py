@@ -1,0 +1,322 @@
+"""Sessions: one mapping engine each, the keyframe pipeline, update fan-out, persistence.
+
+Threading model: the event loop only moves bytes. Decoding and mapping run in a shared
+thread pool; each session maps one keyframe at a time (`_map_lock`), and readers of the map
+(queries, object lists, delta building) take the same lock, so they see whole keyframes.
+If keyframes arrive faster than a session maps them, only the newest waits: an older
+waiting keyframe is acknowledged as dropped (frames are samples, not a log).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import hmac
+import secrets
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.config import Knobs, knobs_to_dict, updated_knobs
+from app.errors import InputError
+from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
+from app.mapping.object import MapObject
+from app.mapping.publish import delta_message
+from app.perception.base import FrameInput
+from app.semantics import TextEncoder
+from app.server.metrics import Metrics
+from app.server.settings import ServerSettings
+from app.server.store import SessionRecord, Store
+
+Reply = Callable[[dict], Awaitable[None]]
+
+
+def hash_token(token: str) -> str:
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+@dataclass
+class _Pending:
+    frame: FrameInput
+    reply: Reply
+    received_t: float
+
+
+@dataclass
+class Session:
+    record: SessionRecord
+    engine: MappingEngine
+    bytes_in: dict[str, int] = field(
+        default_factory=lambda: {"rgb": 0, "depth": 0, "detections": 0}
+    )
+    bytes_out: dict[str, int] = field(default_factory=lambda: {"updates": 0})
+    dropped: int = 0
+    latencies_ms: deque = field(default_factory=lambda: deque(maxlen=2000))
+    subscribers: int = 0
+    _map_lock: threading.Lock = field(default_factory=threading.Lock)
+    _pending: _Pending | None = None
+    _mapping: bool = False
+    _published: asyncio.Event = field(default_factory=asyncio.Event)
+    _closed: bool = False
+    _fps_window: deque = field(default_factory=lambda: deque(maxlen=60))
+
+    @property
+    def id(self) -> str:
+        return self.record.session_id
+
+    @property
+    def knobs(self) -> Knobs:
+        return self.engine.knobs
+
+    def check_token(self, token: str | None) -> bool:
+        return token is not None and hmac.compare_digest(hash_token(token), self.record.token_hash)
+
+    # ------------------------------------------------------------------ reading
+    def stats(self) -> dict:
+        lat = np.asarray(self.latencies_ms) if self.latencies_ms else None
+        with self._map_lock:
+            confirmed = sum(o.confirmed for o in self.engine.objects.values())
+            seq = self.engine.log.seq
+        window = list(self._fps_window)
+        fps = (
+            (len(window) - 1) / (window[-1] - window[0])
+            if len(window) > 1 and window[-1] > window[0]
+            else 0.0
+        )
+        return {
+            "session_id": self.id,
+            "name": self.record.name,
+            "mode": self.engine.mode,
+            "created_at": self.record.created_at,
+            "frames": self.record.frames,
+            "keyframes": self.engine.keyframes,
+            "dropped_frames": self.dropped,
+            "objects": confirmed,
+            "fps": fps,
+            "bytes_in": dict(self.bytes_in, total=sum(self.bytes_in.values())),
+            "bytes_out": dict(self.bytes_out, total=sum(self.bytes_out.values())),
+            "mapping_latency_ms": {
+                "p50": float(np.percentile(lat, 50)) if lat is not None else None,
+                "p95": float(np.percentile(lat, 95)) if lat is not None else None,
+            },
+            "update_seq": seq,
+            "subscribers": self.subscribers,
+            "embedding": {"model": self.engine.encoder.model_id, "dim": self.engine.encoder.dim},
+            "knobs": knobs_to_dict(self.knobs),
+        }
+
+    def objects(self) -> list[MapObject]:
+        with self._map_lock:
+            return self.engine.confirmed_objects()
+
+    def query(self, text: str, k: int) -> list[QueryHit]:
+        embedding = self.engine.encoder.encode_query(text)  # outside the lock: the slow part
+        with self._map_lock:
+            return self.engine.query_embedding(embedding, k)
+
+    def build_delta(self, since: int | None) -> dict:
+        """The update message for a subscriber whose last applied seq is `since`."""
+        with self._map_lock:
+            full_resolution = self.engine.mode == "baseline"
+            delta = self.engine.delta_since(None if full_resolution else since)
+            max_points = None if full_resolution else self.knobs.max_object_points_client
+            return delta_message(delta, self.engine.objects, max_points)
+
+    # ------------------------------------------------------------------ publishing
+    def wait_published(self) -> asyncio.Event:
+        """An event set at the next publication (every local_map_update_frequency keyframes)."""
+        return self._published
+
+    def _publish(self) -> None:
+        event, self._published = self._published, asyncio.Event()
+        event.set()
+
+    def close(self) -> None:
+        self._closed = True
+        self._publish()
+
+
+class SessionManager:
+    """All sessions of a server, their persistence and their keyframe pipelines."""
+
+    def __init__(
+        self, settings: ServerSettings, store: Store, encoder: TextEncoder, metrics: Metrics
+    ):
+        self.settings = settings
+        self.store = store
+        self.encoder = encoder
+        self.metrics = metrics
+        self.pool = ThreadPoolExecutor(
+            max_workers=settings.mapping_workers, thread_name_prefix="map"
+        )
+        self.sessions: dict[str, Session] = {}
+        self._lock = threading.Lock()
+
+    def restore(self) -> int:
+        """Load every persisted session with its confirmed objects; returns how many."""
+        for rec in self.store.list_sessions():
+            engine = MappingEngine(self.encoder, updated_knobs(Knobs(), rec.knobs), mode=rec.mode)
+            engine.restore(
+                self.store.load_objects(rec.session_id),
+                self.store.load_delta_log(rec.session_id),
+                rec.keyframes,
+                rec.next_object_id,
+            )
+            self.sessions[rec.session_id] = Session(rec, engine)
+        return len(self.sessions)
+
+    def close(self) -> None:
+        for session in self.sessions.values():
+            session.close()
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+    # ------------------------------------------------------------------ lifecycle
+    def create(self, name: str | None, mode: str, knob_changes: dict) -> tuple[Session, str]:
+        """A new session and its token (the only time the token is shown)."""
+        knobs = updated_knobs(Knobs(), knob_changes or {})
+        with self._lock:
+            if len(self.sessions) >= self.settings.max_sessions:
+                raise OverflowError(
+                    f"the server holds its maximum of {self.settings.max_sessions} sessions"
+                )
+            token = secrets.token_urlsafe(24)
+            sid = uuid.uuid4().hex[:16]
+            rec = SessionRecord(
+                session_id=sid,
+                name=name or f"session-{sid[:6]}",
+                mode=mode,
+                knobs=knobs_to_dict(knobs),
+                token_hash=hash_token(token),
+                created_at=time.time(),
+            )
+            self.store.create_session(rec)
+            session = Session(rec, MappingEngine(self.encoder, knobs, mode=mode))
+            self.sessions[sid] = session
+        return session, token
+
+    def delete(self, sid: str) -> None:
+        with self._lock:
+            session = self.sessions.pop(sid)
+        session.close()
+        with session._map_lock:  # let a keyframe in flight finish first
+            self.store.delete_session(sid)
+
+    def set_knobs(self, session: Session, changes: dict) -> Knobs:
+        with session._map_lock:
+            knobs = updated_knobs(session.knobs, changes)
+            self.store.update_session(session.id, knobs=knobs_to_dict(knobs))
+            session.engine.knobs = knobs
+            session.record.knobs = knobs_to_dict(knobs)
+        return knobs
+
+    # ------------------------------------------------------------------ ingest
+    async def decode(self, decode: Callable[[], FrameInput]) -> FrameInput:
+        return await asyncio.get_running_loop().run_in_executor(self.pool, decode)
+
+    def count_frame(self, session: Session, frame_bytes: dict[str, int]) -> bool:
+        """Count a valid frame; True when it is a keyframe."""
+        rec = session.record
+        rec.frames += 1
+        session._fps_window.append(time.monotonic())
+        for kind, n in frame_bytes.items():
+            session.bytes_in[kind] = session.bytes_in.get(kind, 0) + n
+            self.metrics.inc("semanticxr_bytes_in_total", n, kind=kind)
+        return (rec.frames - 1) % session.knobs.keyframe_interval == 0
+
+    async def submit_keyframe(self, session: Session, frame: FrameInput, reply: Reply) -> None:
+        """Map now, or wait as the newest keyframe (acknowledging any older one as dropped)."""
+        pending = _Pending(frame, reply, time.perf_counter())
+        if session._mapping:
+            older, session._pending = session._pending, pending
+            if older is not None:
+                session.dropped += 1
+                self.metrics.inc("semanticxr_dropped_frames_total")
+                await older.reply(ack(older.frame.seq, keyframe=False, dropped=True))
+            return
+        session._mapping = True
+        asyncio.create_task(self._map_loop(session, pending))
+
+    async def _map_loop(self, session: Session, pending: _Pending | None) -> None:
+        loop = asyncio.get_running_loop()
+        try:
+            while pending is not None and not session._closed:
+                try:
+                    stats = await loop.run_in_executor(
+                        self.pool, self._map_and_persist, session, pending.frame
+                    )
+                except InputError as exc:
+                    await pending.reply(error(pending.frame.seq, "bad_frame", str(exc)))
+                except Exception as exc:  # never lose the ack: report and go on
+                    await pending.reply(
+                        error(pending.frame.seq, "internal", f"mapping failed: {exc}")
+                    )
+                else:
+                    map_ms = (time.perf_counter() - pending.received_t) * 1e3
+                    session.latencies_ms.append(stats.timings_ms["total"])
+                    self.metrics.observe_ms(
+                        "semanticxr_mapping_latency_ms", stats.timings_ms["total"]
+                    )
+                    await pending.reply(
+                        ack(
+                            pending.frame.seq,
+                            keyframe=True,
+                            map_ms=map_ms,
+                            update_seq=stats.seq,
+                            objects=stats.confirmed,
+                        )
+                    )
+                    if stats.keyframe % session.knobs.local_map_update_frequency == 0:
+                        session._publish()
+                pending, session._pending = session._pending, None
+        finally:
+            session._mapping = False
+
+    def _map_and_persist(self, session: Session, frame: FrameInput) -> IntegrationStats:
+        """In a worker thread: integrate, then make the change durable before the ack."""
+        with session._map_lock:
+            if session._closed:
+                raise InputError("session", "the session was deleted")
+            engine = session.engine
+            stats = engine.integrate(frame)
+            rec = session.record
+            rec.keyframes = engine.keyframes
+            rec.next_object_id = engine.next_object_id
+            self.store.commit_keyframe(
+                session.id,
+                stats.seq,
+                [engine.objects[i] for i in stats.published_ids],
+                stats.removed_ids,
+                counters={
+                    "frames": rec.frames,
+                    "keyframes": rec.keyframes,
+                    "bytes_in": sum(session.bytes_in.values()),
+                    "bytes_out": sum(session.bytes_out.values()),
+                },
+                next_object_id=engine.next_object_id,
+            )
+            return stats
+
+
+def ack(seq: int, keyframe: bool, map_ms: float = 0.0, dropped: bool = False, **extra) -> dict:
+    """A v1 `ack`; `dropped` (an extension) says a keyframe was superseded before mapping."""
+    message = {
+        "type": "ack",
+        "seq": seq,
+        "server_t": time.time(),
+        "keyframe": keyframe,
+        "map_ms": float(map_ms),
+    }
+    if dropped:
+        message["dropped"] = True
+    message.update(extra)
+    return message
+
+
+def error(seq: int | None, code: str, message: str) -> dict:
+    return {"type": "error", "seq": seq, "code": code, "message": message}

@@ -1,0 +1,513 @@
+"""Persistence of sessions and their confirmed maps in one SQLite file (WAL mode).
+
+What is stored is exactly what the server has acknowledged: the server calls
+`Store.commit_keyframe` before it acks a keyframe, and that call returns only once one
+transaction holding the keyframe's object changes, tombstones, counters and update seq has
+committed. After a restart `load_objects` and `load_delta_log` give back the confirmed map and
+the delta log, so the update seq continues and a subscriber resuming with `since` loses
+nothing.
+
+Durability: WAL with `synchronous=NORMAL`. A committed transaction is in the WAL file (in the
+OS page cache at least) when COMMIT returns, so it survives a crash of the process (kill -9,
+OOM kill); it can be lost to a power failure or kernel crash, which would roll the store back
+to an earlier consistent state (never a torn one). That trade buys commits without an fsync
+each; run on storage with a battery-backed cache or switch to `synchronous=FULL` if power loss
+must be covered.
+
+Arrays are stored as raw little-endian float32 bytes whose shape the schema records (never
+pickle): points [n_points, 3], embedding_sum [embedding_dim]. Knobs and label counts are JSON.
+
+One connection, shared by all threads (mapping runs in a thread pool) and serialised by a lock:
+SQLite allows one writer at a time anyway, and one connection keeps the ordering of commits
+the ordering of calls.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import threading
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.mapping.deltas import DeltaLog
+from app.mapping.object import MapObject
+
+SCHEMA_VERSION = 1
+"""Stored in `PRAGMA user_version`; bump it (and add a migration) on any schema change."""
+
+COUNTER_NAMES: tuple[str, ...] = ("frames", "keyframes", "bytes_in", "bytes_out")
+"""Per-session counters the store keeps (absolute values, set by the server)."""
+
+_FLOAT32_LE = np.dtype("<f4")
+
+_SCHEMA: tuple[str, ...] = (
+    """
+    CREATE TABLE sessions (
+        session_id     TEXT PRIMARY KEY,
+        name           TEXT NOT NULL,
+        mode           TEXT NOT NULL,
+        knobs          TEXT NOT NULL,            -- JSON object {knob: value}
+        token_hash     TEXT NOT NULL,
+        created_at     REAL NOT NULL,            -- unix time, seconds
+        frames         INTEGER NOT NULL,
+        keyframes      INTEGER NOT NULL,
+        bytes_in       INTEGER NOT NULL,
+        bytes_out      INTEGER NOT NULL,
+        next_object_id INTEGER NOT NULL,
+        seq            INTEGER NOT NULL,         -- the delta log's seq
+        delta_floor    INTEGER NOT NULL          -- the delta log's floor
+    )
+    """,
+    """
+    CREATE TABLE objects (
+        session_id    TEXT NOT NULL REFERENCES sessions (session_id) ON DELETE CASCADE,
+        object_id     INTEGER NOT NULL,
+        change_seq    INTEGER NOT NULL,          -- seq of the commit that last changed it
+        version       INTEGER NOT NULL,
+        n_obs         INTEGER NOT NULL,
+        frames_seen   INTEGER NOT NULL,
+        first_seen    INTEGER NOT NULL,
+        last_seen     INTEGER NOT NULL,
+        resolution_m  REAL NOT NULL,
+        label_counts  TEXT NOT NULL,             -- JSON {label: count}, in first-seen order
+        n_points      INTEGER NOT NULL,
+        points        BLOB NOT NULL,             -- float32 little-endian [n_points, 3]
+        embedding_dim INTEGER,                   -- NULL when the object has no embedding
+        embedding_sum BLOB,                      -- float32 little-endian [embedding_dim]
+        PRIMARY KEY (session_id, object_id),
+        CHECK (length(points) = 12 * n_points),
+        CHECK ((embedding_dim IS NULL) = (embedding_sum IS NULL)),
+        CHECK (embedding_sum IS NULL OR length(embedding_sum) = 4 * embedding_dim)
+    )
+    """,
+    """
+    CREATE TABLE tombstones (
+        session_id TEXT NOT NULL REFERENCES sessions (session_id) ON DELETE CASCADE,
+        object_id  INTEGER NOT NULL,
+        seq        INTEGER NOT NULL,             -- seq of the commit that removed it
+        PRIMARY KEY (session_id, object_id)
+    ) WITHOUT ROWID
+    """,
+)
+
+_SESSION_COLUMNS = (
+    "session_id, name, mode, knobs, token_hash, created_at, "
+    "frames, keyframes, bytes_in, bytes_out, next_object_id"
+)
+_OBJECT_COLUMNS = (
+    "object_id, version, n_obs, frames_seen, first_seen, last_seen, resolution_m, "
+    "label_counts, n_points, points, embedding_dim, embedding_sum"
+)
+
+
+class StoreError(RuntimeError):
+    """The store cannot be used: not a SemanticXR database, closed, or corrupt."""
+
+
+class StoreVersionError(StoreError):
+    """The database was written by a newer SemanticXR (unknown schema version)."""
+
+
+@dataclass
+class SessionRecord:
+    """One session as persisted. Counters are absolute values, not increments."""
+
+    session_id: str
+    name: str
+    mode: str
+    knobs: dict
+    """Knob name -> value (JSON-serialisable)."""
+    token_hash: str
+    created_at: float
+    """Unix time, seconds."""
+    frames: int = 0
+    keyframes: int = 0
+    bytes_in: int = 0
+    bytes_out: int = 0
+    next_object_id: int = 1
+    """Id the session's next new object gets (ids are never reused, even after a restart)."""
+
+
+class Store:
+    """Sessions and their confirmed objects in one SQLite file. Thread-safe.
+
+    Unknown session ids raise KeyError, except in `delete_session` (idempotent) and
+    `create_session` (ValueError on a duplicate).
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        """Open or create the database at `path` (its parent directories are created)."""
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+        # isolation_level=None: no implicit transactions; every write is an explicit
+        # BEGIN IMMEDIATE ... COMMIT, so its extent is exactly what the code says.
+        conn = sqlite3.connect(
+            self.path, timeout=5.0, isolation_level=None, check_same_thread=False
+        )
+        try:
+            journal_mode = conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+            if str(journal_mode).lower() != "wal":
+                raise StoreError(f"{self.path}: cannot switch to WAL mode (got {journal_mode!r})")
+            conn.execute("PRAGMA synchronous=NORMAL")  # survives kill -9, not power loss
+            conn.execute("PRAGMA foreign_keys=ON")  # deleting a session cascades to its rows
+            # The WAL keeps its largest size until checkpointed; cap what stays on disk.
+            conn.execute("PRAGMA journal_size_limit=67108864")
+            self._conn: sqlite3.Connection | None = conn
+            self._init_schema()
+        except BaseException:
+            conn.close()
+            self._conn = None
+            raise
+
+    # ------------------------------------------------------------------ lifecycle
+    def _init_schema(self) -> None:
+        with self._transaction() as conn:
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            if version > SCHEMA_VERSION:
+                raise StoreVersionError(
+                    f"{self.path} has schema version {version}, newer than this SemanticXR "
+                    f"understands ({SCHEMA_VERSION}); upgrade SemanticXR or use another data dir"
+                )
+            if version == SCHEMA_VERSION:
+                return
+            if conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
+                raise StoreError(f"{self.path} is an SQLite database but not a SemanticXR store")
+            for statement in _SCHEMA:
+                conn.execute(statement)
+            # Set inside the same transaction: a crash leaves either no schema or all of it.
+            conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+
+    def close(self) -> None:
+        """Close the database (idempotent). Committed data is already on disk."""
+        with self._lock:
+            if self._conn is not None:
+                self._conn.close()
+                self._conn = None
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @contextmanager
+    def _transaction(self, write: bool = True) -> Iterator[sqlite3.Connection]:
+        """One transaction under the lock; rolled back if the block raises."""
+        with self._lock:
+            conn = self._conn
+            if conn is None:
+                raise StoreError(f"{self.path}: the store is closed")
+            # IMMEDIATE takes the write lock up front, so a write never fails half-way on
+            # SQLITE_BUSY; a plain BEGIN gives reads one consistent snapshot.
+            conn.execute("BEGIN IMMEDIATE" if write else "BEGIN")
+            try:
+                yield conn
+                conn.execute("COMMIT")
+            except BaseException:
+                if conn.in_transaction:
+                    conn.execute("ROLLBACK")
+                raise
+
+    # ------------------------------------------------------------------ sessions
+    def create_session(self, rec: SessionRecord) -> None:
+        """Persist a new session; ValueError if its id exists."""
+        row = (
+            rec.session_id,
+            rec.name,
+            rec.mode,
+            _to_json(rec.knobs),
+            rec.token_hash,
+            float(rec.created_at),
+            int(rec.frames),
+            int(rec.keyframes),
+            int(rec.bytes_in),
+            int(rec.bytes_out),
+            int(rec.next_object_id),
+        )
+        try:
+            with self._transaction() as conn:
+                conn.execute(
+                    f"INSERT INTO sessions ({_SESSION_COLUMNS}, seq, delta_floor)"
+                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
+                    row,
+                )
+        except sqlite3.IntegrityError:
+            raise ValueError(f"session {rec.session_id!r} already exists") from None
+
+    def update_session(
+        self,
+        session_id: str,
+        *,
+        name: str | None = None,
+        knobs: dict | None = None,
+        counters: dict[str, int] | None = None,
+    ) -> None:
+        """Change the given fields; counters are absolute values named as in COUNTER_NAMES."""
+        assignments: dict[str, Any] = _checked_counters(counters or {})
+        if name is not None:
+            assignments["name"] = name
+        if knobs is not None:
+            assignments["knobs"] = _to_json(knobs)
+        with self._transaction() as conn:
+            _session_row(conn, session_id, "1")
+            if assignments:
+                # Column names come from the fixed set above, never from the caller.
+                columns = ", ".join(f"{column} = ?" for column in assignments)
+                conn.execute(
+                    f"UPDATE sessions SET {columns} WHERE session_id = ?",
+                    (*assignments.values(), session_id),
+                )
+
+    def delete_session(self, session_id: str) -> None:
+        """Remove the session with its objects and tombstones (no-op if unknown)."""
+        with self._transaction() as conn:
+            conn.execute("DELETE FROM sessions WHERE session_id = ?", (session_id,))
+
+    def list_sessions(self) -> list[SessionRecord]:
+        """Every session, oldest first."""
+        with self._transaction(write=False) as conn:
+            rows = conn.execute(
+                f"SELECT {_SESSION_COLUMNS} FROM sessions ORDER BY created_at, session_id"
+            ).fetchall()
+        return [_session_from_row(row) for row in rows]
+
+    # ------------------------------------------------------------------ the map
+    def commit_keyframe(
+        self,
+        session_id: str,
+        seq: int,
+        upserts: list[MapObject],
+        removed: list[int],
+        counters: dict[str, int],
+        next_object_id: int,
+    ) -> None:
+        """Persist one keyframe's changes in one transaction; returns once it is durable.
+
+        upserts: confirmed objects changed at `seq` (the delta log's seq after the commit),
+                 stored with their current fields; removed: ids removed at `seq` (tombstoned).
+        An id in both ends up removed, as in `DeltaLog.commit`. A keyframe that changed
+        nothing passes the unchanged seq and empty lists (to persist the counters).
+        Raises ValueError (and changes nothing) on a seq older than the stored one, changes
+        without a newer seq, an unconfirmed object, an id not below `next_object_id`, or
+        arrays that are not float32 points [N, 3] / embedding [d]; KeyError on an unknown
+        session.
+        """
+        seq = int(seq)
+        removed_ids = sorted({int(oid) for oid in removed})
+        gone = set(removed_ids)
+        kept = [obj for obj in upserts if int(obj.id) not in gone]
+        assignments = _checked_counters(counters)
+        with self._transaction() as conn:
+            stored_seq, stored_next_id = _session_row(conn, session_id, "seq, next_object_id")
+            # Resuming subscribers rely on "changed after S" meaning "seq > S": a change
+            # stored at a seq they may already have seen would never reach them.
+            if seq < stored_seq or ((kept or removed_ids) and seq == stored_seq):
+                raise ValueError(
+                    f"session {session_id!r}: seq {seq} does not follow the stored seq {stored_seq}"
+                )
+            touched_ids = [int(obj.id) for obj in kept] + removed_ids
+            if next_object_id < stored_next_id or any(i >= next_object_id for i in touched_ids):
+                raise ValueError(
+                    f"session {session_id!r}: next_object_id {next_object_id} would reuse an id"
+                )
+            assignments.update(seq=seq, next_object_id=int(next_object_id))
+            columns = ", ".join(f"{column} = ?" for column in assignments)
+            conn.execute(
+                f"UPDATE sessions SET {columns} WHERE session_id = ?",
+                (*assignments.values(), session_id),
+            )
+            conn.executemany(
+                "DELETE FROM objects WHERE session_id = ? AND object_id = ?",
+                [(session_id, oid) for oid in removed_ids],
+            )
+            conn.executemany(
+                "INSERT OR REPLACE INTO tombstones (session_id, object_id, seq) VALUES (?, ?, ?)",
+                [(session_id, oid, seq) for oid in removed_ids],
+            )
+            conn.executemany(
+                "DELETE FROM tombstones WHERE session_id = ? AND object_id = ?",
+                [(session_id, int(obj.id)) for obj in kept],
+            )
+            # A generator: each object is serialised as it is written, so nothing is copied
+            # twice, and a bad object aborts the transaction (rolling back the rows before it).
+            conn.executemany(
+                f"INSERT OR REPLACE INTO objects (session_id, change_seq, {_OBJECT_COLUMNS})"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                ((session_id, seq, *_object_to_row(obj)) for obj in kept),
+            )
+
+    def load_objects(self, session_id: str) -> list[MapObject]:
+        """The session's confirmed objects in id order, exactly as last committed."""
+        with self._transaction(write=False) as conn:
+            _session_row(conn, session_id, "1")
+            rows = conn.execute(
+                f"SELECT {_OBJECT_COLUMNS} FROM objects WHERE session_id = ? ORDER BY object_id",
+                (session_id,),
+            ).fetchall()
+        return [_object_from_row(row) for row in rows]
+
+    def load_delta_log(self, session_id: str) -> DeltaLog:
+        """The session's delta log: each object's change seq, the tombstones, seq and floor."""
+        with self._transaction(write=False) as conn:
+            seq, floor = _session_row(conn, session_id, "seq, delta_floor")
+            upserted = conn.execute(
+                "SELECT object_id, change_seq FROM objects WHERE session_id = ?", (session_id,)
+            ).fetchall()
+            removed = conn.execute(
+                "SELECT object_id, seq FROM tombstones WHERE session_id = ?", (session_id,)
+            ).fetchall()
+        return DeltaLog.from_state(
+            {"seq": seq, "floor": floor, "upserted_at": dict(upserted), "removed_at": dict(removed)}
+        )
+
+    def trim_tombstones(self, session_id: str, keep: int) -> None:
+        """Keep only the `keep` newest tombstones; raise the floor past the dropped ones.
+
+        A subscriber resuming from before the new floor then gets a full snapshot, as with
+        the in-memory `DeltaLog` trimming. The store never trims on its own: call this at
+        start-up or housekeeping time to bound the table.
+        """
+        if keep < 0:
+            raise ValueError(f"keep must be >= 0, got {keep}")
+        with self._transaction() as conn:
+            _session_row(conn, session_id, "1")
+            dropped = conn.execute(
+                "SELECT object_id, seq FROM tombstones WHERE session_id = ?"
+                " ORDER BY seq DESC, object_id DESC LIMIT -1 OFFSET ?",
+                (session_id, keep),
+            ).fetchall()
+            if not dropped:
+                return
+            conn.executemany(
+                "DELETE FROM tombstones WHERE session_id = ? AND object_id = ?",
+                [(session_id, oid) for oid, _ in dropped],
+            )
+            conn.execute(
+                "UPDATE sessions SET delta_floor = max(delta_floor, ?) WHERE session_id = ?",
+                (max(s for _, s in dropped), session_id),
+            )
+
+
+# ---------------------------------------------------------------------- rows <-> objects
+def _to_json(value: Any) -> str:
+    # allow_nan=False: what is stored stays valid JSON for any reader.
+    return json.dumps(value, allow_nan=False)
+
+
+def _session_row(conn: sqlite3.Connection, session_id: str, columns: str) -> tuple:
+    """The given columns of the session's row; KeyError if there is no such session."""
+    row = conn.execute(
+        f"SELECT {columns} FROM sessions WHERE session_id = ?", (session_id,)
+    ).fetchone()
+    if row is None:
+        raise KeyError(f"unknown session {session_id!r}")
+    return row
+
+
+def _checked_counters(counters: dict[str, int]) -> dict[str, int]:
+    unknown = set(counters) - set(COUNTER_NAMES)
+    if unknown:
+        raise ValueError(
+            f"unknown counters {sorted(unknown)}; known counters: {', '.join(COUNTER_NAMES)}"
+        )
+    return {name: int(value) for name, value in counters.items()}
+
+
+def _session_from_row(row: tuple) -> SessionRecord:
+    sid, name, mode, knobs, token_hash, created_at, *counters, next_object_id = row
+    frames, keyframes, bytes_in, bytes_out = counters
+    return SessionRecord(
+        session_id=sid,
+        name=name,
+        mode=mode,
+        knobs=json.loads(knobs),
+        token_hash=token_hash,
+        created_at=created_at,
+        frames=frames,
+        keyframes=keyframes,
+        bytes_in=bytes_in,
+        bytes_out=bytes_out,
+        next_object_id=next_object_id,
+    )
+
+
+def _object_to_row(obj: MapObject) -> tuple:
+    """The columns of _OBJECT_COLUMNS for one object; ValueError on badly shaped arrays."""
+    points = np.ascontiguousarray(obj.points, dtype=_FLOAT32_LE)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"object {obj.id}: points must be [N, 3], got shape {points.shape}")
+    if not obj.confirmed:
+        raise ValueError(f"object {obj.id}: only confirmed objects are persisted")
+    embedding_dim: int | None = None
+    embedding_bytes: bytes | None = None
+    if obj.embedding_sum is not None:
+        embedding = np.ascontiguousarray(obj.embedding_sum, dtype=_FLOAT32_LE)
+        if embedding.ndim != 1:
+            raise ValueError(f"object {obj.id}: embedding_sum must be [d], got {embedding.shape}")
+        embedding_dim, embedding_bytes = len(embedding), embedding.tobytes()
+    # Counter keeps insertion order and JSON objects keep theirs: label ties (first seen
+    # wins) resolve the same way after a reload.
+    labels = _to_json({str(label): int(count) for label, count in obj.label_counts.items()})
+    return (
+        int(obj.id),
+        int(obj.version),
+        int(obj.n_obs),
+        int(obj.frames_seen),
+        int(obj.first_seen),
+        int(obj.last_seen),
+        float(obj.resolution_m),
+        labels,
+        len(points),
+        points.tobytes(),
+        embedding_dim,
+        embedding_bytes,
+    )
+
+
+def _float32_from_blob(blob: bytes, shape: tuple[int, ...]) -> np.ndarray:
+    """A writable native float32 array of `shape` from little-endian bytes."""
+    array = np.frombuffer(blob, dtype=_FLOAT32_LE)
+    if array.size != int(np.prod(shape)):
+        raise StoreError(f"stored array has {array.size} values, expected shape {shape}")
+    return array.astype(np.float32).reshape(shape)  # astype copies: frombuffer is read-only
+
+
+def _object_from_row(row: tuple) -> MapObject:
+    (
+        object_id,
+        version,
+        n_obs,
+        frames_seen,
+        first_seen,
+        last_seen,
+        resolution_m,
+        labels,
+        n_points,
+        points,
+        embedding_dim,
+        embedding_sum,
+    ) = row
+    obj = MapObject(
+        id=object_id,
+        embedding_sum=(
+            None if embedding_sum is None else _float32_from_blob(embedding_sum, (embedding_dim,))
+        ),
+        label_counts=Counter(json.loads(labels)),
+        n_obs=n_obs,
+        frames_seen=frames_seen,
+        first_seen=first_seen,
+        last_seen=last_seen,
+        version=version,
+        confirmed=True,
+    )
+    obj.set_points(_float32_from_blob(points, (n_points, 3)), resolution_m)
+    return obj

@@ -1,0 +1,50 @@
+"""A minimal device for server tests: analytic frames, the real encoder, a timed WebSocket."""
+
+from __future__ import annotations
+
+import asyncio
+
+import msgpack
+import numpy as np
+import websockets
+from planes import INTRINSICS, Rect, render_rects
+
+from client_sim.encoder import FrameEncoder
+
+TIMEOUT_S = 20.0
+
+
+def frame_message(rects: list[Rect], seq: int, cam_xy=(0.0, 0.0)) -> dict:
+    """A v1 frame of the analytic scene, encoded like a device would (depth ÷2)."""
+    full = render_rects(rects, cam_xy=cam_xy, ratio=1, seq=seq)
+    rgb = np.full((*full.depth_m.shape, 3), 128, np.uint8)
+    return (
+        FrameEncoder(2)
+        .encode(
+            seq=seq,
+            t=seq / 30,
+            rgb=rgb,
+            depth_m=full.depth_m,
+            pose=full.pose,
+            intrinsics=INTRINSICS,
+            instance_ids=full.instance_ids,
+            instances=full.instances,
+        )
+        .message
+    )
+
+
+async def send_and_collect(ws, messages: list, timeout_s: float = TIMEOUT_S) -> list[dict]:
+    """Send each message, then read until one reply per message has arrived."""
+    for message in messages:
+        await ws.send(message if isinstance(message, bytes | str) else msgpack.packb(message))
+    replies = []
+    while len(replies) < len(messages):
+        raw = await asyncio.wait_for(ws.recv(), timeout_s)
+        replies.append(msgpack.unpackb(raw))
+    return replies
+
+
+async def stream(url: str, messages: list, headers=None) -> list[dict]:
+    async with websockets.connect(url, additional_headers=headers, max_size=None) as ws:
+        return await send_and_collect(ws, messages)

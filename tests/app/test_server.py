@@ -1,0 +1,282 @@
+"""The server through the real stack: uvicorn on loopback, HTTP and WebSockets."""
+
+from __future__ import annotations
+
+import asyncio
+
+import httpx
+import msgpack
+import pytest
+import websockets
+from devices import TIMEOUT_S, frame_message, send_and_collect, stream
+from planes import Rect
+
+from app.codecs import float16_points_from_bytes
+
+pytestmark = pytest.mark.timeout(120)
+
+CHAIR = Rect(1, "chair", -0.6, -0.3, -0.1, 0.3, 2.0)
+FRIDGE = Rect(2, "refrigerator", 0.1, -0.8, 0.9, 0.8, 2.5)
+SCENE = [CHAIR, FRIDGE]
+FAST = {
+    "keyframe_interval": 1,
+    "min_observations": 2,
+    "min_mapping_bbox_area": 100,
+    "local_map_update_frequency": 1,
+}
+
+
+def create(client: httpx.Client, headers=None, **body) -> dict:
+    body.setdefault("knobs", FAST)
+    r = client.post("/v1/sessions", json=body, headers=headers)
+    assert r.status_code == 201, r.text
+    return r.json()
+
+
+def test_health_metrics_and_openapi_describe_the_service(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        assert c.get("/healthz").json()["status"] == "ok"
+        assert "semanticxr_sessions" in c.get("/metrics").text
+        paths = c.get("/openapi.json").json()["paths"]
+    for path in (
+        "/v1/sessions",
+        "/v1/sessions/{sid}",
+        "/v1/sessions/{sid}/knobs",
+        "/v1/sessions/{sid}/objects",
+        "/v1/sessions/{sid}/query",
+    ):
+        assert path in paths
+
+
+def test_session_lifecycle_and_knobs(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        created = create(c, name="kitchen", mode="baseline")
+        sid = created["session_id"]
+        assert created["embedding"] == {"model": "all-MiniLM-L6-v2", "dim": 384}
+        assert [s["session_id"] for s in c.get("/v1/sessions").json()] == [sid]
+        assert c.get(f"/v1/sessions/{sid}").json()["mode"] == "baseline"
+        r = c.patch(f"/v1/sessions/{sid}/knobs", json={"max_object_points_client": 50})
+        assert r.status_code == 200 and r.json()["max_object_points_client"] == 50
+        assert c.patch(f"/v1/sessions/{sid}/knobs", json={"warp_speed": 9}).status_code == 422
+        assert (
+            c.patch(f"/v1/sessions/{sid}/knobs", json={"min_observations": -1}).status_code == 422
+        )
+        assert c.post("/v1/sessions", json={"knobs": {"nope": 1}}).status_code == 422
+        assert c.delete(f"/v1/sessions/{sid}").status_code == 204
+        assert c.get(f"/v1/sessions/{sid}").status_code == 404
+
+
+def test_a_device_streams_and_a_query_finds_the_fridge(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+        frames = [frame_message(SCENE, i, cam_xy=(0.03 * i, 0.0)) for i in range(3)]
+        replies = asyncio.run(stream(f"{server.ws_url}/v1/sessions/{sid}/stream", frames))
+        assert [r["type"] for r in replies] == ["ack"] * 3
+        assert sorted(r["seq"] for r in replies) == [0, 1, 2]
+        objects = c.get(f"/v1/sessions/{sid}/objects").json()
+        assert sorted(o["label"] for o in objects) == ["chair", "refrigerator"]
+        answer = c.get(
+            f"/v1/sessions/{sid}/query", params={"text": "where do I keep the milk cold", "k": 1}
+        ).json()
+        assert answer["results"][0]["label"] == "refrigerator" and answer["results"][0]["points"]
+        assert answer["latency_ms"] >= 0
+
+
+def test_a_subscriber_ends_up_holding_the_servers_confirmed_map(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+
+        async def run():
+            async with websockets.connect(
+                f"{server.ws_url}/v1/sessions/{sid}/updates?since=0"
+            ) as sub:
+                first = msgpack.unpackb(await asyncio.wait_for(sub.recv(), TIMEOUT_S))
+                held = {}
+                frames = [frame_message(SCENE, i, cam_xy=(0.02 * i, 0.0)) for i in range(4)]
+                await stream(f"{server.ws_url}/v1/sessions/{sid}/stream", frames)
+                target = c.get(f"/v1/sessions/{sid}").json()["update_seq"]
+                seq = first["seq"]
+                while seq < target:
+                    delta = msgpack.unpackb(await asyncio.wait_for(sub.recv(), TIMEOUT_S))
+                    for up in delta["upserts"]:
+                        held[up["id"]] = up
+                    for oid in delta["removed"]:
+                        held.pop(oid, None)
+                    seq = delta["seq"]
+                return held
+
+        held = asyncio.run(run())
+        objects = {
+            o["id"]: o for o in c.get(f"/v1/sessions/{sid}/objects", params={"points": True}).json()
+        }
+        assert held.keys() == objects.keys()
+        for oid, up in held.items():
+            assert up["version"] == objects[oid]["version"] and up["label"] == objects[oid]["label"]
+            pts = float16_points_from_bytes(up["points"], "points")
+            assert (
+                len(pts) == len(objects[oid]["points"]) <= FAST.get("max_object_points_client", 200)
+            )
+
+
+def _bad_messages() -> dict:
+    good = frame_message(SCENE, 5)
+
+    def variant(path, value):
+        msg = msgpack.unpackb(msgpack.packb(good))
+        node = msg
+        *parents, leaf = path.split(".")
+        for p in parents:
+            node = node[p]
+        if value is KeyError:
+            del node[leaf]
+        else:
+            node[leaf] = value
+        return msgpack.packb(msg)
+
+    return {
+        "not msgpack": b"\xc1\xc1 not msgpack",
+        "wrong shape": msgpack.packb([1, 2, 3]),
+        "missing pose": variant("pose", KeyError),
+        "unknown codec": variant("depth.codec", "lz77"),
+        "corrupt jpeg": variant("rgb.data", b"\xff\xd8\xff\xe0 nope"),
+        "corrupt zstd": variant("depth.data", b"\x28\xb5\x2f\xfd\x00\x00 broken"),
+        "corrupt png": variant("depth.codec", "png"),
+        "depth size mismatch": variant("depth.w", 7),
+        "mask size mismatch": variant("detections.w", 10),
+        "nan pose": variant("pose", b"\x00\x00\xc0\x7f" * 16),
+        "non-rigid pose": variant("pose", (b"\x00\x00\x00\x40" + b"\x00" * 60)),
+        "unlabelled ids": variant("detections.instances", []),
+    }
+
+
+def test_every_bad_frame_gets_a_clear_error_and_changes_nothing(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+        bad = _bad_messages()
+
+        async def run():
+            async with websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream") as ws:
+                replies = await send_and_collect(ws, list(bad.values()))
+                # the connection is still open and serving
+                (after,) = await send_and_collect(ws, [frame_message(SCENE, 99)])
+                return replies, after
+
+        replies, after = asyncio.run(run())
+        for name, reply in zip(bad, replies, strict=True):
+            assert reply["type"] == "error", name
+            assert reply["message"], name
+        assert after["type"] == "ack"
+        fields = {name: r["message"].split(":")[0] for name, r in zip(bad, replies, strict=True)}
+        assert fields["missing pose"] == "pose" and fields["corrupt jpeg"] == "rgb"
+        assert (
+            fields["unlabelled ids"] == "detections.instances"
+            and fields["depth size mismatch"] == "depth"
+        )
+
+
+def test_the_map_is_unchanged_by_bad_frames(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+        url = f"{server.ws_url}/v1/sessions/{sid}/stream"
+        asyncio.run(stream(url, [frame_message(SCENE, i) for i in range(2)]))
+        before = c.get(f"/v1/sessions/{sid}/objects", params={"points": True}).json()
+        assert len(before) == 2
+        asyncio.run(stream(url, list(_bad_messages().values())))
+        assert c.get(f"/v1/sessions/{sid}/objects", params={"points": True}).json() == before
+
+
+def test_oversized_messages_close_the_socket_with_1009(live_server):
+    server = live_server(max_message_bytes=64 * 1024)
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+
+        async def run():
+            async with websockets.connect(f"{server.ws_url}/v1/sessions/{sid}/stream") as ws:
+                await ws.send(b"\x00" * (200 * 1024))
+                with pytest.raises(websockets.ConnectionClosed) as closed:
+                    while True:
+                        await asyncio.wait_for(ws.recv(), TIMEOUT_S)
+                return closed.value.rcvd.code if closed.value.rcvd else None
+
+        assert asyncio.run(run()) == 1009
+        assert c.get("/healthz").status_code == 200
+
+
+def test_unknown_session_is_404_over_rest_and_refused_over_websockets(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        assert c.get("/v1/sessions/nope/objects").status_code == 404
+
+    async def run():
+        with pytest.raises(websockets.InvalidStatus):
+            async with websockets.connect(f"{server.ws_url}/v1/sessions/nope/stream"):
+                pass
+
+    asyncio.run(run())
+
+
+def test_a_flood_of_frames_gets_one_answer_each_and_keeps_the_newest(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+        frames = [frame_message(SCENE, i, cam_xy=(0.005 * i, 0.0)) for i in range(40)]
+        replies = asyncio.run(stream(f"{server.ws_url}/v1/sessions/{sid}/stream", frames))
+        assert sorted(r["seq"] for r in replies) == list(range(40))
+        assert all(r["type"] == "ack" for r in replies)
+        mapped = [r for r in replies if r["keyframe"]]
+        dropped = [r for r in replies if r.get("dropped")]
+        assert len(mapped) + len(dropped) == 40 and mapped
+        assert max(r["seq"] for r in mapped) == 39  # the newest frame is always mapped
+        stats = c.get(f"/v1/sessions/{sid}").json()
+        assert stats["dropped_frames"] == len(dropped) and stats["keyframes"] == len(mapped)
+
+
+API_KEY = "test-key"
+
+
+def test_auth_refuses_wrong_tokens_on_every_route_and_socket(live_server):
+    server = live_server(api_key=API_KEY)
+    admin = {"Authorization": f"Bearer {API_KEY}"}
+    with httpx.Client(base_url=server.url) as c:
+        assert c.post("/v1/sessions", json={}).status_code == 401
+        assert c.get("/v1/sessions", headers={"Authorization": "Bearer wrong"}).status_code == 403
+        created = create(c, headers=admin)
+        sid, token = created["session_id"], created["token"]
+        other = create(c, headers=admin)
+        good = {"Authorization": f"Bearer {token}"}
+        wrong = {"Authorization": f"Bearer {other['token']}"}
+        routes = [
+            ("GET", f"/v1/sessions/{sid}"),
+            ("GET", f"/v1/sessions/{sid}/objects"),
+            ("GET", f"/v1/sessions/{sid}/query?text=chair"),
+            ("PATCH", f"/v1/sessions/{sid}/knobs"),
+            ("DELETE", f"/v1/sessions/{sid}"),
+        ]
+        for method, path in routes:
+            kwargs = {"json": {}} if method == "PATCH" else {}
+            assert c.request(method, path, **kwargs).status_code == 401, path
+            assert c.request(method, path, headers=wrong, **kwargs).status_code == 403, path
+        # an unknown session looks exactly like a wrong token
+        assert c.get("/v1/sessions/doesnotexist", headers=wrong).status_code == 403
+        assert c.get(f"/v1/sessions/{sid}", headers=good).status_code == 200
+
+    async def sockets():
+        for path in ("stream", "updates"):
+            for suffix in ("", f"?token={other['token']}"):
+                with pytest.raises(websockets.InvalidStatus):
+                    async with websockets.connect(
+                        f"{server.ws_url}/v1/sessions/{sid}/{path}{suffix}"
+                    ):
+                        pass
+        replies = await stream(
+            f"{server.ws_url}/v1/sessions/{sid}/stream?token={token}", [frame_message(SCENE, 0)]
+        )
+        assert replies[0]["type"] == "ack"
+
+    asyncio.run(sockets())
