@@ -48,3 +48,9 @@ async def send_and_collect(ws, messages: list, timeout_s: float = TIMEOUT_S) -> 
 async def stream(url: str, messages: list, headers=None) -> list[dict]:
     async with websockets.connect(url, additional_headers=headers, max_size=None) as ws:
         return await send_and_collect(ws, messages)
+
+
+async def stream_in_step(url: str, messages: list, headers=None) -> list[dict]:
+    """Send one frame at a time, waiting for its answer (a device at its mapping rate)."""
+    async with websockets.connect(url, additional_headers=headers, max_size=None) as ws:
+        return [(await send_and_collect(ws, [m]))[0] for m in messages]

@@ -44,7 +44,9 @@ def render_rects(
         depth_full[inside] = rect.depth_m
         ids[inside] = rect.instance_id
     # nearest downsampling: the centre pixel of each ratio x ratio block
-    depth = depth_full[ratio // 2 :: ratio, ratio // 2 :: ratio][: HEIGHT // ratio, : WIDTH // ratio]
+    depth = depth_full[ratio // 2 :: ratio, ratio // 2 :: ratio][
+        : HEIGHT // ratio, : WIDTH // ratio
+    ]
     present = set(np.unique(ids).tolist()) - {0}
     return FrameInput(
         seq=seq,

@@ -135,7 +135,9 @@ def test_batched_and_one_by_one_modes_build_the_same_map(encoder):
         maps[mode] = {o.label: o.points for o in engine.objects.values()}
     assert maps["semanticxr"].keys() == maps["baseline"].keys()
     for label, pts in maps["semanticxr"].items():
-        np.testing.assert_allclose(np.sort(pts, axis=0), np.sort(maps["baseline"][label], axis=0), atol=1e-5)
+        np.testing.assert_allclose(
+            np.sort(pts, axis=0), np.sort(maps["baseline"][label], axis=0), atol=1e-5
+        )
 
 
 BAD_FRAMES = {

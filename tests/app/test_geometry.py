@@ -34,7 +34,9 @@ def test_batched_lifting_equals_lifting_each_mask(seed, ratio):
     batched = geo.lift_instances_batched(ids, [1, 2, 3, 4], depth, intr, pose, 5.0)
     for iid in (1, 2, 3, 4):
         single = geo.lift_detection(ids == iid, depth, intr, pose, 5.0)
-        np.testing.assert_allclose(np.sort(batched[iid], axis=0), np.sort(single, axis=0), atol=1e-5)
+        np.testing.assert_allclose(
+            np.sort(batched[iid], axis=0), np.sort(single, axis=0), atol=1e-5
+        )
 
 
 @settings(max_examples=40, deadline=None)
@@ -79,8 +81,16 @@ def test_cap_always_holds_and_stays_within_the_object(points, cap, seed):
 
 
 boxes = st.lists(finite, min_size=6, max_size=6).map(
-    lambda v: np.array([min(v[0], v[3]), min(v[1], v[4]), min(v[2], v[5]),
-                        max(v[0], v[3]), max(v[1], v[4]), max(v[2], v[5])])
+    lambda v: np.array(
+        [
+            min(v[0], v[3]),
+            min(v[1], v[4]),
+            min(v[2], v[5]),
+            max(v[0], v[3]),
+            max(v[1], v[4]),
+            max(v[2], v[5]),
+        ]
+    )
 )
 
 

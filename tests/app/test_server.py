@@ -8,7 +8,7 @@ import httpx
 import msgpack
 import pytest
 import websockets
-from devices import TIMEOUT_S, frame_message, send_and_collect, stream
+from devices import TIMEOUT_S, frame_message, send_and_collect, stream, stream_in_step
 from planes import Rect
 
 from app.codecs import float16_points_from_bytes
@@ -73,7 +73,7 @@ def test_a_device_streams_and_a_query_finds_the_fridge(live_server):
     with httpx.Client(base_url=server.url) as c:
         sid = create(c)["session_id"]
         frames = [frame_message(SCENE, i, cam_xy=(0.03 * i, 0.0)) for i in range(3)]
-        replies = asyncio.run(stream(f"{server.ws_url}/v1/sessions/{sid}/stream", frames))
+        replies = asyncio.run(stream_in_step(f"{server.ws_url}/v1/sessions/{sid}/stream", frames))
         assert [r["type"] for r in replies] == ["ack"] * 3
         assert sorted(r["seq"] for r in replies) == [0, 1, 2]
         objects = c.get(f"/v1/sessions/{sid}/objects").json()
@@ -184,7 +184,7 @@ def test_the_map_is_unchanged_by_bad_frames(live_server):
     with httpx.Client(base_url=server.url) as c:
         sid = create(c)["session_id"]
         url = f"{server.ws_url}/v1/sessions/{sid}/stream"
-        asyncio.run(stream(url, [frame_message(SCENE, i) for i in range(2)]))
+        asyncio.run(stream_in_step(url, [frame_message(SCENE, i) for i in range(2)]))
         before = c.get(f"/v1/sessions/{sid}/objects", params={"points": True}).json()
         assert len(before) == 2
         asyncio.run(stream(url, list(_bad_messages().values())))
