@@ -12,7 +12,7 @@ OS page cache at least) when COMMIT returns, so it survives a crash of the proce
 OOM kill); it can be lost to a power failure or kernel crash, which would roll the store back
 to an earlier consistent state (never a torn one). That trade buys commits without an fsync
 each; run on storage with a battery-backed cache or switch to `synchronous=FULL` if power loss
-must be covered.
+must be covered (a one-line change in `Store.__init__`).
 
 Arrays are stored as raw little-endian float32 bytes whose shape the schema records (never
 pickle): points [n_points, 3], embedding_sum [embedding_dim]. Knobs and label counts are JSON.
@@ -187,7 +187,7 @@ class Store:
             conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
     def close(self) -> None:
-        """Close the database (idempotent). Committed data is already on disk."""
+        """Close the database (idempotent); nothing committed depends on it being called."""
         with self._lock:
             if self._conn is not None:
                 self._conn.close()
@@ -290,7 +290,7 @@ class Store:
         counters: dict[str, int],
         next_object_id: int,
     ) -> None:
-        """Persist one keyframe's changes in one transaction; returns once it is durable.
+        """Persist one keyframe's changes in one transaction; returns once they survive kill -9.
 
         upserts: confirmed objects changed at `seq` (the delta log's seq after the commit),
                  stored with their current fields; removed: ids removed at `seq` (tombstoned).
