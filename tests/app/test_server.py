@@ -38,7 +38,8 @@ def test_health_metrics_and_openapi_describe_the_service(live_server):
     with httpx.Client(base_url=server.url) as c:
         assert c.get("/healthz").json()["status"] == "ok"
         assert "semanticxr_sessions" in c.get("/metrics").text
-        paths = c.get("/openapi.json").json()["paths"]
+        spec = c.get("/openapi.json").json()
+        paths = spec["paths"]
     for path in (
         "/v1/sessions",
         "/v1/sessions/{sid}",
@@ -47,6 +48,12 @@ def test_health_metrics_and_openapi_describe_the_service(live_server):
         "/v1/sessions/{sid}/query",
     ):
         assert path in paths
+    for path, methods in paths.items():  # every route documents its answer with a schema
+        for method, op in methods.items():
+            ok = next(v for k, v in op["responses"].items() if k.startswith("2"))
+            if method != "delete" and path != "/metrics":
+                assert "schema" in ok.get("content", {}).get("application/json", {}), (method, path)
+    assert "min_observations" in spec["components"]["schemas"]["Knobs"]["properties"]
 
 
 def test_session_lifecycle_and_knobs(live_server):

@@ -18,6 +18,56 @@ router = APIRouter(prefix="/v1")
 MAX_QUERY_CHARS = 500
 
 
+class Embedding(BaseModel):
+    model: str
+    dim: int
+
+
+def _knobs_model() -> type[BaseModel]:
+    """A pydantic model of the knobs, generated from app.config.Knobs (documented once)."""
+    import dataclasses
+
+    from pydantic import create_model
+
+    from app.config import Knobs, knob_docs
+
+    docs = knob_docs()
+    fields = {
+        f.name: (f.type, Field(getattr(Knobs(), f.name), description=docs.get(f.name)))
+        for f in dataclasses.fields(Knobs)
+    }
+    return create_model("Knobs", **fields)
+
+
+KnobsOut = _knobs_model()
+
+
+class LatencySummary(BaseModel):
+    p50: float | None
+    p95: float | None
+
+
+class SessionStats(BaseModel):
+    session_id: str
+    name: str
+    mode: str
+    created_at: float
+    frames: int = Field(description="Valid frames received")
+    keyframes: int = Field(description="Keyframes mapped")
+    dropped_frames: int = Field(description="Keyframes superseded by newer ones before mapping")
+    objects: int = Field(description="Confirmed objects")
+    fps: float = Field(description="Frames per second over the last 60 frames")
+    bytes_in: dict[str, int] = Field(
+        description="Upstream payload bytes by kind (rgb, depth, detections)"
+    )
+    bytes_out: dict[str, int] = Field(description="Downstream update bytes")
+    mapping_latency_ms: LatencySummary
+    update_seq: int = Field(description="Sequence number of the newest map change")
+    subscribers: int
+    embedding: Embedding
+    knobs: KnobsOut
+
+
 class CreateSession(BaseModel):
     name: str | None = Field(None, max_length=200, description="Human-readable name")
     mode: Literal["semanticxr", "baseline"] = Field("semanticxr", description="System organisation")
@@ -26,16 +76,11 @@ class CreateSession(BaseModel):
     )
 
 
-class Embedding(BaseModel):
-    model: str
-    dim: int
-
-
 class CreatedSession(BaseModel):
     session_id: str
     token: str = Field(description="Bearer token for everything under this session; shown once")
     embedding: Embedding
-    knobs: dict[str, Any]
+    knobs: KnobsOut
 
 
 class SessionSummary(BaseModel):
@@ -134,17 +179,22 @@ def list_sessions(request: Request) -> list[dict]:
     return [s.stats() for s in list(manager(request).sessions.values())]
 
 
-@router.get("/sessions/{sid}", summary="Session statistics")
+@router.get("/sessions/{sid}", response_model=SessionStats, summary="Session statistics")
 def get_session(sid: str, request: Request) -> dict:
     return session_for(request, sid).stats()
 
 
-@router.get("/sessions/{sid}/knobs", summary="Knobs in force")
+@router.get("/sessions/{sid}/knobs", response_model=KnobsOut, summary="Knobs in force")
 def get_knobs(sid: str, request: Request) -> dict:
     return knobs_to_dict(session_for(request, sid).knobs)
 
 
-@router.patch("/sessions/{sid}/knobs", summary="Change knobs at run time")
+@router.patch(
+    "/sessions/{sid}/knobs",
+    response_model=KnobsOut,
+    summary="Change knobs at run time",
+    description="Body: {knob: value, ...}. 422 names an unknown knob or a bad value.",
+)
 def patch_knobs(sid: str, changes: dict[str, Any], request: Request) -> dict:
     session = session_for(request, sid)
     try:
