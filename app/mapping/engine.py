@@ -36,6 +36,9 @@ MERGE_SEMANTIC = 0.8
 """...and their embeddings agree at least this much (ConceptGraphs' defaults)."""
 OUTLIER_EPS_M = 0.1
 """DBSCAN radius for outlier removal on changed objects."""
+BASELINE_RESOLUTION_M = 0.01
+"""The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
+a depth pixel at mapping range, so repeated views do not stack identical points."""
 
 
 @dataclass
@@ -226,7 +229,7 @@ class MappingEngine:
             if len(pts) < self.knobs.min_detection_points:
                 stats.too_small += 1
                 continue
-            pts = geo.voxel_downsample(pts, self.knobs.voxel_size_m)
+            pts = geo.voxel_downsample(pts, self._resolution_m)
             emb = text_row if det.embedding is None else det.embedding
             observations.append(_Observation(det, pts, emb.astype(np.float32), geo.bbox_of(pts)))
         return observations
@@ -280,9 +283,15 @@ class MappingEngine:
         return matches
 
     # ------------------------------------------------------------------ merging
+    @property
+    def _resolution_m(self) -> float:
+        """Voxel at which object geometry is kept: coarse and capped, or sensor resolution."""
+        return self.knobs.voxel_size_m if self.mode == "semanticxr" else BASELINE_RESOLUTION_M
+
     def _cap(self, points: np.ndarray) -> tuple[np.ndarray, float]:
+        """The object's geometry after a merge: capped in semanticxr mode, not in baseline."""
         max_points = self.knobs.max_object_points_server if self.mode == "semanticxr" else 1 << 62
-        return geo.cap_points(points, max_points, self.knobs.voxel_size_m, self._rng)
+        return geo.cap_points(points, max_points, self._resolution_m, self._rng)
 
     def _apply(
         self, observations: list[_Observation], matches: list[int | None], stats: IntegrationStats
