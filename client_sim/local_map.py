@@ -1,0 +1,618 @@
+"""The device's sparse local map: per-object entries fed by v1 `delta` messages.
+
+It answers local queries (LQ) when the network is down, so it must be light: memory grows
+only with the number of objects it holds, never with the history of updates.
+
+Storage (one row per object, rows dense in [0, n) thanks to swap-remove):
+
+- embeddings: ONE contiguous float16 matrix [capacity, dim] of unit rows, so a query is a
+  single matvec. numpy has no fast half-precision matmul (~50 ms at 50k objects), so the
+  similarity runs in torch on a zero-copy view of the same matrix (~2 ms at 50k on 2 cores,
+  faster than numpy float32 at half its memory); no float32 mirror is kept.
+- points: one float16 [<= max_points_per_object, 3] array per object (6 bytes a point).
+  Points arrive as float16, so this is lossless with respect to the wire; int16 quantised in
+  the object's box would cost the same 6 bytes a point and add a second rounding.
+- ids, versions, boxes, centroids, n_obs, update clock: numpy columns of the same rows;
+  labels (interned) and point arrays in python lists; id -> row in a dict.
+
+Eviction (whenever `memory_bytes()` exceeds the budget): objects are ranked into groups,
+evicted group by group: first ordinary objects, then those within `distance_threshold_m` of
+the user, last those of a priority class. Inside a group the farthest centroid from the user
+goes first (with no user position, the least recently updated). The ranking is computed
+once and the number to keep is found in closed form, so enforcement cannot loop.
+
+Not thread-safe: the device applies deltas and answers queries from one loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from app.codecs import CodecError, float16_points_from_bytes, float16_vector_from_bytes
+
+log = logging.getLogger(__name__)
+
+BYTES_PER_MB = 1_000_000
+"""`budget_mb` is in SI megabytes (the stricter reading of "128 MB")."""
+
+PYTHON_BYTES_PER_OBJECT = 256
+"""Estimate of the python-side bytes of one object: the point array's ndarray header (~112),
+its id -> row dict entry and int key (~100 amortised), two list slots (16) and a share of the
+interned label. Checked against tracemalloc in the tests and the bench."""
+
+_GROWTH = 8
+"""Capacity grows by 1/_GROWTH (12.5%) at least: amortised O(1) inserts with little slack."""
+
+_SWAP_REMOVE_MAX = 32
+"""Removing more rows than this at once compacts the arrays in one pass instead."""
+
+_INT64_MAX = 2**63 - 1
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_UPSERT_KEYS = ("id", "version", "label", "embedding", "points", "bbox", "n_obs")
+
+_UNSET: Any = object()
+"""Default of `set_policy(distance_threshold_m=...)`: unchanged (None means "no threshold")."""
+
+
+class DeltaError(ValueError):
+    """a malformed or out-of-order delta; the map is unchanged and the caller should resync
+    (ask for a full snapshot)."""
+
+
+@dataclass
+class LocalHit:
+    """One local query result; `bbox` [x0, y0, z0, x1, y1, z1] and `centroid` in metres."""
+
+    id: int
+    label: str
+    score: float
+    bbox: list[float]
+    centroid: list[float]
+
+
+@dataclass
+class _ParsedDelta:
+    """A delta that passed validation, as columns of m upserts (nothing applied yet)."""
+
+    seq: int
+    full: bool
+    ids: np.ndarray  # int64 [m]
+    versions: np.ndarray  # int64 [m]
+    labels: list[str]  # [m]
+    embeddings: np.ndarray  # float16 [m, dim], unit rows (or zero)
+    points: list[np.ndarray]  # float16 [<= max_points, 3] each, owning their memory
+    bboxes: np.ndarray  # float32 [m, 6]
+    centroids: np.ndarray  # float32 [m, 3], mean of the received points
+    n_obs: np.ndarray  # int64 [m]
+    removed: list[int]
+
+
+def _require_int(value: Any, field: str) -> int:
+    """`value` as an int in [0, 2^63) (fits the int64 columns); bools and floats refused."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise DeltaError(f"{field}: expected an integer, got {type(value).__name__}")
+    if not 0 <= int(value) <= _INT64_MAX:
+        raise DeltaError(f"{field}: {int(value)} is out of range 0..2^63-1")
+    return int(value)
+
+
+def _is_finite_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _require_list(value: Any, field: str) -> list | tuple:
+    if not isinstance(value, list | tuple):
+        raise DeltaError(f"{field}: expected a list, got {type(value).__name__}")
+    return value
+
+
+def _parse_bbox(value: Any, field: str) -> np.ndarray:
+    """float32 [6] of a finite, ordered [x0, y0, z0, x1, y1, z1]."""
+    value = _require_list(value, field)
+    if len(value) != 6 or not all(
+        isinstance(v, int | float | np.number) and not isinstance(v, bool) for v in value
+    ):
+        raise DeltaError(f"{field}: expected 6 numbers [x0, y0, z0, x1, y1, z1], got {value!r}")
+    box = np.array(value, dtype=np.float64)
+    if not np.all(np.isfinite(box)) or np.max(np.abs(box)) > _FLOAT32_MAX:
+        raise DeltaError(f"{field}: not finite (NaN, inf or beyond float32)")
+    if np.any(box[:3] > box[3:]):
+        raise DeltaError(f"{field}: minimum corner exceeds maximum corner in {value!r}")
+    return box.astype(np.float32)
+
+
+def _cap_points(points: np.ndarray, max_points: int, oid: int, version: int) -> np.ndarray:
+    """At most `max_points` rows of float16 [N, 3], as a new array owning its memory.
+
+    The subset is random but seeded by (id, version, cap), so every device that receives the
+    same update holds the same points; row order is kept.
+    """
+    if len(points) <= max_points:
+        return points.copy()  # decoded arrays are views; a copy drops the extra header
+    rng = np.random.default_rng((oid, version, max_points))
+    keep = np.sort(rng.choice(len(points), size=max_points, replace=False))
+    return points[keep]
+
+
+def _unit_rows_float16(embeddings: np.ndarray) -> np.ndarray:
+    """float16 [m, d] of float16 [m, d] rows rescaled to unit length (zero rows stay zero).
+
+    The wire rounds the server's unit vector to float16; re-normalising in float32 makes the
+    dot product a cosine again.
+    """
+    as32 = embeddings.astype(np.float32)
+    norms = np.linalg.norm(as32, axis=1, keepdims=True)
+    return (as32 / np.maximum(norms, 1e-12)).astype(np.float16)
+
+
+class LocalMap:
+    """Sparse, budgeted, prioritised local copy of the server's confirmed map.
+
+    dim:                   embedding dimension announced by the session (float16 on the wire)
+    max_points_per_object: point cap per object (`max_object_points_client`)
+    budget_mb:             bound on `memory_bytes()`, in SI MB (`local_map_budget_mb`)
+    priority_classes:      labels kept first when over budget (`priority_class`; any case)
+    distance_threshold_m:  objects this close to the user are kept before farther ones
+    """
+
+    seq: int
+    """Seq of the last applied delta (0 before any)."""
+    evicted: int
+    """Objects removed by budget enforcement so far (deltas' removals are not counted)."""
+
+    def __init__(
+        self,
+        dim: int = 384,
+        max_points_per_object: int = 200,
+        budget_mb: float = 500.0,
+        priority_classes: Sequence[str] = (),
+        distance_threshold_m: float | None = None,
+    ):
+        if isinstance(dim, bool) or not isinstance(dim, int) or dim < 1:
+            raise ValueError(f"dim must be a positive integer, got {dim!r}")
+        self.dim = dim
+        self.seq = 0
+        self.evicted = 0
+        self._max_points = 0
+        self._budget_bytes = 0
+        self._priority: frozenset[str] = frozenset()
+        self._distance_threshold_m: float | None = None
+        self._user_position: np.ndarray | None = None  # float64 [3], metres
+        self._clock = 0  # bumped per applied upsert: "least recently updated" without wall time
+
+        self._n = 0
+        self._rows: dict[str, np.ndarray] = {}
+        self._embeddings_t = torch.empty(0)  # zero-copy torch view of self._rows["embedding"]
+        self._reallocate(0)
+        self._labels: list[str] = []
+        self._points: list[np.ndarray] = []
+        self._points_nbytes = 0
+        self._row_of: dict[int, int] = {}
+
+        self.set_policy(
+            budget_mb=budget_mb,
+            priority_classes=priority_classes,
+            distance_threshold_m=distance_threshold_m,
+            max_points_per_object=max_points_per_object,
+        )
+
+    # --- inspection -----------------------------------------------------------------------
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __contains__(self, oid: object) -> bool:
+        return oid in self._row_of
+
+    def ids(self) -> list[int]:
+        """Ids of the held objects, ascending."""
+        return sorted(self._row_of)
+
+    def get(self, oid: int) -> dict:
+        """One held object: id, version, label, bbox [6], centroid [3] (metres), points
+        float32 [N, 3] (a copy), n_obs. KeyError if not held."""
+        row = self._row_of[oid]
+        rows = self._rows
+        return {
+            "id": int(rows["id"][row]),
+            "version": int(rows["version"][row]),
+            "label": self._labels[row],
+            "bbox": [float(v) for v in rows["bbox"][row]],
+            "centroid": [float(v) for v in rows["centroid"][row]],
+            "points": self._points[row].astype(np.float32),
+            "n_obs": int(rows["n_obs"][row]),
+        }
+
+    def snapshot(self) -> dict[int, tuple[int, str]]:
+        """id -> (version, label) of every held object (to compare with the server)."""
+        versions = self._rows["version"]
+        return {oid: (int(versions[row]), self._labels[row]) for oid, row in self._row_of.items()}
+
+    def memory_bytes(self) -> int:
+        """Bytes held: the row arrays at their capacity (embeddings and metadata columns), the
+        point arrays, and `PYTHON_BYTES_PER_OBJECT` per object for python-side metadata."""
+        columns = sum(column.nbytes for column in self._rows.values())
+        return columns + self._points_nbytes + self._n * PYTHON_BYTES_PER_OBJECT
+
+    # --- knobs ----------------------------------------------------------------------------
+
+    def set_user_position(self, xyz: Sequence[float] | np.ndarray | None) -> None:
+        """The user's position [x, y, z] in world metres (None: unknown) for eviction order.
+
+        Moving changes no memory, so nothing is evicted until the next delta or policy change.
+        """
+        if xyz is None:
+            self._user_position = None
+            return
+        position = np.asarray(xyz, dtype=np.float64)
+        if position.shape != (3,) or not np.all(np.isfinite(position)):
+            raise ValueError(f"user position must be 3 finite numbers, got {xyz!r}")
+        self._user_position = position
+
+    def set_policy(
+        self,
+        *,
+        budget_mb: float | None = None,
+        priority_classes: Sequence[str] | None = None,
+        distance_threshold_m: float | None = _UNSET,
+        max_points_per_object: int | None = None,
+    ) -> None:
+        """Change knobs at run time (None: unchanged; but `distance_threshold_m=None` clears
+        the threshold). A lower point cap re-caps held objects; the budget is re-enforced."""
+        if budget_mb is not None and not (_is_finite_number(budget_mb) and budget_mb > 0):
+            raise ValueError(f"budget_mb must be a positive number, got {budget_mb!r}")
+        if priority_classes is not None and (
+            isinstance(priority_classes, str)
+            or not all(isinstance(c, str) for c in priority_classes)
+        ):
+            raise ValueError(f"priority_classes must be a list of labels, got {priority_classes!r}")
+        threshold = distance_threshold_m
+        if threshold not in (_UNSET, None) and not (
+            _is_finite_number(threshold) and threshold >= 0
+        ):
+            raise ValueError(
+                f"distance_threshold_m must be a number >= 0 or None, got {threshold!r}"
+            )
+        if max_points_per_object is not None and (
+            isinstance(max_points_per_object, bool)
+            or not isinstance(max_points_per_object, int)
+            or max_points_per_object < 1
+        ):
+            raise ValueError(
+                f"max_points_per_object must be a positive integer, got {max_points_per_object!r}"
+            )
+
+        if budget_mb is not None:
+            self._budget_bytes = int(budget_mb * BYTES_PER_MB)
+        if priority_classes is not None:
+            self._priority = frozenset(c.strip().casefold() for c in priority_classes)
+        if distance_threshold_m is not _UNSET:
+            self._distance_threshold_m = (
+                None if distance_threshold_m is None else float(distance_threshold_m)
+            )
+        if max_points_per_object is not None:
+            lowered = 0 < max_points_per_object < self._max_points
+            self._max_points = max_points_per_object
+            if lowered:
+                self._recap_points()
+        self._enforce_budget()
+
+    # --- updates --------------------------------------------------------------------------
+
+    def apply_delta(self, message: dict) -> None:
+        """Apply one v1 `delta` (a msgpack-unpacked dict with bytes fields).
+
+        Validates everything first: a malformed or out-of-order delta raises DeltaError and
+        leaves the map unchanged. `full` replaces the map; otherwise stale upserts (version
+        below the held one) are ignored and removals of unknown ids (e.g. evicted) are fine.
+        On return `memory_bytes()` is within the budget.
+        """
+        delta = self._parse(message)
+        if delta.full:
+            self._clear()
+        else:
+            self._remove_ids(delta.removed)
+        self._upsert(delta)
+        self.seq = delta.seq
+        if self._rows["id"].shape[0] > 2 * self._n + 16:  # memory follows the object count
+            self._reallocate(self._n + self._n // _GROWTH)
+        self._enforce_budget()
+
+    def _parse(self, message: Any) -> _ParsedDelta:
+        """The delta as columns, or DeltaError naming the first wrong field; no side effects."""
+        if not isinstance(message, dict):
+            raise DeltaError(f"message: expected a map, got {type(message).__name__}")
+        if message.get("type") != "delta":
+            raise DeltaError(f"type: expected 'delta', got {message.get('type')!r}")
+        for key in ("seq", "full", "upserts", "removed"):
+            if key not in message:
+                raise DeltaError(f"{key}: missing")
+        seq = _require_int(message["seq"], "seq")
+        full = message["full"]
+        if not isinstance(full, bool):
+            raise DeltaError(f"full: expected a boolean, got {type(full).__name__}")
+        if not full and seq < self.seq:
+            raise DeltaError(f"seq: {seq} is older than the applied seq {self.seq} (out of order)")
+        upserts = _require_list(message["upserts"], "upserts")
+        removed = [
+            _require_int(oid, f"removed[{i}]")
+            for i, oid in enumerate(_require_list(message["removed"], "removed"))
+        ]
+
+        m = len(upserts)
+        ids = np.empty(m, np.int64)
+        versions = np.empty(m, np.int64)
+        n_obs = np.empty(m, np.int64)
+        labels: list[str] = []
+        embeddings = np.empty((m, self.dim), np.float16)
+        bboxes = np.empty((m, 6), np.float32)
+        centroids = np.empty((m, 3), np.float32)
+        points_list: list[np.ndarray] = []
+        for i, upsert in enumerate(upserts):
+            field = f"upserts[{i}]"
+            if not isinstance(upsert, dict):
+                raise DeltaError(f"{field}: expected a map, got {type(upsert).__name__}")
+            missing = [key for key in _UPSERT_KEYS if key not in upsert]
+            if missing:
+                raise DeltaError(f"{field}: missing {', '.join(missing)}")
+            ids[i] = _require_int(upsert["id"], f"{field}.id")
+            versions[i] = _require_int(upsert["version"], f"{field}.version")
+            n_obs[i] = _require_int(upsert["n_obs"], f"{field}.n_obs")
+            label = upsert["label"]
+            if not isinstance(label, str):
+                raise DeltaError(f"{field}.label: expected a string, got {type(label).__name__}")
+            labels.append(sys.intern(label))  # thousands of objects share a few hundred labels
+            bboxes[i] = _parse_bbox(upsert["bbox"], f"{field}.bbox")
+            try:
+                embeddings[i] = float16_vector_from_bytes(
+                    upsert["embedding"], self.dim, f"{field}.embedding"
+                )
+                points = float16_points_from_bytes(upsert["points"], f"{field}.points")
+            except CodecError as exc:
+                raise DeltaError(str(exc)) from exc
+            if len(points):
+                centroids[i] = points.astype(np.float32).mean(axis=0)
+            else:
+                centroids[i] = (bboxes[i, :3] + bboxes[i, 3:]) / 2
+            points_list.append(_cap_points(points, self._max_points, int(ids[i]), int(versions[i])))
+
+        if len(np.unique(ids)) != m:
+            raise DeltaError("upserts: an id appears more than once")
+        both = set(ids.tolist()) & set(removed)
+        if both:
+            raise DeltaError(f"removed: ids {sorted(both)[:5]} are also upserted")
+        return _ParsedDelta(
+            seq=seq,
+            full=full,
+            ids=ids,
+            versions=versions,
+            labels=labels,
+            embeddings=_unit_rows_float16(embeddings),
+            points=points_list,
+            bboxes=bboxes,
+            centroids=centroids,
+            n_obs=n_obs,
+            removed=removed,
+        )
+
+    def _upsert(self, delta: _ParsedDelta) -> None:
+        """Write the fresh upserts of a validated delta: existing rows in place, new at the end."""
+        held_versions = self._rows["version"]
+        rows = np.empty(len(delta.ids), np.int64)
+        fresh = np.ones(len(delta.ids), bool)
+        n_new = 0
+        for i, oid in enumerate(delta.ids.tolist()):
+            row = self._row_of.get(oid)
+            if row is None:
+                rows[i] = self._n + n_new
+                n_new += 1
+            elif delta.versions[i] < held_versions[row]:
+                fresh[i] = False
+            else:
+                rows[i] = row
+        if not fresh.all():
+            log.debug("ignored %d stale upserts (older than the held version)", (~fresh).sum())
+        self._ensure_capacity(self._n + n_new)
+
+        take = np.flatnonzero(fresh)
+        target = rows[take]
+        columns = self._rows
+        columns["id"][target] = delta.ids[take]
+        columns["version"][target] = delta.versions[take]
+        columns["embedding"][target] = delta.embeddings[take]
+        columns["bbox"][target] = delta.bboxes[take]
+        columns["centroid"][target] = delta.centroids[take]
+        columns["n_obs"][target] = delta.n_obs[take]
+        columns["updated"][target] = self._clock + np.arange(1, len(take) + 1)
+        self._clock += len(take)
+        for i, row in zip(take.tolist(), target.tolist(), strict=True):
+            points = delta.points[i]
+            if row < self._n:
+                self._points_nbytes -= self._points[row].nbytes
+                self._points[row] = points
+                self._labels[row] = delta.labels[i]
+            else:  # new rows were numbered in order, so they append in order
+                self._points.append(points)
+                self._labels.append(delta.labels[i])
+                self._row_of[int(delta.ids[i])] = row
+            self._points_nbytes += points.nbytes
+        self._n += n_new
+
+    def _clear(self) -> None:
+        self._n = 0
+        self._labels = []
+        self._points = []
+        self._points_nbytes = 0
+        self._row_of = {}
+
+    def _remove_ids(self, ids: Sequence[int]) -> None:
+        """Drop the held ones of `ids` (unknown ids may have been evicted: not an error)."""
+        rows = {self._row_of[oid] for oid in ids if oid in self._row_of}
+        if len(rows) < len(set(ids)):
+            log.debug(
+                "%d removed ids were not held (evicted or never seen)", len(set(ids)) - len(rows)
+            )
+        if len(rows) > _SWAP_REMOVE_MAX:
+            keep = np.ones(self._n, bool)
+            keep[list(rows)] = False
+            self._keep_rows(np.flatnonzero(keep), self._rows["id"].shape[0])
+            return
+        for row in sorted(rows, reverse=True):  # descending: a moved last row is never pending
+            self._swap_remove(row)
+
+    def _swap_remove(self, row: int) -> None:
+        """Remove one row in O(1) by moving the last row into its place."""
+        last = self._n - 1
+        del self._row_of[int(self._rows["id"][row])]
+        self._points_nbytes -= self._points[row].nbytes
+        if row != last:
+            for column in self._rows.values():
+                column[row] = column[last]
+            self._labels[row] = self._labels[last]
+            self._points[row] = self._points[last]
+            self._row_of[int(self._rows["id"][row])] = row
+        self._labels.pop()
+        self._points.pop()
+        self._n = last
+
+    def _recap_points(self) -> None:
+        """Subsample held objects over a lowered point cap (same rule as on arrival)."""
+        ids, versions = self._rows["id"], self._rows["version"]
+        for row, points in enumerate(self._points):
+            if len(points) > self._max_points:
+                capped = _cap_points(points, self._max_points, int(ids[row]), int(versions[row]))
+                self._points_nbytes += capped.nbytes - points.nbytes
+                self._points[row] = capped
+
+    # --- row storage ----------------------------------------------------------------------
+
+    def _row_bytes(self) -> int:
+        """Bytes of one row across all columns (embedding + metadata)."""
+        return sum(column.itemsize * math.prod(column.shape[1:]) for column in self._rows.values())
+
+    def _allocate(self, capacity: int) -> dict[str, np.ndarray]:
+        return {
+            "embedding": np.zeros((capacity, self.dim), np.float16),
+            "id": np.zeros(capacity, np.int64),
+            "version": np.zeros(capacity, np.int64),
+            "bbox": np.zeros((capacity, 6), np.float32),
+            "centroid": np.zeros((capacity, 3), np.float32),
+            "n_obs": np.zeros(capacity, np.int64),
+            "updated": np.zeros(capacity, np.int64),
+        }
+
+    def _reallocate(self, capacity: int) -> None:
+        """Move the n live rows into columns of `capacity` rows (>= n), order kept."""
+        new = self._allocate(capacity)
+        for name, column in self._rows.items():
+            new[name][: self._n] = column[: self._n]
+        self._set_columns(new)
+
+    def _set_columns(self, columns: dict[str, np.ndarray]) -> None:
+        self._rows = columns
+        # from_numpy shares the buffer: queries read the float16 matrix in place, no copy.
+        self._embeddings_t = torch.from_numpy(columns["embedding"])
+
+    def _ensure_capacity(self, needed: int) -> None:
+        capacity = self._rows["id"].shape[0]
+        if needed > capacity:
+            self._reallocate(max(needed, capacity + capacity // _GROWTH))
+
+    def _keep_rows(self, keep: np.ndarray, capacity: int) -> None:
+        """Keep only rows `keep` (int [m], ascending), compacted into columns of `capacity`."""
+        m = len(keep)
+        new = self._allocate(capacity)
+        for name, column in self._rows.items():
+            new[name][:m] = column[keep]
+        self._set_columns(new)
+        kept = keep.tolist()
+        self._labels = [self._labels[row] for row in kept]
+        self._points = [self._points[row] for row in kept]
+        self._points_nbytes = sum(points.nbytes for points in self._points)
+        self._row_of = {oid: row for row, oid in enumerate(new["id"][:m].tolist())}
+        self._n = m
+
+    # --- budget ---------------------------------------------------------------------------
+
+    def _eviction_order(self) -> np.ndarray:
+        """int64 [n] rows, the first to evict first (groups, then farthest / oldest, then id)."""
+        n = self._n
+        columns = self._rows
+        group = np.zeros(n, np.int8)  # 0: ordinary, 1: near the user, 2: priority class
+        if self._user_position is not None:
+            distance_m = np.linalg.norm(
+                columns["centroid"][:n].astype(np.float64) - self._user_position, axis=1
+            )
+            if self._distance_threshold_m is not None:
+                group[distance_m <= self._distance_threshold_m] = 1
+            within_group = -distance_m  # farthest first
+        else:
+            within_group = columns["updated"][:n]  # least recently updated first
+        if self._priority:
+            is_priority = np.fromiter(
+                (label.strip().casefold() in self._priority for label in self._labels), bool, n
+            )
+            group[is_priority] = 2
+        return np.lexsort((columns["id"][:n], within_group, group))
+
+    def _enforce_budget(self) -> None:
+        """Evict (and shrink the columns) until `memory_bytes()` is within the budget."""
+        if self.memory_bytes() <= self._budget_bytes:
+            return
+        n = self._n
+        order = self._eviction_order()
+        row_bytes = self._row_bytes()
+        per_object = np.fromiter((p.nbytes for p in self._points), np.int64, n)
+        per_object += PYTHON_BYTES_PER_OBJECT + row_bytes
+        # cost[k]: bytes when keeping the k objects that come last in the eviction order, in
+        # columns of exactly k rows. It increases with k, so the largest k that fits is found
+        # by one search, with no evict-and-recheck loop.
+        cost = np.concatenate(([0], np.cumsum(per_object[order[::-1]])))
+        keep_count = int(np.searchsorted(cost, self._budget_bytes, side="right")) - 1
+        spare_rows = (self._budget_bytes - int(cost[keep_count])) // row_bytes
+        capacity = min(self._rows["id"].shape[0], keep_count + spare_rows)
+        self.evicted += n - keep_count
+        if n - keep_count:
+            log.debug(
+                "evicted %d objects to stay within %d bytes", n - keep_count, self._budget_bytes
+            )
+        self._keep_rows(np.sort(order[n - keep_count :]), capacity)
+
+    # --- queries --------------------------------------------------------------------------
+
+    def query_embedding(self, embedding: np.ndarray, k: int = 5) -> list[LocalHit]:
+        """The k held objects most similar (cosine) to `embedding` float [dim], best first."""
+        query = np.asarray(embedding, dtype=np.float32)
+        if query.shape != (self.dim,) or not np.all(np.isfinite(query)):
+            raise ValueError(f"query embedding must be {self.dim} finite numbers")
+        n = self._n
+        if k < 1 or n == 0:
+            return []
+        query = query / max(float(np.linalg.norm(query)), 1e-12)
+        # float16 matvec in torch (numpy's float16 matmul is ~25x slower); its scores have
+        # ~3 significant digits, so a few spare candidates are re-scored exactly in float32.
+        scores = torch.mv(self._embeddings_t[:n], torch.from_numpy(query).to(torch.float16))
+        candidates = torch.topk(scores, min(n, 2 * k + 8)).indices.numpy()
+        exact = self._rows["embedding"][candidates].astype(np.float32) @ query
+        best = np.lexsort((self._rows["id"][candidates], -exact))[:k]
+        hits = []
+        for i in best.tolist():
+            row = int(candidates[i])
+            hits.append(
+                LocalHit(
+                    id=int(self._rows["id"][row]),
+                    label=self._labels[row],
+                    score=float(exact[i]),
+                    bbox=[float(v) for v in self._rows["bbox"][row]],
+                    centroid=[float(v) for v in self._rows["centroid"][row]],
+                )
+            )
+        return hits

@@ -1,0 +1,573 @@
+"""The device's sparse local map: deltas in, local queries out, within a memory budget."""
+
+from __future__ import annotations
+
+import gc
+import tracemalloc
+from collections import Counter
+from collections.abc import Sequence
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
+from app.mapping.deltas import Delta
+from app.mapping.object import MapObject
+from app.mapping.publish import delta_message
+from client_sim.local_map import BYTES_PER_MB, DeltaError, LocalMap
+
+DIM = 32  # small embeddings keep the tests fast; the map is dimension-agnostic
+FEW = settings(max_examples=40, deadline=None)
+
+
+def unit_vector(seed: int, dim: int = DIM) -> np.ndarray:
+    """A random unit float64 [dim], the same for the same seed."""
+    vector = np.random.default_rng(seed).standard_normal(dim)
+    return vector / np.linalg.norm(vector)
+
+
+def upsert(
+    oid: int,
+    version: int = 1,
+    label: str = "chair",
+    center_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    n_points: int = 20,
+    embedding: np.ndarray | None = None,
+) -> dict:
+    """A wire `upserts[]` entry: n_points points in a 0.4 m cube around center_m."""
+    rng = np.random.default_rng(oid * 1000 + version)
+    points = np.asarray(center_m) + rng.uniform(-0.2, 0.2, (n_points, 3))
+    bbox = [*points.min(axis=0), *points.max(axis=0)] if n_points else [*center_m, *center_m]
+    return {
+        "id": oid,
+        "version": version,
+        "label": label,
+        "embedding": float16_vector_to_bytes(unit_vector(oid) if embedding is None else embedding),
+        "points": float16_points_to_bytes(points.reshape(-1, 3)),
+        "bbox": [float(v) for v in bbox],
+        "n_obs": 3,
+    }
+
+
+def delta(
+    seq: int, upserts: Sequence[dict] = (), removed: Sequence[int] = (), full: bool = False
+) -> dict:
+    """A v1 `delta` message as msgpack would unpack it."""
+    return {
+        "type": "delta",
+        "seq": seq,
+        "full": full,
+        "upserts": list(upserts),
+        "removed": list(removed),
+    }
+
+
+def local_map(**kwargs) -> LocalMap:
+    return LocalMap(dim=DIM, **kwargs)
+
+
+def state(m: LocalMap) -> tuple:
+    """Everything observable about a map, to check that a refused delta changed nothing."""
+    objects = [m.get(oid) for oid in m.ids()]
+    return (
+        m.seq,
+        m.snapshot(),
+        m.memory_bytes(),
+        m.evicted,
+        [(o["bbox"], o["centroid"], o["points"].tobytes(), o["n_obs"]) for o in objects],
+        [hit.id for hit in m.query_embedding(unit_vector(3), k=10)],
+    )
+
+
+def bytes_of_objects(count: int, n_points: int = 20) -> int:
+    """memory_bytes of a map holding exactly `count` objects of `n_points` points."""
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(i, n_points=n_points) for i in range(count)]))
+    return m.memory_bytes()
+
+
+def budget_mb_for(count: int, n_points: int = 20) -> float:
+    """A budget that holds `count` such objects but not one more."""
+    one_more = bytes_of_objects(count + 1, n_points) - bytes_of_objects(count, n_points)
+    return (bytes_of_objects(count, n_points) + one_more // 2) / BYTES_PER_MB
+
+
+# --- applying deltas --------------------------------------------------------------------------
+
+
+def test_upserts_and_removals_give_the_servers_snapshot():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1, label="sofa"), upsert(2, label="mug"), upsert(3)]))
+    m.apply_delta(delta(2, [upsert(2, version=2, label="cup"), upsert(4, label="keys")], [1]))
+
+    assert m.snapshot() == {2: (2, "cup"), 3: (1, "chair"), 4: (1, "keys")}
+    assert m.seq == 2
+    assert len(m) == 3 and m.ids() == [2, 3, 4]
+    assert 2 in m and 1 not in m
+
+
+def test_an_upsert_older_than_the_held_version_is_ignored():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(7, version=5, label="lamp")]))
+    m.apply_delta(delta(2, [upsert(7, version=4, label="stale lamp")]))
+
+    assert m.snapshot() == {7: (5, "lamp")}
+    assert m.seq == 2
+
+
+def test_a_newer_version_replaces_geometry_and_embedding():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(7, center_m=(0, 0, 0), embedding=unit_vector(100))]))
+    m.apply_delta(delta(2, [upsert(7, version=2, center_m=(5, 0, 0), embedding=unit_vector(200))]))
+
+    assert m.get(7)["centroid"] == pytest.approx([5, 0, 0], abs=0.1)
+    assert m.query_embedding(unit_vector(200), k=1)[0].score == pytest.approx(1.0, abs=1e-3)
+
+
+def test_an_out_of_order_seq_raises_and_leaves_the_map_unchanged():
+    m = local_map()
+    m.apply_delta(delta(5, [upsert(1), upsert(2)]))
+    before = state(m)
+
+    with pytest.raises(DeltaError, match="seq"):
+        m.apply_delta(delta(4, [upsert(3)], [1]))
+
+    assert state(m) == before
+
+
+def test_a_redelivered_delta_with_the_same_seq_is_applied_idempotently():
+    m = local_map()
+    message = delta(3, [upsert(1), upsert(2)], [9])
+    m.apply_delta(message)
+    before = state(m)
+
+    m.apply_delta(message)
+
+    assert state(m)[:3] == before[:3]
+
+
+def _malformed(mutate) -> dict:
+    """A delta with one valid upsert, then one broken by `mutate(message, second_upsert)`."""
+    message = delta(10, [upsert(20), upsert(21)], [1])
+    mutate(message, message["upserts"][1])
+    return message
+
+
+def _set(key, value):
+    return lambda message, item: item.__setitem__(key, value)
+
+
+def _set_top(key, value):
+    return lambda message, item: message.__setitem__(key, value)
+
+
+def _drop(key):
+    return lambda message, item: item.pop(key)
+
+
+MALFORMED = {
+    "unknown type": _set_top("type", "frame"),
+    "missing type": lambda message, item: message.pop("type"),
+    "missing seq": lambda message, item: message.pop("seq"),
+    "seq not an int": _set_top("seq", "10"),
+    "seq a bool": _set_top("seq", True),
+    "negative seq": _set_top("seq", -1),
+    "full not a bool": _set_top("full", 0),
+    "missing upserts": lambda message, item: message.pop("upserts"),
+    "upserts not a list": _set_top("upserts", {"id": 1}),
+    "upsert not a map": lambda message, item: message["upserts"].append([1, 2]),
+    "removed not a list": _set_top("removed", 3),
+    "removed holds a string": _set_top("removed", ["3"]),
+    "missing id": _drop("id"),
+    "missing embedding": _drop("embedding"),
+    "missing points": _drop("points"),
+    "missing bbox": _drop("bbox"),
+    "missing n_obs": _drop("n_obs"),
+    "id a float": _set("id", 21.0),
+    "negative version": _set("version", -2),
+    "label not a string": _set("label", 5),
+    "embedding too short": _set("embedding", b"\x00" * (2 * DIM - 2)),
+    "embedding of another dim": _set("embedding", float16_vector_to_bytes(unit_vector(1, 2 * DIM))),
+    "embedding not bytes": _set("embedding", "abc"),
+    "NaN embedding": _set("embedding", np.full(DIM, np.nan, "<f2").tobytes()),
+    "points not a multiple of 6 bytes": _set("points", b"\x00" * 13),
+    "inf in points": _set("points", np.array([[0, np.inf, 0]], "<f2").tobytes()),
+    "bbox of 5 numbers": _set("bbox", [0.0, 0.0, 0.0, 1.0, 1.0]),
+    "NaN in bbox": _set("bbox", [0.0, float("nan"), 0.0, 1.0, 1.0, 1.0]),
+    "bbox corners swapped": _set("bbox", [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]),
+    "bbox not a list": _set("bbox", "0 0 0 1 1 1"),
+    "duplicate id": _set("id", 20),
+    "id both upserted and removed": _set_top("removed", [21]),
+}
+
+
+@pytest.mark.parametrize("mutate", MALFORMED.values(), ids=MALFORMED.keys())
+def test_a_malformed_delta_raises_and_leaves_the_map_unchanged(mutate):
+    m = local_map()
+    m.apply_delta(delta(5, [upsert(1), upsert(2, label="mug")]))
+    before = state(m)
+
+    with pytest.raises(DeltaError):
+        m.apply_delta(_malformed(mutate))
+
+    assert state(m) == before
+
+
+def test_a_message_that_is_not_a_map_raises_delta_error():
+    with pytest.raises(DeltaError):
+        local_map().apply_delta([("type", "delta")])  # type: ignore[arg-type]
+
+
+def test_a_full_snapshot_replaces_the_whole_map():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1), upsert(2), upsert(3)]))
+    m.apply_delta(delta(9, [upsert(2, version=3, label="mug"), upsert(8)], full=True))
+
+    assert m.snapshot() == {2: (3, "mug"), 8: (1, "chair")}
+    assert m.seq == 9
+
+
+def test_a_full_snapshot_is_accepted_even_with_an_older_seq():
+    # A full snapshot is authoritative (e.g. the server restarted and its seq went back).
+    m = local_map()
+    m.apply_delta(delta(50, [upsert(1)]))
+    m.apply_delta(delta(3, [upsert(2)], full=True))
+
+    assert m.snapshot() == {2: (1, "chair")}
+    assert m.seq == 3
+
+
+def test_removing_an_unknown_id_is_not_an_error():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1)]))
+    m.apply_delta(delta(2, removed=[404, 1]))
+
+    assert m.snapshot() == {}
+    assert m.seq == 2
+
+
+def test_a_server_built_delta_applies_after_a_msgpack_round_trip():
+    rng = np.random.default_rng(0)
+    objects = {}
+    for oid, label in ((3, "sofa"), (4, "keys")):
+        obj = MapObject(id=oid, version=2, n_obs=5, confirmed=True, resolution_m=0.02)
+        obj.set_points(rng.uniform(0, 2, (500, 3)).astype(np.float32), 0.02)
+        obj.embedding_sum = unit_vector(oid).astype(np.float32) * 5
+        obj.label_counts = Counter({label: 5})
+        objects[oid] = obj
+    message = delta_message(Delta(seq=7, full=False, upserts=[3, 4], removed=[1]), objects, 200)
+    wire = msgpack.unpackb(msgpack.packb(message, use_bin_type=True), raw=False)
+
+    m = local_map(max_points_per_object=200)
+    m.apply_delta(wire)
+
+    assert m.snapshot() == {3: (2, "sofa"), 4: (2, "keys")}
+    assert len(m.get(4)["points"]) <= 200
+    assert m.get(4)["bbox"] == pytest.approx(list(objects[4].bbox), abs=1e-3)
+    assert m.query_embedding(unit_vector(4), k=1)[0].id == 4
+
+
+# --- queries ----------------------------------------------------------------------------------
+
+
+def test_a_query_returns_the_matching_object_first_and_scores_best_first():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(i, label=f"thing {i}") for i in range(50)]))
+    target = unit_vector(17)
+
+    hits = m.query_embedding(target, k=5)
+
+    assert [hit.id for hit in hits][0] == 17 and hits[0].label == "thing 17"
+    assert hits[0].score == pytest.approx(1.0, abs=1e-3)
+    assert [hit.score for hit in hits] == sorted((hit.score for hit in hits), reverse=True)
+    assert len(hits) == 5
+    assert hits[0].centroid == pytest.approx(m.get(17)["centroid"])
+
+
+def test_a_query_scores_are_cosines_whatever_the_query_length():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1, embedding=unit_vector(1)), upsert(2)]))
+
+    [hit] = m.query_embedding(3.5 * unit_vector(1), k=1)
+
+    assert hit.id == 1 and hit.score == pytest.approx(1.0, abs=1e-3)
+
+
+def test_a_query_for_more_objects_than_held_returns_all_held():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1), upsert(2)]))
+
+    assert len(m.query_embedding(unit_vector(1), k=10)) == 2
+    assert local_map().query_embedding(unit_vector(1)) == []
+
+
+def test_a_query_of_the_wrong_dimension_is_refused():
+    with pytest.raises(ValueError):
+        local_map().query_embedding(np.ones(DIM + 1))
+
+
+def test_a_text_query_finds_the_object_with_that_label(encoder):
+    labels = ["sofa", "keys", "coffee mug", "floor lamp", "bookshelf"]
+    embeddings = encoder.encode(labels)
+    m = LocalMap(dim=encoder.dim)
+    m.apply_delta(
+        delta(
+            1, [upsert(i, label=label, embedding=embeddings[i]) for i, label in enumerate(labels)]
+        )
+    )
+
+    hits = m.query_embedding(encoder.encode_query("where did I leave my keys?"), k=3)
+
+    assert hits[0].label == "keys"
+
+
+# --- points -----------------------------------------------------------------------------------
+
+
+def test_points_over_the_cap_are_subsampled_from_the_received_ones_deterministically():
+    sent = upsert(1, n_points=500)
+    sent_points = {tuple(p) for p in np.frombuffer(sent["points"], "<f2").reshape(-1, 3).tolist()}
+    first, second = local_map(max_points_per_object=64), local_map(max_points_per_object=64)
+    first.apply_delta(delta(1, [sent]))
+    second.apply_delta(delta(1, [sent]))
+
+    points = first.get(1)["points"]
+    assert points.shape == (64, 3) and points.dtype == np.float32
+    assert {tuple(p) for p in points.tolist()} <= sent_points
+    np.testing.assert_array_equal(points, second.get(1)["points"])
+
+
+def test_points_under_the_cap_are_kept_exactly():
+    sent = upsert(1, n_points=30)
+    m = local_map(max_points_per_object=64)
+    m.apply_delta(delta(1, [sent]))
+
+    expected = np.frombuffer(sent["points"], "<f2").reshape(-1, 3).astype(np.float32)
+    np.testing.assert_array_equal(m.get(1)["points"], expected)
+
+
+def test_lowering_the_point_cap_at_run_time_recaps_held_objects():
+    m = local_map(max_points_per_object=100)
+    m.apply_delta(delta(1, [upsert(1, n_points=100), upsert(2, n_points=10)]))
+    before = m.memory_bytes()
+
+    m.set_policy(max_points_per_object=25)
+
+    assert [len(m.get(oid)["points"]) for oid in (1, 2)] == [25, 10]
+    assert m.memory_bytes() == before - 75 * 3 * 2
+
+
+def test_the_centroid_is_the_mean_of_the_received_points():
+    sent = upsert(1, center_m=(2, 3, 4), n_points=300)
+    m = local_map(max_points_per_object=10)
+    m.apply_delta(delta(1, [sent]))
+
+    received = np.frombuffer(sent["points"], "<f2").reshape(-1, 3).astype(np.float64)
+    assert m.get(1)["centroid"] == pytest.approx(received.mean(axis=0), abs=1e-4)
+
+
+# --- memory -----------------------------------------------------------------------------------
+
+
+def test_memory_grows_linearly_with_the_number_of_objects():
+    one, two = bytes_of_objects(200), bytes_of_objects(400)
+
+    assert two == pytest.approx(2 * one, rel=0.01)
+
+
+def test_reupserting_the_same_objects_does_not_grow_memory():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(i) for i in range(100)]))
+    first = m.memory_bytes()
+    for version in range(2, 30):
+        m.apply_delta(delta(version, [upsert(i, version=version) for i in range(100)]))
+
+    assert m.memory_bytes() == first
+
+
+def test_memory_follows_the_objects_down_after_removals():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(i) for i in range(400)]))
+    m.apply_delta(delta(2, removed=list(range(350))))
+
+    assert m.memory_bytes() <= 1.2 * bytes_of_objects(50)
+
+
+def test_memory_bytes_matches_what_the_allocator_sees():
+    messages = [delta(1, [upsert(10_000 + i, n_points=200) for i in range(2000)])]
+    warm = local_map()  # first use imports and caches; keep that out of the measurement
+    warm.apply_delta(delta(1, [upsert(1)]))
+    warm.query_embedding(unit_vector(1))
+    gc.collect()
+    tracemalloc.start()
+    try:
+        m = local_map()
+        start = tracemalloc.get_traced_memory()[0]
+        m.apply_delta(messages[0])
+        gc.collect()
+        held = tracemalloc.get_traced_memory()[0] - start
+    finally:
+        tracemalloc.stop()
+
+    assert m.memory_bytes() == pytest.approx(held, rel=0.1)
+
+
+# --- budget and eviction ----------------------------------------------------------------------
+
+
+def test_the_farthest_objects_from_the_user_are_evicted_first():
+    m = local_map(budget_mb=budget_mb_for(4))
+    m.set_user_position([0, 0, 0])
+    m.apply_delta(delta(1, [upsert(i, center_m=(float(i), 0, 0)) for i in range(1, 11)]))
+
+    assert m.ids() == [1, 2, 3, 4]
+    assert m.evicted == 6
+
+
+def test_objects_within_the_distance_threshold_are_kept_before_farther_ones():
+    m = local_map(budget_mb=budget_mb_for(3), distance_threshold_m=2.5)
+    m.set_user_position([0, 0, 0])
+    near = [upsert(i, center_m=(float(i), 0, 0)) for i in (1, 2)]
+    far = [upsert(i, center_m=(float(i), 0, 0)) for i in (10, 20, 30)]
+    m.apply_delta(delta(1, near + far))
+
+    assert m.ids() == [1, 2, 10]
+
+
+def test_priority_class_objects_are_kept_before_nearby_ones():
+    m = local_map(budget_mb=budget_mb_for(3), priority_classes=["Keys"], distance_threshold_m=5)
+    m.set_user_position([0, 0, 0])
+    nearby = [upsert(i, center_m=(float(i), 0, 0)) for i in (1, 2, 3)]
+    keys = [upsert(i, label="keys", center_m=(100.0 + i, 0, 0)) for i in (50, 60)]
+    m.apply_delta(delta(1, nearby + keys))
+
+    assert m.ids() == [1, 50, 60]
+
+
+def test_protected_objects_are_evicted_farthest_first_when_they_alone_exceed_the_budget():
+    m = local_map(budget_mb=budget_mb_for(2), priority_classes=["keys"])
+    m.set_user_position([0, 0, 0])
+    m.apply_delta(delta(1, [upsert(i, label="keys", center_m=(float(i), 0, 0)) for i in (3, 1, 2)]))
+
+    assert m.ids() == [1, 2]
+
+
+def test_without_a_user_position_the_least_recently_updated_are_evicted_first():
+    m = local_map(budget_mb=budget_mb_for(3))
+    m.apply_delta(delta(1, [upsert(1), upsert(2), upsert(3)]))
+    m.apply_delta(delta(2, [upsert(1, version=2)]))  # 1 is now the freshest
+    m.apply_delta(delta(3, [upsert(4)]))
+
+    assert m.ids() == [1, 3, 4]
+
+
+def test_lowering_the_budget_at_run_time_evicts_at_once():
+    m = local_map()
+    m.set_user_position([0, 0, 0])
+    m.apply_delta(delta(1, [upsert(i, center_m=(float(i), 0, 0)) for i in range(1, 9)]))
+
+    m.set_policy(budget_mb=budget_mb_for(2))
+
+    assert m.ids() == [1, 2]
+    assert m.memory_bytes() <= budget_mb_for(2) * BYTES_PER_MB
+
+
+def test_a_budget_too_small_for_one_object_empties_the_map_without_hanging():
+    m = local_map(budget_mb=0.001)
+    m.apply_delta(delta(1, [upsert(1, n_points=200)]))
+
+    assert len(m) == 0 and m.evicted == 1
+    assert m.memory_bytes() <= 0.001 * BYTES_PER_MB
+
+
+# --- property: random delta streams ----------------------------------------------------------
+
+LABELS = ["chair", "keys", "mug"]
+upsert_specs = st.tuples(
+    st.integers(0, 60), st.integers(0, 40), st.sampled_from(LABELS), st.integers(0, 5)
+)
+streams = st.lists(
+    st.tuples(
+        st.lists(upsert_specs, max_size=25, unique_by=lambda spec: spec[0]),
+        st.lists(st.integers(0, 60), max_size=50, unique=True),
+    ),
+    min_size=1,
+    max_size=8,
+)
+
+
+@FEW
+@given(
+    stream=streams,
+    budget_mb=st.floats(0.001, 0.03),
+    priority=st.lists(st.sampled_from(LABELS), max_size=2),
+    user_position=st.none() | st.tuples(*[st.floats(-5, 5)] * 3),
+    threshold_m=st.none() | st.floats(0, 5),
+)
+def test_the_budget_is_never_exceeded_and_held_objects_match_the_server(
+    stream, budget_mb, priority, user_position, threshold_m
+):
+    m = local_map(
+        max_points_per_object=24,
+        budget_mb=budget_mb,
+        priority_classes=priority,
+        distance_threshold_m=threshold_m,
+    )
+    m.set_user_position(user_position)
+    server: dict[int, tuple[int, str]] = {}
+    for seq, (specs, removed) in enumerate(stream, start=1):
+        upserted_ids = {spec[0] for spec in specs}
+        removed = [oid for oid in removed if oid not in upserted_ids]
+        ups = []
+        for oid, n_points, label, x in specs:
+            version = server.get(oid, (0, ""))[0] + 1  # a server's versions only grow
+            server[oid] = (version, label)
+            ups.append(upsert(oid, version, label, (float(x), 0.0, 0.0), n_points))
+        for oid in removed:
+            server.pop(oid, None)
+
+        m.apply_delta(delta(seq, ups, removed))
+
+        assert m.memory_bytes() <= budget_mb * BYTES_PER_MB
+        held = m.snapshot()
+        assert all(server[oid] == entry for oid, entry in held.items())
+        assert all(len(m.get(oid)["points"]) <= 24 for oid in held)
+
+
+@FEW
+@given(
+    stream=st.lists(
+        st.tuples(
+            st.lists(st.tuples(st.integers(0, 60), st.integers(0, 4)), max_size=30),
+            st.lists(st.integers(0, 60), max_size=50, unique=True),
+        ),
+        min_size=1,
+        max_size=8,
+    )
+)
+def test_without_budget_pressure_the_map_equals_the_server_and_finds_every_object(stream):
+    m = local_map()
+    expected: dict[int, tuple[int, str]] = {}
+    for seq, (specs, removed) in enumerate(stream, start=1):
+        specs = list({oid: version for oid, version in specs}.items())  # one entry per id
+        removed = [oid for oid in removed if oid not in dict(specs)]
+        for oid, version in specs:
+            if oid not in expected or version >= expected[oid][0]:
+                expected[oid] = (version, f"label {oid} v{version}")
+        for oid in removed:
+            expected.pop(oid, None)
+
+        m.apply_delta(
+            delta(
+                seq,
+                [upsert(oid, version, f"label {oid} v{version}") for oid, version in specs],
+                removed,
+            )
+        )
+
+        assert m.snapshot() == expected
+    for oid in expected:
+        assert m.query_embedding(unit_vector(oid), k=1)[0].id == oid
