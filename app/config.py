@@ -29,7 +29,7 @@ class Knobs:
     """Labels the server never maps (compared case-insensitively)."""
 
     max_object_points_server: int = 2000
-    """Per-object point cap on the server (semanticxr mode); holds after every merge."""
+    """Per-object point cap on the server (semanticxr mode; the baseline is uncapped)."""
 
     max_object_points_client: int = 200
     """Per-object point cap in downstream updates and on the device."""
@@ -47,7 +47,8 @@ class Knobs:
     """Keyframes between downstream updates."""
 
     min_mapping_bbox_area: int = 2000
-    """Detections whose mask bounding box is smaller than this (px at RGB size) are deferred."""
+    """Detections whose mask bounding box is smaller than this (px at RGB size) are deferred
+    (semanticxr mode; the baseline integrates every detection)."""
 
     depth_downsampling_ratio: int = 5
     """Per-dimension depth downsampling on the device before upload."""

@@ -3,13 +3,16 @@
 One algorithm, two organisations (DESIGN.md "Two system organisations"):
 
 - `semanticxr`: per-object work batched across the objects of a frame (one lifting pass for
-  all detections, one similarity matrix for association) and per-object geometry capped at
-  `max_object_points_server`.
+  all detections, one similarity matrix for association), per-object geometry capped at
+  `max_object_points_server`, and the depth co-design: detections too small to map well at
+  the uploaded depth resolution (`min_mapping_bbox_area`) are deferred until seen larger.
 - `baseline`: frame-level, objects one at a time (a full-image mask and lift per
-  detection, a pair-by-pair association loop), geometry uncapped.
+  detection, a pair-by-pair association loop), geometry at sensor resolution and uncapped,
+  every detection integrated as it comes (the paper's ConceptGraphs-style baseline).
 
-Both call the same geometry, similarity and merge functions, so they differ in how the
-work is organised and how much geometry is kept, never in what is computed.
+Both call the same geometry, similarity, denoising and merge functions, so they differ in
+how the work is organised and scheduled and how much geometry is kept, never in how a
+detection and an object are compared or fused.
 """
 
 from __future__ import annotations
@@ -88,7 +91,6 @@ class MappingEngine:
         encoder: TextEncoder,
         knobs: Knobs | None = None,
         mode: Mode = "semanticxr",
-        seed: int = 0,
     ):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -100,7 +102,6 @@ class MappingEngine:
         self.log = DeltaLog()
         self.keyframes = 0
         self.next_object_id = 1
-        self._rng = np.random.default_rng(seed)
         self._changed_since_cleanup: set[int] = set()
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
 
@@ -203,7 +204,7 @@ class MappingEngine:
         for det in detections.detections:
             if det.label.lower() in skip:
                 stats.skipped += 1
-            elif det.bbox_area_px < self.knobs.min_mapping_bbox_area:
+            elif self.mode == "semanticxr" and det.bbox_area_px < self.knobs.min_mapping_bbox_area:
                 stats.deferred += 1  # too small to map well at this depth resolution
             else:
                 kept.append(det)
@@ -230,6 +231,8 @@ class MappingEngine:
                 stats.too_small += 1
                 continue
             pts = geo.voxel_downsample(pts, self._resolution_m)
+            # Mask edges bleed onto the background behind the object: keep its main cluster.
+            pts = geo.remove_outliers(pts, OUTLIER_EPS_M)
             emb = text_row if det.embedding is None else det.embedding
             observations.append(_Observation(det, pts, emb.astype(np.float32), geo.bbox_of(pts)))
         return observations
@@ -291,7 +294,7 @@ class MappingEngine:
     def _cap(self, points: np.ndarray) -> tuple[np.ndarray, float]:
         """The object's geometry after a merge: capped in semanticxr mode, not in baseline."""
         max_points = self.knobs.max_object_points_server if self.mode == "semanticxr" else 1 << 62
-        return geo.cap_points(points, max_points, self._resolution_m, self._rng)
+        return geo.cap_points(points, max_points, self._resolution_m)
 
     def _apply(
         self, observations: list[_Observation], matches: list[int | None], stats: IntegrationStats

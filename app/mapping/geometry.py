@@ -109,32 +109,53 @@ def voxel_downsample(points: np.ndarray, voxel_m: float) -> np.ndarray:
     uniq, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     if len(uniq) == len(points):
         return points.astype(np.float32, copy=False)
-    sums = np.zeros((len(uniq), 3), np.float64)
-    np.add.at(sums, inverse, points)
-    return (sums / counts[:, None]).astype(np.float32)
+    inverse = inverse.ravel()
+    means = np.empty((len(uniq), 3), np.float32)
+    for axis in range(3):  # bincount is an order of magnitude faster than np.add.at
+        means[:, axis] = np.bincount(inverse, weights=points[:, axis], minlength=len(uniq)) / counts
+    return means
 
 
-def cap_points(
-    points: np.ndarray, max_points: int, voxel_m: float, rng: np.random.Generator
-) -> tuple[np.ndarray, float]:
+def voxel_sample(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """One real point per occupied voxel: the one nearest the voxel's centre, float32 [M, 3].
+
+    Unlike the mean, a sample stays on the surface where a coarse voxel straddles an edge;
+    nearest-to-centre keeps every surface point within about half a voxel of a sample.
+    """
+    if len(points) == 0:
+        return EMPTY_POINTS
+    keys = _voxel_keys(points, voxel_m)
+    offset = points / voxel_m - np.floor(points / voxel_m) - 0.5
+    order = np.lexsort((np.einsum("ij,ij->i", offset, offset), keys))
+    sorted_keys = keys[order]
+    first = np.ones(len(order), bool)
+    first[1:] = sorted_keys[1:] != sorted_keys[:-1]
+    return points[order[first]].astype(np.float32, copy=False)
+
+
+def cap_points(points: np.ndarray, max_points: int, voxel_m: float) -> tuple[np.ndarray, float]:
     """At most `max_points` points that still cover the whole object, and their spacing.
 
-    Voxel de-duplication at `voxel_m` first; if that is still over the cap, a coarser voxel
-    (uniform coverage beats random dropping), then a random subset for whatever is left.
-    Returns (float32 [M <= max_points, 3], the voxel size in metres the points sample at).
+    Voxel de-duplication at `voxel_m` first; if that is still over the cap, the finest
+    coarser voxel that fits (a short bisection; uniform coverage beats random dropping),
+    one real point per voxel. Deterministic. Returns (float32 [M <= max_points, 3], the voxel in metres).
     """
     points = voxel_downsample(points, voxel_m)
     if len(points) <= max_points:
         return points, voxel_m
-    coarse = voxel_m * np.sqrt(len(points) / max_points)  # surfaces: count ~ 1 / voxel^2
-    for _ in range(6):
-        reduced = voxel_downsample(points, coarse)
-        if len(reduced) <= max_points:
-            break
-        coarse *= 1.25
-    if len(reduced) > max_points:
-        reduced = reduced[rng.choice(len(reduced), max_points, replace=False)]
-    return reduced, float(coarse)
+    lo, hi = voxel_m, voxel_m * np.sqrt(len(points) / max_points)  # surfaces: n ~ 1 / voxel^2
+    best = voxel_sample(points, hi)
+    while len(best) > max_points:
+        lo, hi = hi, hi * 1.5
+        best = voxel_sample(points, hi)
+    for _ in range(4):
+        mid = 0.5 * (lo + hi)
+        candidate = voxel_sample(points, mid)
+        if len(candidate) <= max_points:
+            hi, best = mid, candidate
+        else:
+            lo = mid
+    return best, float(hi)
 
 
 def bbox_of(points: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from app.mapping.object import MapObject
 def client_points(obj: MapObject, max_points: int | None) -> np.ndarray:
     """float32 [<= max_points, 3] of the object as a device holds it (None: full resolution).
 
-    Deterministic for (id, version), and cached on the object until it changes.
+    Deterministic, and cached on the object until it changes.
     """
     key = (obj.version, max_points)
     cached = obj._client_cache
@@ -27,8 +27,7 @@ def client_points(obj: MapObject, max_points: int | None) -> np.ndarray:
     if max_points is None or len(obj.points) <= max_points:
         points = obj.points
     else:
-        rng = np.random.default_rng(obj.id * 1_000_003 + obj.version)
-        points, _ = cap_points(obj.points, max_points, max(obj.resolution_m, 0.025), rng)
+        points, _ = cap_points(obj.points, max_points, max(obj.resolution_m, 0.025))
     obj._client_cache = (key, points)
     return points
 

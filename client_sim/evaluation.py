@@ -1,0 +1,201 @@
+"""`semanticxr eval`: the full pipeline in process, scored against the synthetic ground truth.
+
+world -> device encoder (JPEG, depth ÷ratio, detections) -> server decode -> mapping engine
+-> map, once per system organisation on identical input, then semantic quality (DESIGN.md
+"Evaluation definitions"), per-keyframe mapping latency and paraphrase-query accuracy.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.config import MODES, Knobs
+from app.mapping.engine import MappingEngine
+from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
+from app.protocol import decode_frame
+from app.semantics import TextEncoder
+from client_sim.encoder import FrameEncoder
+from client_sim.sources.synthetic import SyntheticSource
+from client_sim.world.categories import BACKGROUND_CLASSES, CATEGORIES
+from client_sim.world.gt import gt_point_cloud
+from client_sim.world.render import default_camera
+
+Progress = Callable[[str], None]
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+@dataclass
+class EvalConfig:
+    scene: str = "apartment"
+    """Synthetic scene name (client_sim.world.scene.SCENE_NAMES)."""
+    seed: int = 0
+    """Scene, trajectory and noise seed."""
+    frames: int = 400
+    """Input frames of the walk; every `knobs.keyframe_interval`-th one is mapped."""
+    width: int = 640
+    height: int = 480
+    noise: str = "standard"
+    """Detection noise profile: none | standard."""
+    modes: tuple[str, ...] = MODES
+    knobs: Knobs = field(default_factory=Knobs)
+    jpeg_quality: int = 85
+
+
+def _percentiles(values_ms: list[float]) -> dict[str, float]:
+    arr = np.asarray(values_ms) if values_ms else np.zeros(1)
+    return {
+        "p50": float(np.percentile(arr, 50)),
+        "p95": float(np.percentile(arr, 95)),
+        "mean": float(arr.mean()),
+    }
+
+
+def _encode_keyframes(cfg: EvalConfig, progress: Progress) -> tuple[list, object, dict]:
+    """Render and encode the keyframes once; both organisations map the same bytes."""
+    source = SyntheticSource(
+        cfg.scene,
+        n_frames=cfg.frames,
+        camera=default_camera(cfg.width, cfg.height),
+        noise=cfg.noise,
+        seed=cfg.seed,
+    )
+    encoder = FrameEncoder(cfg.knobs.depth_downsampling_ratio, jpeg_quality=cfg.jpeg_quality)
+    messages, upstream = [], {"rgb": 0, "depth": 0, "detections": 0, "total": 0}
+    interval = cfg.knobs.keyframe_interval
+    n_keyframes = len(range(0, cfg.frames, interval))
+    for i, frame in enumerate(source.frames(every=interval)):
+        encoded = encoder.encode(
+            seq=frame.index,
+            t=frame.t,
+            rgb=frame.view.rgb,
+            depth_m=frame.detections.depth_m,
+            pose=frame.pose,
+            intrinsics=frame.camera.intrinsics,
+            instance_ids=frame.detections.instance_ids,
+            instances=frame.detections.instances,
+        )
+        messages.append(encoded.message)
+        for kind in upstream:
+            upstream[kind] += encoded.bytes_by_kind.get(kind, 0)
+        if (i + 1) % 20 == 0 or i + 1 == n_keyframes:
+            progress(f"[eval] rendered and encoded {i + 1}/{n_keyframes} keyframes")
+    return messages, source.scene, upstream
+
+
+def map_keyframes(
+    messages: list[dict], engine: MappingEngine, progress: Progress, label: str
+) -> list[float]:
+    """Feed wire messages through decode + mapping + delta; per-keyframe latency in ms."""
+    latencies, published = [], 0
+    for i, message in enumerate(messages):
+        t0 = time.perf_counter()
+        stats = engine.integrate(decode_frame(message))
+        if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
+            published = engine.delta_since(published).seq
+        latencies.append((time.perf_counter() - t0) * 1e3)
+        if (i + 1) % 20 == 0 or i + 1 == len(messages):
+            progress(
+                f"[eval] {label}: {i + 1}/{len(messages)} keyframes, "
+                f"{stats.confirmed} objects, p50 {np.median(latencies):.1f} ms"
+            )
+    return latencies
+
+
+def score_map(engine: MappingEngine, gt, encoder: TextEncoder, categories: list[str]) -> dict:
+    """mAcc / F-mIoU of the confirmed map, and paraphrase top-1 accuracy."""
+    objects = engine.confirmed_objects()
+    class_names = gt.class_names
+    if objects:
+        class_text = encoder.encode(class_names)
+        object_class = assign_classes_by_text(np.stack([o.embedding for o in objects]), class_text)
+        map_points = np.concatenate([o.points for o in objects])
+        map_class = np.repeat(object_class, [len(o.points) for o in objects])
+    else:
+        map_points, map_class = np.zeros((0, 3), np.float32), np.zeros(0, int)
+    scores = semantic_scores(
+        map_points,
+        map_class,
+        gt.points,
+        gt.class_idx,
+        class_names,
+        ignore_classes=BACKGROUND_CLASSES,
+    )
+
+    true_class = majority_gt_class([o.points for o in objects], gt.points, gt.class_idx)
+    by_id = {o.id: c for o, c in zip(objects, true_class, strict=True)}
+    asked = correct = 0
+    failures = []
+    for name in categories:
+        for text in CATEGORIES[name].paraphrases:
+            asked += 1
+            hits = engine.query(text, k=1)
+            got = (
+                class_names[by_id[hits[0].object.id]]
+                if hits and by_id[hits[0].object.id] >= 0
+                else None
+            )
+            if got == name:
+                correct += 1
+            else:
+                failures.append({"query": text, "expected": name, "got": got})
+    return {
+        "mAcc": scores.mAcc,
+        "F_mIoU": scores.F_mIoU,
+        "objects": len(objects),
+        "query_top1": 100.0 * correct / max(asked, 1),
+        "query_failures": failures,
+        "per_class": scores.per_class,
+    }
+
+
+def run_eval(
+    cfg: EvalConfig,
+    encoder: TextEncoder,
+    progress: Progress = _stderr,
+    keep_latencies: bool = False,
+) -> dict:
+    """Run the pipeline for each mode in `cfg.modes`; the DESIGN.md `eval --json` document."""
+    started = time.perf_counter()
+    messages, scene, upstream = _encode_keyframes(cfg, progress)
+    gt = gt_point_cloud(scene)
+    categories = scene.categories_present
+    encoder.encode(gt.class_names)  # warm the label cache outside the timed loop
+
+    result: dict = {
+        "scene": cfg.scene,
+        "seed": cfg.seed,
+        "frames": cfg.frames,
+        "keyframes": len(messages),
+        "noise": cfg.noise,
+        "resolution": [cfg.width, cfg.height],
+        "depth_downsampling_ratio": cfg.knobs.depth_downsampling_ratio,
+        "upstream_bytes_per_keyframe": {k: v / max(len(messages), 1) for k, v in upstream.items()},
+        "modes": {},
+    }
+    for mode in cfg.modes:
+        engine = MappingEngine(encoder, cfg.knobs, mode=mode)
+        latencies = map_keyframes(messages, engine, progress, mode)
+        scored = score_map(engine, gt, encoder, categories)
+        scored["latency_ms"] = _percentiles(latencies)
+        if keep_latencies:
+            scored["latencies_ms"] = latencies
+        result["modes"][mode] = scored
+        progress(
+            f"[eval] {mode}: mAcc {scored['mAcc']:.1f}  F-mIoU {scored['F_mIoU']:.1f}  "
+            f"objects {scored['objects']}  p50 {scored['latency_ms']['p50']:.1f} ms  "
+            f"query top-1 {scored['query_top1']:.1f}%"
+        )
+    if {"semanticxr", "baseline"} <= result["modes"].keys():
+        result["speedup_p50"] = result["modes"]["baseline"]["latency_ms"]["p50"] / max(
+            result["modes"]["semanticxr"]["latency_ms"]["p50"], 1e-9
+        )
+    result["wall_s"] = time.perf_counter() - started
+    return result
