@@ -138,16 +138,20 @@ def cap_points(points: np.ndarray, max_points: int, voxel_m: float) -> tuple[np.
 
     Voxel de-duplication at `voxel_m` first; if that is still over the cap, the finest
     coarser voxel that fits (a short bisection; uniform coverage beats random dropping),
-    one real point per voxel. Deterministic. Returns (float32 [M <= max_points, 3], the voxel in metres).
+    one real point per voxel. Deterministic.
+    Returns (float32 [M <= max_points, 3], the voxel in metres).
     """
     points = voxel_downsample(points, voxel_m)
     if len(points) <= max_points:
         return points, voxel_m
     lo, hi = voxel_m, voxel_m * np.sqrt(len(points) / max_points)  # surfaces: n ~ 1 / voxel^2
     best = voxel_sample(points, hi)
-    while len(best) > max_points:
+    extent_m = float(np.ptp(points, axis=0).max()) + voxel_m
+    while len(best) > max_points and hi < 4 * extent_m:
         lo, hi = hi, hi * 1.5
         best = voxel_sample(points, hi)
+    if len(best) > max_points:  # a cap below the 2x2x2 voxels any grid can straddle
+        return best[np.linspace(0, len(best) - 1, max_points).astype(np.intp)], hi
     for _ in range(4):
         mid = 0.5 * (lo + hi)
         candidate = voxel_sample(points, mid)
