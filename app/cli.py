@@ -171,6 +171,10 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--mapping-workers", type=int, help="threads that decode and map (default 2)")
     sv.add_argument("--log-level", help="uvicorn log level (default info)")
     sv.set_defaults(func=cmd_serve)
+
+    from client_sim.device import add_device_parser
+
+    add_device_parser(sub)
     return parser
 
 

@@ -35,6 +35,8 @@ from app.server.settings import ServerSettings
 from app.server.store import SessionRecord, Store
 
 Reply = Callable[[dict], Awaitable[None]]
+FLUSH_AFTER_S = 1.0
+"""Longest a confirmed change waits for its publication when keyframes stop coming."""
 
 
 def hash_token(token: str) -> str:
@@ -63,6 +65,8 @@ class Session:
     _pending: _Pending | None = None
     _mapping: bool = False
     _published: asyncio.Event = field(default_factory=asyncio.Event)
+    _published_seq: int = 0
+    _flush_timer: asyncio.TimerHandle | None = None
     _closed: bool = False
     _fps_window: deque = field(default_factory=lambda: deque(maxlen=60))
 
@@ -134,8 +138,26 @@ class Session:
         return self._published
 
     def _publish(self) -> None:
+        if self._flush_timer is not None:
+            self._flush_timer.cancel()
+            self._flush_timer = None
+        self._published_seq = self.engine.log.seq
         event, self._published = self._published, asyncio.Event()
         event.set()
+
+    def after_keyframe(self, keyframe: int) -> None:
+        """Publish every `local_map_update_frequency` keyframes; a change left over between
+        publications goes out at most FLUSH_AFTER_S later, so subscribers always catch up."""
+        if keyframe % self.knobs.local_map_update_frequency == 0:
+            self._publish()
+        elif self.engine.log.seq > self._published_seq and self._flush_timer is None:
+            self._flush_timer = asyncio.get_running_loop().call_later(FLUSH_AFTER_S, self.flush)
+
+    def flush(self) -> None:
+        """Publish now if the map changed since the last publication (e.g. a stream ended)."""
+        self._flush_timer = None
+        if self.engine.log.seq > self._published_seq:
+            self._publish()
 
     def close(self) -> None:
         self._closed = True
@@ -271,8 +293,7 @@ class SessionManager:
                             objects=stats.confirmed,
                         )
                     )
-                    if stats.keyframe % session.knobs.local_map_update_frequency == 0:
-                        session._publish()
+                    session.after_keyframe(stats.keyframe)
                 pending, session._pending = session._pending, None
         finally:
             session._mapping = False

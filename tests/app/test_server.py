@@ -287,3 +287,25 @@ def test_auth_refuses_wrong_tokens_on_every_route_and_socket(live_server):
         assert replies[0]["type"] == "ack"
 
     asyncio.run(sockets())
+
+
+def test_a_subscriber_catches_up_when_the_stream_stops_between_publications(live_server):
+    server = live_server()
+    knobs = {**FAST, "local_map_update_frequency": 2}
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c, knobs=knobs)["session_id"]
+
+        async def run():
+            url = f"{server.ws_url}/v1/sessions/{sid}/updates?since=0"
+            async with websockets.connect(url) as sub:
+                await asyncio.wait_for(sub.recv(), TIMEOUT_S)
+                frames = [frame_message(SCENE, i, cam_xy=(0.02 * i, 0.0)) for i in range(3)]
+                await stream_in_step(f"{server.ws_url}/v1/sessions/{sid}/stream", frames)
+                target = c.get(f"/v1/sessions/{sid}").json()["update_seq"]
+                seq = 0
+                while seq < target:  # odd keyframe count: the last change still arrives
+                    seq = msgpack.unpackb(await asyncio.wait_for(sub.recv(), TIMEOUT_S))["seq"]
+                return seq, target
+
+        seq, target = asyncio.run(run())
+        assert seq == target

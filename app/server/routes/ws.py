@@ -117,6 +117,8 @@ async def stream(ws: WebSocket, sid: str) -> None:
                 return
     except WebSocketDisconnect:
         return
+    finally:
+        session.flush()  # the device stopped: its last changes go out now
     if session._closed:
         with contextlib.suppress(Exception):
             await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")

@@ -1,0 +1,373 @@
+"""`semanticxr device`: an emulated XR device that streams a source, follows the map and asks.
+
+    semanticxr device --server http://127.0.0.1:8000 --create --source synthetic:living_room \\
+        --frames 150 --fps 5 --query "where is the sofa" --json device.json
+
+It creates (or joins) a session, streams the source's frames at --fps (every --send-every-th
+frame), keeps a local copy of the map from the session's updates, prints progress on stderr
+about once a second, and at the end asks each --query (SQ or LQ, see client_sim/querying.py)
+and prints the answers. Ctrl-C stops it cleanly (the summary is still written).
+
+`add_device_parser` and `run_device` are what app/cli.py hooks in.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import dataclasses
+import math
+import sys
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+from app.config import Knobs, updated_knobs
+
+if TYPE_CHECKING:  # the real imports are in the functions: torch loads in ~1.5 s, and
+    # app/cli.py builds this parser for every command, not only `device`
+    from app.semantics import TextEncoder
+    from client_sim.querying import QueryAnswer
+    from client_sim.sources.base import FrameSource
+    from client_sim.streaming import DeviceClient
+
+PROGRESS_PERIOD_S = 1.0
+"""How often the progress line is printed."""
+SYNC_TIMEOUT_S = 3.0
+"""After streaming, how long to wait for the local map to catch up before querying. The
+server publishes every `local_map_update_frequency` keyframes, so the last keyframes' changes
+may never be pushed: the wait is short, and queries go ahead either way."""
+SYNTHETIC_DEFAULT_FRAMES = 300
+
+
+def add_device_parser(subparsers: Any) -> None:
+    """Add the `device` subcommand (with its knob flags) to `semanticxr`'s subparsers."""
+    from app.cli import add_knob_flags  # here, not at import: app.cli imports this module
+
+    parser = subparsers.add_parser(
+        "device",
+        help="emulate an XR device: stream a source to a server, follow the map, ask queries",
+        description="Stream RGB-D frames to a SemanticXR server over wire protocol v1, keep a "
+        "local copy of the map from its updates, and answer queries by server query (SQ) or "
+        "local query (LQ) depending on the round-trip time.",
+    )
+    parser.add_argument("--server", required=True, metavar="URL", help="e.g. http://host:8000")
+    session = parser.add_argument_group("session (join one, or --create one)")
+    session.add_argument("--session", metavar="SID", help="session id to join")
+    session.add_argument("--token", help="the session's token (default: the API key)")
+    session.add_argument("--create", action="store_true", help="create a new session")
+    session.add_argument("--name", help="name of the created session")
+    session.add_argument(
+        "--mode", default="semanticxr", choices=("semanticxr", "baseline"), help="of --create"
+    )
+    session.add_argument("--api-key", help="server API key (needed by --create when set)")
+    parser.add_argument(
+        "--source",
+        default="synthetic:apartment",
+        help="synthetic:<scene> | 7scenes:<dir> | replica:<dir> | tum:<dir> "
+        "(default synthetic:apartment)",
+    )
+    parser.add_argument(
+        "--frames",
+        type=int,
+        metavar="N",
+        help=f"source frames to play (default: all; synthetic walks {SYNTHETIC_DEFAULT_FRAMES})",
+    )
+    parser.add_argument(
+        "--fps", type=float, default=5.0, help="source frame rate; 0 = as fast as acks allow"
+    )
+    parser.add_argument(
+        "--send-every", type=int, default=1, metavar="N", help="send every N-th frame only"
+    )
+    parser.add_argument(
+        "--max-in-flight", type=int, default=4, metavar="N", help="un-acked frames at most"
+    )
+    parser.add_argument("--jpeg-quality", type=int, default=85, help="RGB JPEG quality 1..95")
+    parser.add_argument(
+        "--query",
+        action="append",
+        default=[],
+        metavar="TEXT",
+        help="ask this at the end (repeatable); prints mode, latency and top results",
+    )
+    parser.add_argument("-k", type=int, default=3, help="results per query")
+    parser.add_argument("--json", metavar="PATH", help="write a summary as JSON here")
+    add_knob_flags(parser)
+    parser.set_defaults(func=run_device)
+
+
+def run_device(args: argparse.Namespace) -> int:
+    """Run the device command; 0 on success, 2 on a set-up error, 130 on Ctrl-C."""
+    from app.cli import knobs_from_args
+    from client_sim.streaming import DeviceError, http_base_url
+
+    knobs_from_args(args)  # validates the knob flags (KnobError names the bad one)
+    if not args.create and not args.session:
+        print("semanticxr device: give --session SID (with --token) or --create", file=sys.stderr)
+        return 2
+    if args.send_every < 1 or args.max_in_flight < 1 or (args.frames or 0) < 0 or args.fps < 0:
+        print(
+            "semanticxr device: --send-every and --max-in-flight must be >= 1, "
+            "--frames and --fps >= 0",
+            file=sys.stderr,
+        )
+        return 2
+    try:
+        http_base_url(args.server)
+        # The source first: a wrong path should not leave an empty session behind.
+        source = make_device_source(args.source, args.frames)
+    except (ValueError, OSError) as exc:
+        print(f"semanticxr device: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return asyncio.run(_run(args, source))
+    except DeviceError as exc:
+        print(f"semanticxr device: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("\ninterrupted", file=sys.stderr)
+        return 130
+
+
+def make_device_source(spec: str, frames: int | None) -> FrameSource:
+    """synthetic:<scene> (a walk of `frames` frames) or a recorded dataset "kind:dir"."""
+    kind, _, rest = spec.partition(":")
+    if kind == "synthetic":
+        from client_sim.sources.synthetic import SyntheticSource
+
+        return SyntheticSource(rest or "apartment", n_frames=frames or SYNTHETIC_DEFAULT_FRAMES)
+    from client_sim.sources import make_source
+
+    return make_source(spec)
+
+
+def _explicit_knobs(args: argparse.Namespace) -> dict[str, Any]:
+    """Only the knob flags given on the command line (the rest stays as the session has it)."""
+    return {
+        f.name: getattr(args, f"knob_{f.name}")
+        for f in dataclasses.fields(Knobs)
+        if getattr(args, f"knob_{f.name}", None) is not None
+    }
+
+
+async def _join_session(args: argparse.Namespace) -> tuple[str, str | None, dict]:
+    """(session id, token, session info with "knobs" and "embedding") for --create or --session."""
+    from client_sim.streaming import DeviceClient
+
+    changes = _explicit_knobs(args)
+    if args.create:
+        sid, token, answer = await DeviceClient.create_session(
+            args.server, name=args.name, mode=args.mode, knobs=changes, api_key=args.api_key
+        )
+        print(f"[device] created session {sid} (token {token})", file=sys.stderr)
+        return sid, token, answer
+    token = args.token or args.api_key
+    if changes:  # knobs are settable at run time: the flags apply to the joined session
+        await DeviceClient.patch_knobs(args.server, args.session, token, changes)
+    return args.session, token, await DeviceClient.fetch_session(args.server, args.session, token)
+
+
+class _Progress:
+    """The once-a-second status line: frames, fps, upstream Mbps, local objects, RTT, mode."""
+
+    def __init__(self, client: DeviceClient, threshold_ms: float, n_frames: int):
+        self.client, self.threshold_ms, self.n_frames = client, threshold_ms, n_frames
+        self.start_s = self._last_s = time.monotonic()
+        self._last_sent = 0
+        self._last_bytes = 0
+
+    def line(self) -> str:
+        from client_sim.querying import planned_mode
+
+        stats, now_s = self.client.stats, time.monotonic()
+        elapsed_s = max(now_s - self._last_s, 1e-6)
+        sent, up_bytes = stats.frames_sent, stats.bytes_up_by_kind.get("total", 0)
+        fps = (sent - self._last_sent) / elapsed_s
+        mbps = (up_bytes - self._last_bytes) * 8 / elapsed_s / 1e6
+        self._last_s, self._last_sent, self._last_bytes = now_s, sent, up_bytes
+        rtt = self.client.rtt_ms
+        rtt_text = "?" if rtt is None else ("down" if math.isinf(rtt) else f"{rtt:.0f} ms")
+        local = self.client.local_map
+        return (
+            f"[device] sent {sent}/{self.n_frames} ({fps:.1f} fps, {mbps:.2f} Mbps up) "
+            f"acked {stats.acks} dropped {stats.dropped} | local {len(local)} objects "
+            f"{local.memory_bytes() / 1e6:.2f} MB seq {local.seq} | RTT {rtt_text} "
+            f"query {planned_mode(rtt, self.threshold_ms)} | reconnects {stats.reconnects}"
+        )
+
+    async def run(self) -> None:
+        while True:
+            await asyncio.sleep(PROGRESS_PERIOD_S)  # a display period, not synchronisation
+            print(self.line(), file=sys.stderr, flush=True)
+
+
+def _print_answer(answer: QueryAnswer) -> None:
+    print(
+        f"{answer.text!r}: {answer.mode} in {answer.latency_ms:.1f} ms ({answer.reason})",
+        flush=True,
+    )
+    if not answer.results:
+        print("  (no objects)")
+    for hit in answer.results:
+        centroid = ", ".join(f"{v:.2f}" for v in hit["centroid"])
+        print(f"  #{hit['id']:<5} {hit['label']:<24} score {hit['score']:.3f}  at ({centroid})")
+
+
+async def _run(args: argparse.Namespace, source: FrameSource) -> int:
+    from client_sim.querying import QueryRouter
+    from client_sim.streaming import DeviceClient, make_local_map
+
+    sid, token, info = await _join_session(args)
+    knobs = updated_knobs(Knobs(), info["knobs"])  # the knobs in force on the server
+    embedding = info["embedding"]
+    n_frames = len(source) if args.frames is None else min(args.frames, len(source))
+    client = DeviceClient(
+        args.server,
+        sid,
+        token,
+        knobs=knobs,
+        jpeg_quality=args.jpeg_quality,
+        send_every=args.send_every,
+        local_map=make_local_map(knobs, embedding["dim"]),
+        on_log=lambda message: print(f"[device] {message}", file=sys.stderr, flush=True),
+    )
+    # The text encoder takes seconds to load: in parallel with streaming, and only if needed.
+    encoder_task = _load_encoder_in_background(embedding) if args.query else None
+    threshold_ms = knobs.net_latency_switch_threshold_ms
+    progress = _Progress(client, threshold_ms, len(range(0, n_frames, args.send_every)))
+    tasks = [asyncio.create_task(client.follow_updates()), asyncio.create_task(progress.run())]
+    answers: list[QueryAnswer] = []
+    start_s = time.monotonic()
+    interrupted = False
+    try:
+        stats = await client.stream(
+            source, fps=args.fps or None, limit=n_frames, max_in_flight=args.max_in_flight
+        )
+        if not await client.wait_synced(stats.server_seq, SYNC_TIMEOUT_S):
+            print(
+                f"[device] local map at seq {client.local_map.seq}, server at "
+                f"{stats.server_seq} after {SYNC_TIMEOUT_S:g} s (the server publishes every "
+                f"{knobs.local_map_update_frequency} keyframes; the rest comes with the next)",
+                file=sys.stderr,
+            )
+        print(progress.line(), file=sys.stderr, flush=True)
+        if encoder_task is not None:
+            async with QueryRouter(
+                args.server,
+                sid,
+                token,
+                client.local_map,
+                await encoder_task,
+                threshold_ms=threshold_ms,
+                rtt_ms=lambda: client.rtt_ms,
+            ) as router:
+                for text in args.query:
+                    answers.append(await router.query(text, args.k))
+                    _print_answer(answers[-1])
+    except asyncio.CancelledError:  # Ctrl-C: asyncio.run cancels us, then raises KeyboardInterrupt
+        interrupted = True
+        raise
+    finally:
+        await client.stop()
+        for task in tasks:
+            task.cancel()
+        if encoder_task is not None:
+            encoder_task.cancel()
+            tasks.append(encoder_task)
+        await asyncio.gather(*tasks, return_exceptions=True)
+        if args.json:
+            from app.cli import write_json
+
+            write_json(args.json, _summary(args, sid, client, answers, start_s, interrupted))
+    return 0
+
+
+def _load_encoder_in_background(embedding: dict) -> asyncio.Future[TextEncoder]:
+    """The text encoder for LQ, loaded in a daemon thread: a Ctrl-C during the load exits at
+    once instead of waiting for it (asyncio.to_thread's pool is joined at exit)."""
+    loop = asyncio.get_running_loop()
+    future: asyncio.Future[TextEncoder] = loop.create_future()
+
+    def settle(result: TextEncoder | None, error: BaseException | None) -> None:
+        if future.done():  # cancelled meanwhile
+            return
+        if error is not None:
+            future.set_exception(error)
+        else:
+            future.set_result(result)
+
+    def load() -> None:
+        from app.semantics import get_text_encoder
+        from client_sim.streaming import DeviceError
+
+        try:
+            encoder = get_text_encoder()
+            if (encoder.model_id, encoder.dim) != (embedding["model"], embedding["dim"]):
+                # Different models embed into different spaces: local scores would be noise.
+                raise DeviceError(
+                    f"the session embeds with {embedding['model']} ({embedding['dim']}-d); this "
+                    f"device has {encoder.model_id} ({encoder.dim}-d)"
+                )
+        except BaseException as exc:
+            with contextlib.suppress(RuntimeError):  # the loop may be closed already
+                loop.call_soon_threadsafe(settle, None, exc)
+        else:
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(settle, encoder, None)
+
+    threading.Thread(target=load, name="load-text-encoder", daemon=True).start()
+    return future
+
+
+def _summary(
+    args: argparse.Namespace,
+    sid: str,
+    client: DeviceClient,
+    answers: list[QueryAnswer],
+    start_s: float,
+    interrupted: bool,
+) -> dict:
+    """The --json document (times in ms, sizes in bytes, rates per second)."""
+    stats = client.stats
+    duration_s = max(time.monotonic() - start_s, 1e-6)
+    local = client.local_map
+    return {
+        "server": args.server,
+        "session_id": sid,
+        "source": args.source,
+        "interrupted": interrupted,
+        "duration_s": duration_s,
+        "frames": {
+            "sent": stats.frames_sent,
+            "acked": stats.acks,
+            "keyframes": stats.keyframes_acked,
+            "superseded": stats.superseded,
+            "dropped": stats.dropped,
+            "lost_in_flight": stats.lost_in_flight,
+            "errors": stats.errors,
+        },
+        "bytes_up": dict(stats.bytes_up_by_kind),
+        "upstream_mbps": stats.bytes_up_by_kind.get("total", 0) * 8 / duration_s / 1e6,
+        "bytes_down": stats.bytes_down,
+        "rtt_ms": _finite_or_none(stats.rtt_ms_smoothed),
+        "reconnects": stats.reconnects,
+        "resyncs": stats.resyncs,
+        "last_error": stats.last_error,
+        "local_map": {
+            "objects": len(local),
+            "memory_bytes": local.memory_bytes(),
+            "seq": local.seq,
+            "server_seq": stats.server_seq,
+            "evicted": local.evicted,
+        },
+        "queries": [
+            dict(dataclasses.asdict(answer), rtt_ms=_finite_or_none(answer.rtt_ms))
+            for answer in answers
+        ],
+    }
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    """JSON has no infinity: an unknown or down-link RTT is null."""
+    return value if value is not None and math.isfinite(value) else None

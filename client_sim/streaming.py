@@ -1,0 +1,730 @@
+"""The device's connection to the server: frames up, map updates down (wire protocol v1).
+
+Two WebSockets, each kept up on its own with exponential backoff (0.2 s doubling to 5 s,
+forever until `stop()`):
+
+- `/v1/sessions/{sid}/stream` (`DeviceClient.stream`): encoded frames up, acks down. At most
+  `max_in_flight` frames wait for their ack. Frames are samples, not a log: a frame due
+  while the link is down is skipped (counted in `dropped`), never queued or resent.
+- `/v1/sessions/{sid}/updates` (`DeviceClient.follow_updates`): deltas down, applied to the
+  `LocalMap`. After a disconnect it resumes from `local_map.seq` (the server sends what
+  changed since, so no update is lost); after a malformed message it resyncs from a full
+  snapshot (no `since`). The local map validates a delta before changing anything, so a
+  bad message never leaves it half-applied.
+
+Round-trip time (the input of the SQ/LQ switch, client_sim/querying.py) is an EWMA
+(alpha 0.2) of two kinds of samples: frame send -> ack (minus the server's mapping time for
+keyframes, whose ack waits for the map) and WebSocket ping -> pong on the updates socket,
+so a device that only follows updates still knows its RTT.
+
+Not thread-safe: one asyncio loop runs the client, its local map and its queries.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+from urllib.parse import urlsplit
+
+import httpx
+import msgpack
+import websockets
+from websockets.asyncio.client import ClientConnection
+from websockets.exceptions import WebSocketException
+
+from app.config import Knobs
+from client_sim.encoder import EncodedFrame, FrameEncoder
+from client_sim.local_map import DeltaError, LocalMap
+from client_sim.sources.base import FrameSource
+
+log = logging.getLogger(__name__)
+
+BACKOFF_FIRST_S = 0.2
+"""First reconnect delay; doubles after each failed attempt."""
+BACKOFF_MAX_S = 5.0
+"""Reconnect delay ceiling."""
+RTT_EWMA_ALPHA = 0.2
+"""Weight of a new RTT sample in the smoothed RTT."""
+PING_INTERVAL_S = 1.0
+"""Ping period on the updates socket (RTT samples while no frames are streamed)."""
+OPEN_TIMEOUT_S = 5.0
+"""WebSocket opening handshake timeout."""
+ACK_TIMEOUT_S = 15.0
+"""A full window with no ack for this long: the connection is treated as dead and reopened."""
+DRAIN_TIMEOUT_S = 30.0
+"""At the end of `stream()`, how long to wait for the acks of frames in flight."""
+REST_TIMEOUT_S = 10.0
+"""Timeout of the REST calls that set a session up."""
+DEFAULT_EMBEDDING_DIM = 384
+"""all-MiniLM-L6-v2, the default text encoder's dimension (sessions announce theirs)."""
+
+_CONNECTION_ERRORS = (OSError, TimeoutError, EOFError, WebSocketException)
+"""What opening or using a socket raises when the network or the server goes away
+(ConnectionClosed and the handshake errors are WebSocketExceptions)."""
+
+T = TypeVar("T")
+
+
+class DeviceError(RuntimeError):
+    """A REST call that sets a session up failed (bad URL, refused, 4xx/5xx)."""
+
+
+@dataclass
+class DeviceStats:
+    """Counters of one device (shared by `stream` and `follow_updates`)."""
+
+    frames_sent: int = 0
+    """Frames written to the stream socket."""
+    acks: int = 0
+    """Acks received (keyframes and others, including keyframes the server superseded)."""
+    errors: int = 0
+    """Server `error` replies and malformed replies (logged, never fatal)."""
+    keyframes_acked: int = 0
+    """Acks with keyframe = true (the frame was mapped)."""
+    dropped: int = 0
+    """Frames due while the stream socket was down: skipped, never sent."""
+    bytes_up_by_kind: dict[str, int] = field(
+        default_factory=lambda: {"rgb": 0, "depth": 0, "detections": 0, "pose": 0, "total": 0}
+    )
+    """Payload bytes sent per part of a frame; "total" is whole packed messages."""
+    bytes_down: int = 0
+    """Bytes received on both sockets (acks and deltas)."""
+    rtt_ms_smoothed: float | None = None
+    """EWMA of the RTT samples; None until the first sample (and after an outage)."""
+    reconnects: int = 0
+    """Successful re-connections of either socket after a loss."""
+    last_error: str | None = None
+    """The most recent problem, for a human."""
+    resyncs: int = 0
+    """Full-snapshot resyncs after a malformed update."""
+    lost_in_flight: int = 0
+    """Frames sent whose ack never came because the connection dropped."""
+    superseded: int = 0
+    """Keyframes the server acknowledged as dropped (a newer keyframe replaced them)."""
+    deltas_applied: int = 0
+    """Update messages applied to the local map."""
+    full_snapshots: int = 0
+    """Of those, full snapshots."""
+    server_seq: int = 0
+    """Newest map seq announced in acks (`update_seq`, an ack extension); 0 if none."""
+
+    def copy(self) -> DeviceStats:
+        return dataclasses.replace(self, bytes_up_by_kind=dict(self.bytes_up_by_kind))
+
+
+class Backoff:
+    """Reconnect delays: `first_s`, doubling up to `max_s`; `reset()` after a success."""
+
+    def __init__(self, first_s: float = BACKOFF_FIRST_S, max_s: float = BACKOFF_MAX_S):
+        self.first_s, self.max_s = first_s, max_s
+        self._next_s = first_s
+
+    def next_delay(self) -> float:
+        delay, self._next_s = self._next_s, min(self._next_s * 2, self.max_s)
+        return delay
+
+    def reset(self) -> None:
+        self._next_s = self.first_s
+
+
+def websocket_base_url(server_url: str) -> str:
+    """ws:// or wss:// base of an http(s):// server URL (ws(s):// is accepted as is)."""
+    parts = urlsplit(server_url)
+    scheme = {"http": "ws", "https": "wss", "ws": "ws", "wss": "wss"}.get(parts.scheme)
+    if scheme is None or not parts.netloc:
+        raise ValueError(f"server URL must look like http://host:port, got {server_url!r}")
+    return f"{scheme}://{parts.netloc}{parts.path.rstrip('/')}"
+
+
+def http_base_url(server_url: str) -> str:
+    """http:// or https:// base of a server URL (ws(s):// is mapped back)."""
+    ws = websocket_base_url(server_url)
+    return "https" + ws[3:] if ws.startswith("wss") else "http" + ws[2:]
+
+
+def auth_headers(token: str | None) -> dict[str, str]:
+    """`Authorization: Bearer` for a session token or API key (none when the server is open)."""
+    return {"Authorization": f"Bearer {token}"} if token else {}
+
+
+def make_local_map(knobs: Knobs, embedding_dim: int = DEFAULT_EMBEDDING_DIM) -> LocalMap:
+    """The local map a session's knobs ask for (point cap, budget, priorities)."""
+    return LocalMap(
+        dim=embedding_dim,
+        max_points_per_object=knobs.max_object_points_client,
+        budget_mb=knobs.local_map_budget_mb,
+        priority_classes=knobs.priority_class,
+        distance_threshold_m=knobs.distance_threshold_m,
+    )
+
+
+async def _rest(method: str, url: str, token: str | None, expect: int, json: Any = None) -> Any:
+    """One REST call; its JSON answer, or DeviceError naming the status and the server's detail."""
+    try:
+        async with httpx.AsyncClient(timeout=REST_TIMEOUT_S) as http:
+            response = await http.request(method, url, json=json, headers=auth_headers(token))
+    except httpx.HTTPError as exc:
+        raise DeviceError(f"{method} {url}: {type(exc).__name__}: {exc}") from exc
+    try:
+        body = response.json()
+    except ValueError:
+        body = None
+    if response.status_code != expect:
+        detail = body.get("detail", body) if isinstance(body, dict) else response.text
+        raise DeviceError(f"{method} {url}: HTTP {response.status_code}: {detail}")
+    if body is None:
+        raise DeviceError(f"{method} {url}: the answer is not JSON")
+    return body
+
+
+class DeviceClient:
+    """A device's two sockets to one session, its local map and its counters.
+
+    server_url: http(s)://host:port of the server. token: the session token (or the API key).
+    knobs: the session's knobs (depth ratio for the encoder; point cap and budget for a
+    default local map). send_every: the device's keyframe-rate knob, send only every n-th
+    source frame. local_map: where deltas go (default: `make_local_map(knobs,
+    embedding_dim)`). on_log: receives one human-readable line per event worth telling
+    (reconnects, server errors, resyncs); default: this module's logger.
+    """
+
+    def __init__(
+        self,
+        server_url: str,
+        session_id: str,
+        token: str | None = None,
+        *,
+        knobs: Knobs | None = None,
+        jpeg_quality: int = 85,
+        send_every: int = 1,
+        local_map: LocalMap | None = None,
+        on_log: Callable[[str], None] | None = None,
+        embedding_dim: int = DEFAULT_EMBEDDING_DIM,
+    ):
+        if isinstance(send_every, bool) or not isinstance(send_every, int) or send_every < 1:
+            raise ValueError(f"send_every must be a positive integer, got {send_every!r}")
+        self.http_url = http_base_url(server_url)
+        self.ws_url = websocket_base_url(server_url)
+        self.session_id = session_id
+        self.token = token
+        self.knobs = knobs or Knobs()
+        self.jpeg_quality = jpeg_quality
+        self.send_every = send_every
+        self.local_map = (
+            local_map if local_map is not None else make_local_map(self.knobs, embedding_dim)
+        )
+        self.stats = DeviceStats()
+        self.subscriptions: deque[int | None] = deque(maxlen=1000)
+        """`since` of each updates connection opened, oldest first (None = full snapshot)."""
+        self._on_log = on_log or log.info
+        self._stopped = asyncio.Event()
+        self._stream_up = False
+        self._updates_up = False
+        self._outage = False  # a socket dropped and has not come back yet
+        self._map_changed = asyncio.Event()  # replaced after each set: one event per change
+        self._links: set[_StreamLink] = set()
+        self._updates_ws: ClientConnection | None = None
+        self._next_seq = 0  # frame seq across stream() calls: unique per device
+
+    # --- session set-up (REST) ------------------------------------------------------------
+
+    @classmethod
+    async def create_session(
+        cls,
+        server_url: str,
+        *,
+        name: str | None = None,
+        mode: str = "semanticxr",
+        knobs: dict | None = None,
+        api_key: str | None = None,
+    ) -> tuple[str, str, dict]:
+        """POST /v1/sessions -> (session_id, token, the whole answer incl. embedding, knobs)."""
+        body: dict[str, Any] = {"mode": mode, "knobs": knobs or {}}
+        if name is not None:
+            body["name"] = name
+        answer = await _rest("POST", f"{http_base_url(server_url)}/v1/sessions", api_key, 201, body)
+        return answer["session_id"], answer["token"], answer
+
+    @staticmethod
+    async def fetch_session(server_url: str, session_id: str, token: str | None) -> dict:
+        """GET /v1/sessions/{sid}: stats, knobs in force, embedding model and dimension."""
+        url = f"{http_base_url(server_url)}/v1/sessions/{session_id}"
+        return await _rest("GET", url, token, 200)
+
+    @staticmethod
+    async def patch_knobs(
+        server_url: str, session_id: str, token: str | None, changes: dict
+    ) -> dict:
+        """PATCH /v1/sessions/{sid}/knobs -> the knobs now in force."""
+        url = f"{http_base_url(server_url)}/v1/sessions/{session_id}/knobs"
+        return await _rest("PATCH", url, token, 200, changes)
+
+    # --- state ----------------------------------------------------------------------------
+
+    @property
+    def connected(self) -> bool:
+        """True while the stream or the updates socket is up."""
+        return self._stream_up or self._updates_up
+
+    @property
+    def rtt_ms(self) -> float | None:
+        """Smoothed RTT in ms while connected; `math.inf` during an outage (a socket dropped
+        and none is back yet); None when unknown (no sample yet, or no socket running)."""
+        if self.connected:
+            return self.stats.rtt_ms_smoothed
+        return math.inf if self._outage else None
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped.is_set()
+
+    async def wait_synced(self, seq: int, timeout_s: float = 10.0) -> bool:
+        """Wait until the local map has applied seq `seq` (or later); False on timeout."""
+        deadline = time.monotonic() + timeout_s
+        while self.local_map.seq < seq:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._map_changed.wait(), remaining)
+        return True
+
+    async def stop(self) -> None:
+        """Stop streaming and following updates; `stream` and `follow_updates` return soon.
+
+        Final: a stopped client does not start again (make a new one, with the same local map
+        to resume from its seq)."""
+        self._stopped.set()
+        for link in list(self._links):
+            await link.notify()
+        if self._updates_ws is not None:
+            with contextlib.suppress(Exception):
+                await self._updates_ws.close()
+
+    # --- helpers --------------------------------------------------------------------------
+
+    def _log(self, message: str) -> None:
+        try:
+            self._on_log(message)
+        except Exception:  # a broken log sink must not take the device down
+            log.exception("on_log failed")
+
+    def _problem(self, message: str) -> None:
+        self.stats.last_error = message
+        self._log(message)
+
+    def _observe_rtt(self, sample_ms: float) -> None:
+        smoothed = self.stats.rtt_ms_smoothed
+        sample_ms = max(0.0, sample_ms)
+        self.stats.rtt_ms_smoothed = (
+            sample_ms if smoothed is None else smoothed + RTT_EWMA_ALPHA * (sample_ms - smoothed)
+        )
+
+    def _socket_up(self, which: str, reconnect: bool) -> None:
+        if which == "stream":
+            self._stream_up = True
+        else:
+            self._updates_up = True
+        if reconnect:
+            self.stats.reconnects += 1
+            self._log(f"{which} socket reconnected")
+        self._outage = False
+
+    def _socket_down(self, which: str, reason: str, expected: bool) -> None:
+        if which == "stream":
+            self._stream_up = False
+        else:
+            self._updates_up = False
+        if not expected and not self._stopped.is_set():
+            # The link is gone: the old RTT says nothing about the link that comes back.
+            self._outage = True
+            self.stats.rtt_ms_smoothed = None
+            self._problem(f"{which} socket lost ({reason}); reconnecting")
+
+    async def _until_stopped(self, awaitable: Awaitable[T]) -> T | None:
+        """`awaitable`'s result, or None (and it is cancelled) if `stop()` comes first."""
+        task = asyncio.ensure_future(awaitable)
+        stopper = asyncio.ensure_future(self._stopped.wait())
+        try:
+            await asyncio.wait({task, stopper}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stopper.cancel()
+            if not task.done():
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, *_CONNECTION_ERRORS):
+                    await task
+        if not task.done() or task.cancelled():
+            return None
+        return task.result()
+
+    async def _sleep(self, seconds: float) -> bool:
+        """Sleep (a pacing or backoff timer, not synchronisation); False if stopped meanwhile."""
+        if seconds > 0:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._stopped.wait(), seconds)
+        return not self._stopped.is_set()
+
+    async def _open(self, path: str, **kwargs: Any) -> ClientConnection | None:
+        """Open a WebSocket to `path` (None if stopped first); raises the connection errors."""
+
+        async def connect() -> ClientConnection:
+            return await websockets.connect(
+                f"{self.ws_url}{path}",
+                additional_headers=auth_headers(self.token),
+                open_timeout=OPEN_TIMEOUT_S,
+                compression=None,  # JPEG, zstd and float16 do not deflate; save the CPU
+                max_size=None,  # a full snapshot of a large map is big, and the server is trusted
+                **kwargs,
+            )
+
+        return await self._until_stopped(connect())
+
+    # --- frames up ------------------------------------------------------------------------
+
+    async def stream(
+        self,
+        source: FrameSource,
+        fps: float | None = 5.0,
+        limit: int | None = None,
+        max_in_flight: int = 4,
+    ) -> DeviceStats:
+        """Play `source` to the server; returns the counters when done (or stopped).
+
+        fps: the source's frame rate (frame i is captured at i / fps s after the start);
+        every `send_every`-th frame is sent when it is captured, and skipped (`dropped`) if
+        the link is down at that moment. None: no clock, frames go as fast as acks allow,
+        and while the link is down the device waits for it (no frame is captured meanwhile).
+        limit: play only source frames 0 .. limit - 1 (None: all).
+        max_in_flight: most frames sent and not yet answered.
+
+        Server errors and lost connections are counted and logged, never raised; an error of
+        the source itself (an unreadable file) is raised, since no later frame would fare
+        better.
+        """
+        if fps is not None and not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be a positive number or None, got {fps!r}")
+        if max_in_flight < 1:
+            raise ValueError(f"max_in_flight must be >= 1, got {max_in_flight!r}")
+        encoder = FrameEncoder(
+            depth_downsampling_ratio=self.knobs.depth_downsampling_ratio,
+            jpeg_quality=self.jpeg_quality,
+        )
+        n_frames = len(source) if limit is None else min(len(source), max(0, limit))
+        link = _StreamLink(self, max_in_flight)
+        self._links.add(link)
+        runner = asyncio.create_task(link.run())
+        loop = asyncio.get_running_loop()
+        try:
+            # The clock starts once the link has had its chance: frame 0 is not lost to the
+            # connection handshake.
+            await self._until_stopped(link.attempted.wait())
+            start_s = loop.time()
+            for index in range(0, n_frames, self.send_every):
+                if fps is not None:
+                    if not await self._sleep(start_s + index / fps - loop.time()):
+                        break
+                    if not await link.wait_for_slot(wait_for_link=False):
+                        self.stats.dropped += 1
+                        continue
+                elif not await link.wait_for_slot(wait_for_link=True):
+                    break  # stopped
+                seq, self._next_seq = self._next_seq, self._next_seq + 1
+                encoded, position = await asyncio.to_thread(
+                    self._capture, source, index, seq, encoder
+                )
+                if not await link.send(encoded):
+                    if self.stopped:
+                        break
+                    self.stats.dropped += 1  # the link went down while the frame was encoded
+                    continue
+                # Eviction prefers nearby objects: the device's own position is the user's.
+                self.local_map.set_user_position(position)
+            await link.drain(DRAIN_TIMEOUT_S)
+        finally:
+            await link.close()
+            runner.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await runner
+            self._links.discard(link)
+        return self.stats.copy()
+
+    @staticmethod
+    def _capture(
+        source: FrameSource, index: int, seq: int, encoder: FrameEncoder
+    ) -> tuple[EncodedFrame, list[float]]:
+        """In a worker thread: read (render) frame `index` and encode it as frame `seq`
+        (slow: rendering, JPEG, zstd; off the loop so acks and deltas keep flowing)."""
+        frame = source.frame(index)
+        encoded = encoder.encode(
+            seq=seq,
+            t=frame.t,
+            rgb=frame.rgb,
+            depth_m=frame.depth_m,
+            pose=frame.pose,
+            intrinsics=frame.intrinsics,
+            instance_ids=frame.instance_ids,
+            instances=frame.instances,
+        )
+        return encoded, [float(v) for v in frame.pose[:3, 3]]
+
+    # --- map updates down -----------------------------------------------------------------
+
+    async def follow_updates(self) -> None:
+        """Apply the session's deltas to the local map until `stop()`.
+
+        Resumes from `local_map.seq` after a disconnect; resyncs from a full snapshot after a
+        malformed message. Starts from a full snapshot when the local map is new.
+        """
+        backoff = Backoff()
+        resync = self.local_map.seq == 0 and len(self.local_map) == 0
+        ever_up = False  # the first connection is not a re-connection
+        down_told = False  # say "lost" once per outage, not once per failed attempt
+        while not self._stopped.is_set():
+            since = None if resync else self.local_map.seq
+            path = f"/v1/sessions/{self.session_id}/updates"
+            if since is not None:
+                path += f"?since={since}"
+            try:
+                ws = await self._open(path)
+            except _CONNECTION_ERRORS as exc:
+                if not down_told:
+                    self._socket_down("updates", f"{type(exc).__name__}: {exc}", expected=False)
+                    down_told = True
+            else:
+                if ws is None:  # stopped while connecting
+                    break
+                self._updates_ws = ws
+                self.subscriptions.append(since)
+                self._socket_up("updates", reconnect=ever_up and not resync)
+                ever_up, down_told = True, False
+                reason, expected = "closed by the server", False
+                pinger = asyncio.create_task(self._ping_loop(ws))
+                try:
+                    while (raw := await self._until_stopped(ws.recv())) is not None:
+                        self.stats.bytes_down += len(raw)
+                        problem = self._apply_update(raw)
+                        if problem is not None:
+                            self.stats.resyncs += 1
+                            self._problem(f"bad update ({problem}); resyncing with a full snapshot")
+                            resync, expected = True, True
+                            break
+                        resync = False
+                        backoff.reset()
+                except _CONNECTION_ERRORS as exc:
+                    reason = f"{type(exc).__name__}: {exc}"
+                finally:
+                    pinger.cancel()
+                    self._updates_ws = None
+                    with contextlib.suppress(Exception):
+                        await ws.close()
+                    self._socket_down("updates", reason, expected)
+                    down_told = not expected
+            if not await self._sleep(backoff.next_delay()):
+                break
+
+    def _apply_update(self, raw: bytes | str) -> str | None:
+        """Apply one updates-socket message; what was wrong with it, or None if applied."""
+        if not isinstance(raw, bytes):
+            return "a text message; updates are binary msgpack"
+        try:
+            message = msgpack.unpackb(raw, raw=False)
+        except Exception as exc:  # msgpack raises many types for garbage
+            return f"not msgpack ({type(exc).__name__})"
+        try:
+            self.local_map.apply_delta(message)
+        except DeltaError as exc:
+            return str(exc)
+        except Exception as exc:
+            # apply_delta validates before it writes, so this is a bug, not a bad message;
+            # a full snapshot replaces whatever the map holds, so resyncing is still safe.
+            log.exception("applying an update failed")
+            return f"{type(exc).__name__}: {exc}"
+        self.stats.deltas_applied += 1
+        self.stats.full_snapshots += bool(message["full"])
+        event, self._map_changed = self._map_changed, asyncio.Event()
+        event.set()
+        return None
+
+    async def _ping_loop(self, ws: ClientConnection) -> None:
+        """RTT samples from ping -> pong while the updates socket is up (websockets' own
+        keepalive pings, every 20 s, only detect dead links)."""
+        while True:
+            await asyncio.sleep(PING_INTERVAL_S)  # a sampling period, not synchronisation
+            try:
+                pong = await ws.ping()
+                latency_s = await asyncio.wait_for(pong, ACK_TIMEOUT_S)
+            except TimeoutError:
+                continue  # no sample; websockets' keepalive decides whether the link is dead
+            except _CONNECTION_ERRORS:
+                return
+            self._observe_rtt(latency_s * 1e3)
+
+
+class _StreamLink:
+    """The stream socket of one `stream()` call: kept up, with its window of un-acked frames."""
+
+    def __init__(self, client: DeviceClient, max_in_flight: int):
+        self.client = client
+        self.stats = client.stats
+        self.max_in_flight = max_in_flight
+        self.ws: ClientConnection | None = None
+        self.in_flight: dict[int, float] = {}  # frame seq -> send time (perf_counter s)
+        self.changed = asyncio.Condition()
+        self.closing = False
+        self.attempted = asyncio.Event()
+        """Set once the first connection attempt has succeeded or failed."""
+
+    async def notify(self) -> None:
+        async with self.changed:
+            self.changed.notify_all()
+
+    def _done(self) -> bool:
+        return self.closing or self.client.stopped
+
+    async def run(self) -> None:
+        """Keep the socket up until closed; read replies while it is."""
+        client = self.client
+        backoff = Backoff()
+        ever_up = down_told = False
+        path = f"/v1/sessions/{client.session_id}/stream"
+        while not self._done():
+            try:
+                ws = await client._open(path)
+            except _CONNECTION_ERRORS as exc:
+                if not down_told:
+                    client._socket_down("stream", f"{type(exc).__name__}: {exc}", expected=False)
+                    down_told = True
+            else:
+                if ws is None:  # stopped while connecting
+                    break
+                self.ws = ws
+                client._socket_up("stream", reconnect=ever_up)
+                ever_up, down_told = True, False
+                backoff.reset()
+                reason = "closed by the server"
+                self.attempted.set()
+                await self.notify()
+                try:
+                    async for raw in ws:
+                        self.stats.bytes_down += len(raw)
+                        self._on_reply(raw)
+                        await self.notify()
+                except _CONNECTION_ERRORS as exc:
+                    reason = f"{type(exc).__name__}: {exc}"
+                finally:
+                    self.ws = None
+                    # Sent frames whose ack can no longer come; they are not resent.
+                    self.stats.lost_in_flight += len(self.in_flight)
+                    self.in_flight.clear()
+                    client._socket_down("stream", reason, expected=self._done())
+                    down_told = not self._done()
+                    await self.notify()
+            self.attempted.set()
+            if self._done() or not await client._sleep(backoff.next_delay()):
+                break
+        self.attempted.set()
+
+    def _on_reply(self, raw: bytes | str) -> None:
+        """Count one ack or error; feed the RTT from acks."""
+        received_s = time.perf_counter()
+        try:
+            reply = msgpack.unpackb(raw, raw=False) if isinstance(raw, bytes) else None
+        except Exception:
+            reply = None
+        kind = reply.get("type") if isinstance(reply, dict) else None
+        if kind not in ("ack", "error"):
+            self.stats.errors += 1
+            self.client._problem("malformed reply on the stream socket")
+            return
+        seq = reply.get("seq")
+        if seq is None and self.in_flight:
+            # Every frame gets exactly one reply; an error without a seq answers the oldest.
+            sent_s = self.in_flight.pop(next(iter(self.in_flight)))
+        else:
+            sent_s = self.in_flight.pop(seq, None) if isinstance(seq, int) else None
+        if kind == "error":
+            self.stats.errors += 1
+            self.client._problem(
+                f"server error for frame {seq}: {reply.get('code')}: {reply.get('message')}"
+            )
+            return
+        self.stats.acks += 1
+        if reply.get("dropped"):
+            self.stats.superseded += 1
+        elif reply.get("keyframe"):
+            self.stats.keyframes_acked += 1
+        update_seq = reply.get("update_seq")
+        if isinstance(update_seq, int):
+            self.stats.server_seq = max(self.stats.server_seq, update_seq)
+        if sent_s is not None and not reply.get("dropped"):
+            # A keyframe's ack waits for its mapping: take that server time out of the sample.
+            # (A superseded keyframe waited in a queue for an unknown time: no sample.)
+            map_ms = reply.get("map_ms", 0.0) if reply.get("keyframe") else 0.0
+            map_ms = map_ms if isinstance(map_ms, int | float) else 0.0
+            self.client._observe_rtt((received_s - sent_s) * 1e3 - map_ms)
+
+    async def wait_for_slot(self, wait_for_link: bool) -> bool:
+        """True once the socket is up with room in the window; False if stopped, or if the
+        socket is down and `wait_for_link` is False. A window stuck full for ACK_TIMEOUT_S
+        means a dead connection: it is aborted and reopened."""
+        async with self.changed:
+            while not self._done():
+                if self.ws is None:
+                    if not wait_for_link:
+                        return False
+                    await self.changed.wait()
+                    continue
+                if len(self.in_flight) < self.max_in_flight:
+                    return True
+                try:
+                    await asyncio.wait_for(self.changed.wait(), ACK_TIMEOUT_S)
+                except TimeoutError:
+                    self.client._problem(f"no ack for {ACK_TIMEOUT_S:g} s; reconnecting")
+                    if self.ws is not None:
+                        self.ws.transport.abort()
+            return False
+
+    async def send(self, encoded: EncodedFrame) -> bool:
+        """Send one encoded frame; False if the socket went down first."""
+        ws = self.ws
+        if ws is None or self._done():
+            return False
+        data = msgpack.packb(encoded.message, use_bin_type=True)
+        seq = encoded.message["seq"]
+        self.in_flight[seq] = time.perf_counter()
+        try:
+            await ws.send(data)
+        except _CONNECTION_ERRORS:
+            self.in_flight.pop(seq, None)
+            return False
+        self.stats.frames_sent += 1
+        for kind, n_bytes in encoded.bytes_by_kind.items():
+            self.stats.bytes_up_by_kind[kind] = self.stats.bytes_up_by_kind.get(kind, 0) + n_bytes
+        return True
+
+    async def drain(self, timeout_s: float) -> None:
+        """Wait for the replies of frames in flight (not across an outage: those are lost)."""
+        deadline = time.monotonic() + timeout_s
+        async with self.changed:
+            while self.in_flight and self.ws is not None and not self._done():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self.changed.wait(), remaining)
+
+    async def close(self) -> None:
+        self.closing = True
+        ws = self.ws
+        if ws is not None:
+            with contextlib.suppress(Exception):
+                await ws.close()
+        await self.notify()
