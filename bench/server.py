@@ -76,9 +76,8 @@ class Server:
 
 def encode_frames(n_frames: int, scene: str) -> tuple[list[bytes], list[bytes]]:
     """Pre-encoded device frames (all frames of the walk, and its keyframes only)."""
-    from client_sim.sources.synthetic import SyntheticSource
-
     from client_sim.encoder import FrameEncoder
+    from client_sim.sources.synthetic import SyntheticSource
 
     source = SyntheticSource(scene, n_frames=n_frames, noise="standard")
     encoder = FrameEncoder(5)
