@@ -12,11 +12,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import msgpack
 import numpy as np
 
 from app.config import MODES, Knobs
 from app.mapping.engine import MappingEngine
 from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
+from app.mapping.publish import update_message
 from app.protocol import decode_frame
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder
@@ -49,8 +51,8 @@ class EvalConfig:
     jpeg_quality: int = 85
 
 
-def _percentiles(values_ms: list[float]) -> dict[str, float]:
-    arr = np.asarray(values_ms) if values_ms else np.zeros(1)
+def _percentiles(values: list[float]) -> dict[str, float]:
+    arr = np.asarray(values) if values else np.zeros(1)
     return {
         "p50": float(np.percentile(arr, 50)),
         "p95": float(np.percentile(arr, 95)),
@@ -92,21 +94,24 @@ def _encode_keyframes(cfg: EvalConfig, progress: Progress) -> tuple[list, object
 
 def map_keyframes(
     messages: list[dict], engine: MappingEngine, progress: Progress, label: str
-) -> list[float]:
-    """Feed wire messages through decode + mapping + delta; per-keyframe latency in ms."""
-    latencies, published = [], 0
+) -> tuple[list[float], list[int]]:
+    """Feed wire messages through decode + mapping + the downstream update (DESIGN.md
+    "Mapping latency"); per-keyframe latency in ms and bytes of each update."""
+    latencies, update_bytes, published = [], [], 0
     for i, message in enumerate(messages):
         t0 = time.perf_counter()
         stats = engine.integrate(decode_frame(message))
         if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
-            published = engine.delta_since(published).seq
+            update = update_message(engine, published)
+            update_bytes.append(len(msgpack.packb(update)))
+            published = update["seq"]
         latencies.append((time.perf_counter() - t0) * 1e3)
         if (i + 1) % 20 == 0 or i + 1 == len(messages):
             progress(
                 f"[eval] {label}: {i + 1}/{len(messages)} keyframes, "
                 f"{stats.confirmed} objects, p50 {np.median(latencies):.1f} ms"
             )
-    return latencies
+    return latencies, update_bytes
 
 
 def score_map(engine: MappingEngine, gt, encoder: TextEncoder, categories: list[str]) -> dict:
@@ -182,9 +187,11 @@ def run_eval(
     }
     for mode in cfg.modes:
         engine = MappingEngine(encoder, cfg.knobs, mode=mode)
-        latencies = map_keyframes(messages, engine, progress, mode)
+        latencies, update_bytes = map_keyframes(messages, engine, progress, mode)
         scored = score_map(engine, gt, encoder, categories)
         scored["latency_ms"] = _percentiles(latencies)
+        scored["downstream_bytes_per_update"] = _percentiles(update_bytes) if update_bytes else None
+        scored["downstream_bytes_total"] = int(sum(update_bytes))
         if keep_latencies:
             scored["latencies_ms"] = latencies
         result["modes"][mode] = scored

@@ -34,4 +34,17 @@ if ! .venv/bin/python -c "import open3d" >/dev/null 2>&1; then
   fi
   .venv/bin/python -c "import open3d" # fail loudly with the real error otherwise
 fi
+# Page tests drive a real headless Chromium from Debian (Playwright's own download cannot
+# work offline). Optional: the browser tests skip, saying why, where it cannot be installed.
+if [ "${SEMANTICXR_SKIP_BROWSER:-0}" != "1" ] && ! command -v chromium >/dev/null \
+    && ! command -v chromium-headless-shell >/dev/null; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+    echo "[setup] installing Debian's chromium for the browser tests (once)"
+    (apt-get install -y -q chromium >/dev/null 2>&1) || \
+      (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q chromium >/dev/null 2>&1) || \
+      echo "[setup] could not install chromium: browser tests will be skipped"
+  else
+    echo "[setup] no chromium: browser tests will be skipped ('sudo apt-get install chromium' adds it)"
+  fi
+fi
 echo "[setup] ok"

@@ -231,8 +231,6 @@ class MappingEngine:
                 stats.too_small += 1
                 continue
             pts = geo.voxel_downsample(pts, self._resolution_m)
-            # Mask edges bleed onto the background behind the object: keep its main cluster.
-            pts = geo.remove_outliers(pts, OUTLIER_EPS_M)
             emb = text_row if det.embedding is None else det.embedding
             observations.append(_Observation(det, pts, emb.astype(np.float32), geo.bbox_of(pts)))
         return observations

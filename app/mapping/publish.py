@@ -11,6 +11,7 @@ import numpy as np
 
 from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
 from app.mapping.deltas import Delta
+from app.mapping.engine import MappingEngine
 from app.mapping.geometry import cap_points
 from app.mapping.object import MapObject
 
@@ -55,3 +56,15 @@ def delta_message(delta: Delta, objects: dict[int, MapObject], max_points: int |
         "upserts": [object_upsert(objects[i], max_points) for i in delta.upserts if i in objects],
         "removed": list(delta.removed),
     }
+
+
+def update_message(engine: MappingEngine, since: int | None) -> dict:
+    """The update a subscriber whose last applied seq is `since` receives.
+
+    semanticxr: the objects changed since `since`, coalesced, at client resolution.
+    baseline: the whole confirmed map at full resolution, every time (DESIGN.md's table).
+    """
+    if engine.mode == "baseline":
+        return delta_message(engine.delta_since(None), engine.objects, None)
+    max_points = engine.knobs.max_object_points_client
+    return delta_message(engine.delta_since(since), engine.objects, max_points)

@@ -12,7 +12,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 from app import __version__
 from app.semantics import TextEncoder, get_text_encoder
 from app.server.metrics import make_metrics
-from app.server.routes import rest, ws
+from app.server.routes import pages, rest, ws
 from app.server.sessions import SessionManager
 from app.server.settings import ServerSettings
 from app.server.store import Store
@@ -78,4 +78,5 @@ def create_app(
 
     app.include_router(rest.router)
     app.include_router(ws.router)
+    app.include_router(pages.router)
     return app

@@ -27,7 +27,7 @@ from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.object import MapObject
-from app.mapping.publish import delta_message
+from app.mapping.publish import update_message
 from app.perception.base import FrameInput
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
@@ -127,10 +127,7 @@ class Session:
     def build_delta(self, since: int | None) -> dict:
         """The update message for a subscriber whose last applied seq is `since`."""
         with self._map_lock:
-            full_resolution = self.engine.mode == "baseline"
-            delta = self.engine.delta_since(None if full_resolution else since)
-            max_points = None if full_resolution else self.knobs.max_object_points_client
-            return delta_message(delta, self.engine.objects, max_points)
+            return update_message(self.engine, since)
 
     # ------------------------------------------------------------------ publishing
     def wait_published(self) -> asyncio.Event:
