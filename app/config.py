@@ -60,7 +60,11 @@ class Knobs:
     """Frames an object must be seen in before it is confirmed (queryable, published)."""
 
     association_threshold: float = 1.2
-    """Match a detection to an object when spatial + semantic similarity reaches this."""
+    """Match a detection to an object when spatial + semantic similarity reaches this..."""
+
+    association_min_semantic: float = 0.7
+    """...and only when their embeddings agree at least this much, so that things lying on
+    or in a larger object (books in a bookshelf, a cushion on a sofa) stay separate."""
 
     voxel_size_m: float = 0.025
     """Voxel for spatial similarity and point de-duplication."""
@@ -90,6 +94,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "keyframe_interval": (1, 10_000),
     "min_observations": (1, 10_000),
     "association_threshold": (0, 2),
+    "association_min_semantic": (-1, 1),
     "voxel_size_m": (0.001, 1),
     "max_depth_m": (0.1, 1000),
     "min_detection_points": (1, 1_000_000),

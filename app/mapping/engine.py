@@ -236,13 +236,21 @@ class MappingEngine:
         return observations
 
     # ------------------------------------------------------------------ association
+    def _match_radius_m(self, obj: MapObject) -> float:
+        """One voxel, or the object's own sampling once a cap has coarsened it (a new view of
+        a capped surface is then still found; the semantic floor keeps small things lying on
+        it apart)."""
+        return max(self.knobs.voxel_size_m, obj.resolution_m)
+
     def _similarity(self, obs: _Observation, obj: MapObject, semantic: float) -> float:
         """Spatial + semantic similarity of one observation and one object (ConceptGraphs).
 
         Spatial: the fraction of the observation's points within one voxel of the object's
         points, the voxel being the object's own sampling (coarser once capped).
         """
-        radius = max(self.knobs.voxel_size_m, obj.resolution_m)
+        if semantic < self.knobs.association_min_semantic:
+            return -math.inf
+        radius = self._match_radius_m(obj)
         spatial = geo.overlap_fraction(obs.points, obj.tree, radius)
         return spatial + semantic if spatial > 0 else -math.inf
 

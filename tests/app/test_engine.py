@@ -117,6 +117,15 @@ def test_small_detections_are_deferred_and_skip_set_is_never_mapped(encoder):
     assert [o.label for o in engine.objects.values()] == ["chair"]
 
 
+def test_a_cushion_on_a_sofa_stays_a_separate_object(encoder):
+    engine = make_engine(encoder)
+    sofa = Rect(1, "sofa", -1.0, -0.5, 1.0, 0.5, 2.5)
+    cushion = Rect(2, "cushion", -0.2, -0.15, 0.2, 0.15, 2.48)  # 2 cm in front of the sofa
+    for step in range(3):
+        engine.integrate(render_rects([sofa, cushion], cam_xy=(0.03 * step, 0.0)))
+    assert sorted(o.label for o in engine.objects.values()) == ["cushion", "sofa"]
+
+
 def test_query_for_a_category_returns_that_object_first(encoder):
     engine = make_engine(encoder, min_observations=1)
     rects = [CHAIR, TABLE, Rect(3, "refrigerator", -1.5, -0.8, -0.8, 0.8, 3.0)]
