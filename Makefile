@@ -1,13 +1,16 @@
 # Two entry points do all the set-up on a fresh machine (see README):
 #   make demo   set up, then run the main job on the embedded synthetic scene
 #   make test   set up, then run the whole test suite
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo eval test lint bench clean
 PY := .venv/bin/python
 
 setup:
 	@bash scripts/setup.sh
 
 demo: setup
+	$(PY) -m app.cli demo
+
+eval: setup
 	$(PY) -m app.cli eval --scene apartment --json out/eval.json
 
 test: setup

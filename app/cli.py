@@ -172,9 +172,11 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--log-level", help="uvicorn log level (default info)")
     sv.set_defaults(func=cmd_serve)
 
+    from client_sim.demo import add_demo_parser
     from client_sim.device import add_device_parser
 
     add_device_parser(sub)
+    add_demo_parser(sub)
     return parser
 
 

@@ -18,45 +18,16 @@ class LiveServer:
     """A real uvicorn serving the app on a free loopback port, in a background thread."""
 
     def __init__(self, data_dir, encoder, **settings):
-        import socket
-        import threading
-
-        import uvicorn
-
-        from app.server.app import create_app
+        from app.server.runner import ServerThread
         from app.server.settings import ServerSettings
 
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        self.settings = ServerSettings(
-            host="127.0.0.1", port=port, data_dir=str(data_dir), **settings
-        )
-        self.app = create_app(self.settings, encoder=encoder)
-        config = uvicorn.Config(
-            self.app,
-            host="127.0.0.1",
-            port=port,
-            log_level="warning",
-            ws_max_size=self.settings.max_message_bytes,
-            ws_per_message_deflate=False,
-        )
-        self.server = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.server.run, daemon=True)
-        self.thread.start()
-        import time
-
-        deadline = time.monotonic() + 30
-        while not self.server.started:
-            if time.monotonic() > deadline or not self.thread.is_alive():
-                raise RuntimeError("server did not start")
-            time.sleep(0.01)
-        self.url = f"http://127.0.0.1:{port}"
-        self.ws_url = f"ws://127.0.0.1:{port}"
+        self.settings = ServerSettings(host="127.0.0.1", port=0, data_dir=str(data_dir), **settings)
+        self._thread = ServerThread(self.settings, encoder).start()
+        self.app, self.server = self._thread.app, self._thread.server
+        self.url, self.ws_url = self._thread.url, self._thread.ws_url
 
     def stop(self):
-        self.server.should_exit = True
-        self.thread.join(timeout=30)
+        self._thread.stop()
 
 
 @pytest.fixture

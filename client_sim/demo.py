@@ -1,0 +1,191 @@
+"""`semanticxr demo`: the whole system on the embedded default, in one command.
+
+Starts the server (in process), an emulated device that streams a synthetic apartment
+through a loopback network emulator, the viser viewer when it can, asks a few queries (the
+server answers while the link is good), cuts the network and shows the device's local map
+still answering, restores it and checks the device caught up with no update lost, then
+prints where to look and keeps serving until Ctrl-C (or exits with --exit).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import tempfile
+import time
+from typing import Any
+
+DEFAULT_QUERIES = ("where are my keys?", "something to sit on", "a cup for coffee", "the fridge")
+
+
+def add_demo_parser(subparsers: Any) -> None:
+    demo = subparsers.add_parser(
+        "demo",
+        help="run server + emulated device + viewer on a synthetic apartment, with a network drop",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    demo.add_argument("--scene", default="apartment", help="synthetic scene (default apartment)")
+    demo.add_argument("--frames", type=int, default=300, help="frames of the walk to stream")
+    demo.add_argument("--port", type=int, default=8000, help="server port (0 = any free port)")
+    demo.add_argument("--viewer-port", type=int, default=8080, help="viser viewer port")
+    demo.add_argument("--no-viewer", action="store_true", help="do not start the 3D viewer")
+    demo.add_argument("--data-dir", help="server data folder (default: a temporary folder)")
+    demo.add_argument("--query", action="append", help="query to ask (repeatable)")
+    demo.add_argument("--exit", action="store_true", help="exit after the scripted run")
+    demo.set_defaults(func=run_demo)
+
+
+def _say(message: str) -> None:
+    print(message, flush=True)
+
+
+def _show(answer) -> None:
+    top = ", ".join(f"{r['label']} ({r['score']:.2f})" for r in answer.results[:3]) or "nothing"
+    _say(
+        f"  [{answer.mode}] {answer.text!r}: {top}   {answer.latency_ms:.1f} ms  ({answer.reason})"
+    )
+
+
+async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
+    from app.config import Knobs
+    from client_sim.netem import NetemProxy
+    from client_sim.querying import QueryRouter
+    from client_sim.sources.synthetic import SyntheticSource
+    from client_sim.streaming import DeviceClient
+
+    port = int(server_url.rsplit(":", 1)[1])
+    proxy = NetemProxy("127.0.0.1", port)
+    proxy.start()
+    device_url = proxy.url()
+    sid, token, _ = await DeviceClient.create_session(server_url, name="demo")
+    _say(f"session {sid} created; the device reaches the server through {device_url}")
+
+    viewer = None
+    if not args.no_viewer:
+        try:
+            from viewer.app import ViewerApp
+
+            viewer = ViewerApp(server_url, sid, token, port=args.viewer_port)
+            viewer.start()
+            _say(f"3D viewer on http://127.0.0.1:{args.viewer_port}")
+        except Exception as exc:  # the demo goes on without a viewer
+            _say(f"(no 3D viewer: {exc})")
+
+    device = DeviceClient(
+        device_url, sid, token, knobs=Knobs(), on_log=lambda m: _say(f"  device: {m}")
+    )
+    follower = asyncio.create_task(device.follow_updates())
+    source = SyntheticSource(args.scene, n_frames=args.frames)
+    _say(f"streaming {args.frames} frames of a synthetic {args.scene} (640x480, depth ÷5)...")
+    t0 = time.perf_counter()
+    first_part = int(args.frames * 0.8)
+
+    async def progress(until: int) -> None:
+        while device.stats.frames_sent < until and not device.stopped:
+            s = device.stats
+            mbps = 8 * sum(s.bytes_up_by_kind.values()) / max(time.perf_counter() - t0, 1e-3) / 1e6
+            rtt = f"{device.rtt_ms:.0f} ms" if device.rtt_ms is not None else "?"
+            print(
+                f"\r  frames {s.frames_sent}/{args.frames}  up {mbps:.1f} Mbps  "
+                f"objects held {len(device.local_map)}  RTT {rtt}   ",
+                end="",
+                flush=True,
+            )
+            await asyncio.sleep(0.5)
+        print()
+
+    reporter = asyncio.create_task(progress(first_part))
+    await device.stream(source, fps=None, limit=first_part)
+    reporter.cancel()
+    server_seq = (await DeviceClient.fetch_session(server_url, sid, token))["update_seq"]
+    await device.wait_synced(server_seq, timeout_s=15)
+    _say(
+        f"mapped: the device holds {len(device.local_map)} objects, "
+        f"{device.local_map.memory_bytes() / 1e6:.2f} MB"
+    )
+
+    queries = args.query or list(DEFAULT_QUERIES)
+    router = QueryRouter(
+        device_url,
+        sid,
+        token,
+        device.local_map,
+        encoder,
+        threshold_ms=Knobs().net_latency_switch_threshold_ms,
+        rtt_ms=lambda: device.rtt_ms,
+    )
+    _say("queries with a good network (server query, SQ):")
+    for text in queries:
+        _show(await router.query(text))
+
+    _say("network drop! (the emulator cuts the link)")
+    proxy.cut()
+    for text in queries:
+        _show(await router.query(text))
+
+    _say("network back; the device resumes from its last update and streams on")
+    proxy.restore()
+    await device.stream(
+        source.__class__(args.scene, n_frames=args.frames), fps=None, limit=args.frames
+    )
+    server_seq = (await DeviceClient.fetch_session(server_url, sid, token))["update_seq"]
+    synced = await device.wait_synced(server_seq, timeout_s=20)
+    import httpx
+
+    async with httpx.AsyncClient() as http:
+        objects = (
+            await http.get(
+                f"{server_url}/v1/sessions/{sid}/objects",
+                headers={"Authorization": f"Bearer {token}"},
+            )
+        ).json()
+    server_map = {o["id"]: o["version"] for o in objects}
+    local = {oid: version for oid, (version, _label) in device.local_map.snapshot().items()}
+    same = synced and local == server_map
+    resumed = [s for s in device.subscriptions if s]
+    _say(
+        f"caught up: {'yes' if same else 'NO'} — {len(local)} objects locally, "
+        f"{len(server_map)} on the server; resumed with since={resumed[-1] if resumed else None}"
+    )
+    _say("queries again (SQ):")
+    for text in queries[:2]:
+        _show(await router.query(text))
+
+    await router.aclose()
+    await device.stop()
+    follower.cancel()
+    proxy.stop()
+    return {"session_id": sid, "token": token, "viewer": viewer, "in_sync": same}
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    from app.semantics import get_text_encoder
+    from app.server.runner import ServerThread
+    from app.server.settings import ServerSettings
+
+    encoder = get_text_encoder()
+    with contextlib.ExitStack() as stack:
+        data_dir = args.data_dir or stack.enter_context(tempfile.TemporaryDirectory())
+        settings = ServerSettings(host="127.0.0.1", port=args.port, data_dir=data_dir)
+        server = ServerThread(settings, encoder).start()
+        stack.callback(server.stop)
+        _say(f"SemanticXR server on {server.url} (data in {data_dir})")
+        outcome = asyncio.run(_scripted(args, server.url, encoder))
+        _say("")
+        _say(f"dashboard: {server.url}/   API docs: {server.url}/docs")
+        if outcome["viewer"] is not None:
+            _say(f"3D viewer: http://127.0.0.1:{args.viewer_port}")
+        _say(
+            f"curl '{server.url}/v1/sessions/{outcome['session_id']}/query?text=keys&k=3&points=false'"
+        )
+        if not args.exit:
+            _say("serving until Ctrl-C")
+            with contextlib.suppress(KeyboardInterrupt):
+                while True:
+                    time.sleep(3600)
+        if outcome["viewer"] is not None:
+            with contextlib.suppress(Exception):
+                outcome["viewer"].stop()
+    return 0 if outcome["in_sync"] else 1

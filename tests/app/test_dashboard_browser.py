@@ -1,0 +1,209 @@
+"""The session dashboard (static/, served at "/"): its files over HTTP, and the page itself in
+a real headless Chromium against a real server with a streamed scene."""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import shutil
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import httpx
+import pytest
+from devices import frame_message, stream_in_step
+from planes import Rect
+
+from app.server.routes.pages import STATIC_DIR
+
+try:  # optional: without playwright only the browser tests skip
+    from playwright.sync_api import expect, sync_playwright
+except ImportError:
+    expect = sync_playwright = None
+
+ARTIFACTS = Path(__file__).resolve().parents[2] / "out" / "test-artifacts"
+BROWSER_TIMEOUT_MS = 30_000
+"""Longest wait for the page to show something (it polls the server every 2 s)."""
+CHROMIUM_ARGS = [
+    "--no-sandbox",  # tests may run as root in a container, where the sandbox cannot start
+    "--disable-gpu",
+    "--disable-background-networking",  # no internet here: no update checks, no telemetry
+    "--disable-component-update",
+    "--no-first-run",
+]
+
+CHAIR = Rect(1, "chair", -0.6, -0.3, -0.1, 0.3, 2.0)
+FRIDGE = Rect(2, "refrigerator", 0.1, -0.8, 0.9, 0.8, 2.5)
+SCENE = [CHAIR, FRIDGE]
+FAST = {  # confirm objects after two keyframes, so three frames make a map
+    "keyframe_interval": 1,
+    "min_observations": 2,
+    "min_mapping_bbox_area": 100,
+    "local_map_update_frequency": 1,
+}
+
+
+def chromium_path() -> str | None:
+    """Debian's chromium (Playwright's own download needs internet)."""
+    for name in ("chromium", "chromium-headless-shell", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if sync_playwright is None:
+        pytest.skip("playwright is not installed (pip install -e '.[dev]')")
+    executable = chromium_path()
+    if executable is None:
+        pytest.skip("no chromium on PATH (Debian: apt-get install chromium)")
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=executable, args=CHROMIUM_ARGS)
+        yield browser
+        browser.close()
+
+
+@pytest.fixture
+def page(browser):
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    page = context.new_page()
+    page.set_default_timeout(BROWSER_TIMEOUT_MS)
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    yield page
+    context.close()
+    assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+def screenshot(page, name: str) -> None:
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / name), full_page=True)
+
+
+def map_the_scene(server, headers=None) -> str:
+    """A session holding a chair and a refrigerator; its id."""
+    with httpx.Client(base_url=server.url, headers=headers) as c:
+        r = c.post("/v1/sessions", json={"name": "kitchen", "knobs": FAST})
+        assert r.status_code == 201, r.text
+        created = r.json()
+    sid = created["session_id"]
+    frames = [frame_message(SCENE, i, cam_xy=(0.03 * i, 0.0)) for i in range(3)]
+    token = {"Authorization": f"Bearer {created['token']}"}
+    url = f"{server.ws_url}/v1/sessions/{sid}/stream"
+    # Playwright's sync API keeps an event loop running on this thread: stream on another.
+    with ThreadPoolExecutor(1) as pool:
+        replies = pool.submit(asyncio.run, stream_in_step(url, frames, token)).result()
+    assert [r["type"] for r in replies] == ["ack"] * 3
+    return sid
+
+
+# --- the files ---------------------------------------------------------------------------
+
+
+def test_the_server_serves_the_dashboard_and_its_assets(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        index = c.get("/")
+        assert index.status_code == 200
+        assert index.headers["content-type"].startswith("text/html")
+        assert "/static/app.js" in index.text and "/static/style.css" in index.text
+        assert "default-src 'self'" in index.headers["content-security-policy"]
+        script = c.get("/static/app.js")
+        assert script.status_code == 200
+        assert script.headers["content-type"].startswith("text/javascript")
+        assert c.get("/static/style.css").headers["content-type"].startswith("text/css")
+        assert c.get("/static/nope.js").status_code == 404
+        assert c.get("/static/%2e%2e/pyproject.toml").status_code == 404
+        assert "/" not in c.get("/openapi.json").json()["paths"]  # not part of protocol v1
+
+
+def _without_comments(path: Path) -> str:
+    text = path.read_text()
+    text = re.sub(r"<!--.*?-->", "", text, flags=re.S)  # HTML
+    text = re.sub(r"/\*.*?\*/", "", text, flags=re.S)  # CSS and JS block comments
+    return re.sub(r"(?m)^\s*//.*$", "", text)  # JS line comments
+
+
+def test_the_pages_load_nothing_from_outside_the_server():
+    files = sorted(p for p in STATIC_DIR.iterdir() if p.suffix in (".html", ".js", ".css"))
+    assert {p.name for p in files} >= {"index.html", "app.js", "style.css"}
+    for path in files:
+        # absolute URLs, and protocol-relative ones starting a string or url(...)
+        found = re.findall(r"https?://\S*|[\"'(]//\S*", _without_comments(path))
+        assert not found, f"{path.name} references {found}"
+
+
+def test_the_script_never_writes_html():
+    # Labels and names are user data: only textContent reaches the page.
+    code = _without_comments(STATIC_DIR / "app.js")
+    for sink in ("innerHTML", "outerHTML", "insertAdjacentHTML", "document.write", "eval("):
+        assert sink not in code
+
+
+# --- the page in a browser ---------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_the_dashboard_lists_a_session_and_answers_a_query(live_server, page):
+    server = live_server()
+    sid = map_the_scene(server)
+    page.goto(f"{server.url}/?viewer=http://127.0.0.1:9999/")
+
+    card = page.locator(f'article[data-sid="{sid}"]')
+    expect(card.locator(".session-name")).to_have_text("kitchen")
+    expect(card.locator(".stat-objects")).to_have_text("2")
+    expect(card.locator(".stat-frames")).to_have_text("3 · 3")
+    expect(page.locator("#status")).to_have_attribute("data-state", "live")
+    expect(page.locator("#viewer-link")).to_have_attribute("href", "http://127.0.0.1:9999/")
+    screenshot(page, "dashboard_session.png")
+
+    card.locator(".query-input").fill("where do I keep milk cold")
+    card.locator(".query-button").click()
+    first_row = card.locator(".results tbody tr").first
+    expect(first_row.locator("td.label")).to_have_text("refrigerator")
+    expect(card.locator(".results tbody tr")).to_have_count(2)  # k=5, two objects in the map
+    expect(card.locator(".query-meta")).to_contain_text("2 results")
+    screenshot(page, "dashboard_query.png")
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_with_an_api_key_the_page_asks_for_it_and_shows_names_as_text(live_server, page):
+    server = live_server(api_key="sesame")
+    key = {"Authorization": "Bearer sesame"}
+    hostile = "<img src=x onerror=\"document.title='pwned'\">"
+    with httpx.Client(base_url=server.url, headers=key) as c:
+        created = c.post("/v1/sessions", json={"name": hostile, "knobs": FAST}).json()
+    sid = created["session_id"]
+    page.goto(server.url)
+
+    # Without the key the list is refused, and the page says why (status and detail).
+    expect(page.locator("#banner")).to_contain_text("HTTP 401: missing API key")
+    expect(page.locator("#access")).to_have_attribute("open", "")
+
+    # A session's own token shows that session alone.
+    page.locator("#token-sid").fill(sid)
+    page.locator("#token-value").fill(created["token"])
+    page.locator("#token-form button[type=submit]").click()
+    card = page.locator(f'article[data-sid="{sid}"]')
+    expect(card.locator(".session-name")).to_have_text(hostile)
+    expect(card.locator("img")).to_have_count(0)
+
+    # A wrong token for another session: its card shows the server's refusal.
+    page.locator("#token-sid").fill("not-a-session")
+    page.locator("#token-value").fill("wrong")
+    page.locator("#token-form button[type=submit]").click()
+    expect(page.locator('article[data-sid="not-a-session"] .card-error')).to_have_text(
+        "HTTP 403: wrong token for this session"
+    )
+
+    # The key lists everything.
+    page.locator("#api-key").fill("sesame")
+    page.locator("#key-form button[type=submit]").click()
+    expect(page.locator("#banner")).to_be_hidden()
+    expect(page.locator("#status")).to_have_attribute("data-state", "live")
+    screenshot(page, "dashboard_api_key.png")
+    assert page.title() != "pwned"
