@@ -20,7 +20,10 @@ lint: setup
 	.venv/bin/ruff check . && .venv/bin/ruff format --check .
 
 bench: setup
-	$(PY) -m bench.mapping --json out/bench_mapping.json
+	$(PY) -m bench.mapping --out out
+	$(PY) -m bench.server --out out
+	$(PY) -m bench.device --out out
+	$(PY) -m bench.local_map --out out
 
 clean:
 	rm -rf .venv out .pytest_cache .hypothesis
