@@ -177,6 +177,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_device_parser(sub)
     add_demo_parser(sub)
+
+    from viewer.app import add_viewer_parser
+
+    add_viewer_parser(sub)
     return parser
 
 

@@ -1,0 +1,315 @@
+"""SceneModel: deltas -> the fewest scene-node operations (no viser, no browser).
+
+`RecordingSink` is the sink interface's second implementation: it records every operation
+and keeps the resulting scene (name -> node), so a test can check both what was sent and
+what the viewer would show.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
+from viewer.scene import (
+    BOXES_NODE,
+    HIT_BOX_RGB,
+    HIT_BOXES_NODE,
+    LABELS_GROUP,
+    DeltaError,
+    SceneModel,
+    box_segments,
+    class_color,
+    dimmed,
+    hit_label_node,
+    label_node,
+    object_color,
+    points_node,
+)
+
+DIM = 8
+
+
+@dataclass
+class RecordingSink:
+    """Records operations as (op, name) and holds the scene they build."""
+
+    ops: list[tuple[str, str]] = field(default_factory=list)
+    nodes: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def add_point_cloud(self, name, points, color):
+        self.ops.append(("add_point_cloud", name))
+        self.nodes[name] = {"kind": "points", "points": np.asarray(points), "color": color}
+
+    def set_point_color(self, name, color):
+        self.ops.append(("set_point_color", name))
+        assert self.nodes[name]["kind"] == "points", "recoloured a node that is not a cloud"
+        self.nodes[name]["color"] = color
+
+    def add_label(self, name, text, position):
+        self.ops.append(("add_label", name))
+        self.nodes[name] = {"kind": "label", "text": text, "position": tuple(position)}
+
+    def set_boxes(self, name, segments, colors):
+        self.ops.append(("set_boxes", name))
+        assert segments.shape == colors.shape and segments.shape[1:] == (2, 3)
+        self.nodes[name] = {"kind": "boxes", "segments": segments, "colors": colors}
+
+    def set_visible(self, name, visible):
+        self.ops.append(("set_visible", name))
+        self.nodes.setdefault(name, {"kind": "group"})["visible"] = visible
+
+    def remove(self, name):
+        self.ops.append(("remove", name))
+        assert name in self.nodes, f"removed {name}, which is not in the scene"
+        for other in [n for n in self.nodes if n == name or n.startswith(name + "/")]:
+            del self.nodes[other]
+
+    def take(self) -> list[tuple[str, str]]:
+        """The operations since the last take."""
+        ops, self.ops = self.ops, []
+        return ops
+
+
+def upsert(oid: int, version: int, label: str = "chair", offset: float = 0.0, n: int = 20):
+    """An `upserts[]` entry: n points in a 0.5 m cube at x = oid + offset."""
+    rng = np.random.default_rng([oid, version])
+    points = rng.uniform(0, 0.5, (n, 3)) + [oid + offset, 0, 0]
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return {
+        "id": oid,
+        "version": version,
+        "label": label,
+        "embedding": float16_vector_to_bytes(np.ones(DIM) / np.sqrt(DIM)),
+        "points": float16_points_to_bytes(points),
+        "bbox": [*lo.tolist(), *hi.tolist()],
+        "n_obs": version,
+    }
+
+
+def delta(seq: int, upserts=(), removed=(), full: bool = False) -> dict:
+    return {
+        "type": "delta",
+        "seq": seq,
+        "full": full,
+        "upserts": list(upserts),
+        "removed": list(removed),
+    }
+
+
+@pytest.fixture
+def scene() -> tuple[SceneModel, RecordingSink]:
+    """A model holding chair 1, table 2, chair 3 (seq 1); the sink's log starts empty."""
+    sink = RecordingSink()
+    model = SceneModel(sink)
+    model.apply_delta(
+        delta(1, [upsert(1, 1), upsert(2, 1, "table"), upsert(3, 1)], full=True),
+    )
+    sink.take()
+    return model, sink
+
+
+def test_a_first_snapshot_draws_one_cloud_and_label_per_object_and_one_boxes_node():
+    sink = RecordingSink()
+    model = SceneModel(sink)
+    assert sink.take() == [("set_visible", LABELS_GROUP)]
+
+    summary = model.apply_delta(delta(4, [upsert(1, 1), upsert(2, 1, "table")], full=True))
+
+    assert summary.added == [1, 2] and model.seq == 4
+    assert sorted(sink.take()) == sorted(
+        [
+            ("add_point_cloud", points_node(1)),
+            ("add_label", label_node(1)),
+            ("add_point_cloud", points_node(2)),
+            ("add_label", label_node(2)),
+            ("set_boxes", BOXES_NODE),
+        ]
+    )
+    assert sink.nodes[label_node(2)]["text"] == "table"
+    assert sink.nodes[points_node(1)]["points"].shape == (20, 3)
+
+
+def test_an_update_replaces_only_the_nodes_of_the_object_that_changed(scene):
+    model, sink = scene
+    summary = model.apply_delta(delta(2, [upsert(2, 2, "table", offset=0.3)]))
+
+    assert summary.updated == [2] and not summary.added and not summary.removed
+    # Its cloud and its label (the box centre moved); the batched boxes once; nothing else.
+    assert sink.take() == [
+        ("add_point_cloud", points_node(2)),
+        ("add_label", label_node(2)),
+        ("set_boxes", BOXES_NODE),
+    ]
+
+
+def test_an_update_that_keeps_the_box_and_label_resends_only_the_points(scene):
+    model, sink = scene
+    changed = upsert(2, 2, "table")
+    changed["bbox"] = upsert(2, 1, "table")["bbox"]  # same box, new points inside it
+    model.apply_delta(delta(2, [changed]))
+    assert sink.take() == [("add_point_cloud", points_node(2))]
+
+
+def test_an_object_at_a_version_already_held_causes_no_node_operation(scene):
+    model, sink = scene
+    summary = model.apply_delta(delta(2, [upsert(1, 1), upsert(3, 1)]))
+    assert summary.unchanged == [1, 3] and not summary.changed
+    assert sink.take() == []
+    assert model.seq == 2  # the seq still advances: resuming starts after it
+
+
+def test_an_older_version_never_replaces_a_newer_one(scene):
+    model, sink = scene
+    model.apply_delta(delta(2, [upsert(1, 3, "sofa")]))
+    sink.take()
+    model.apply_delta(delta(3, [upsert(1, 2, "chair")]))
+    assert sink.take() == [] and model.objects[1].label == "sofa"
+
+
+def test_a_removal_removes_exactly_that_objects_nodes(scene):
+    model, sink = scene
+    summary = model.apply_delta(delta(2, removed=[3, 99]))  # 99: never held, not an error
+
+    assert summary.removed == [3]
+    assert sink.take() == [
+        ("remove", points_node(3)),
+        ("remove", label_node(3)),
+        ("set_boxes", BOXES_NODE),
+    ]
+    assert len(sink.nodes[BOXES_NODE]["segments"]) == 2 * 12
+    assert set(model.objects) == {1, 2}
+
+
+def test_a_full_snapshot_removes_stale_nodes_and_leaves_unchanged_objects_alone(scene):
+    model, sink = scene
+    summary = model.apply_delta(delta(9, [upsert(1, 1), upsert(4, 1, "lamp")], full=True))
+
+    assert (summary.added, summary.removed, summary.unchanged) == ([4], [2, 3], [1])
+    ops = sink.take()
+    assert not [op for op in ops if op[1] in (points_node(1), label_node(1))]
+    assert {name for name in sink.nodes if name.startswith("/objects/")} == {
+        points_node(1),
+        points_node(4),
+    }
+    assert {name for name in sink.nodes if name.startswith(LABELS_GROUP + "/")} == {
+        label_node(1),
+        label_node(4),
+    }
+
+
+def test_all_boxes_are_one_line_segments_node_with_twelve_edges_each(scene):
+    _, sink = scene
+    boxes = [name for name, node in sink.nodes.items() if node["kind"] == "boxes"]
+    assert boxes == [BOXES_NODE]
+    segments = sink.nodes[BOXES_NODE]["segments"]
+    assert segments.shape == (3 * 12, 2, 3)
+
+
+def test_box_segments_are_the_twelve_unit_length_edges_of_the_box():
+    segments = box_segments(np.array([[0, 0, 0, 1, 2, 3]]))
+    lengths = np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)
+    assert sorted(lengths.tolist()) == [1.0] * 4 + [2.0] * 4 + [3.0] * 4
+    corners = {tuple(p) for p in segments.reshape(-1, 3).tolist()}
+    assert len(corners) == 8
+
+
+def test_a_malformed_or_out_of_order_delta_changes_nothing(scene):
+    model, sink = scene
+    model.apply_delta(delta(5, [upsert(1, 2)]))
+    sink.take()
+    bad_points = upsert(2, 5)
+    bad_points["points"] = b"\x00" * 7
+    with pytest.raises(DeltaError, match="points"):
+        model.apply_delta(delta(6, [upsert(3, 5), bad_points]))  # 3 is valid, but not applied
+    with pytest.raises(DeltaError, match="out of order"):
+        model.apply_delta(delta(4, [upsert(3, 6)]))
+    with pytest.raises(DeltaError, match="more than once"):
+        model.apply_delta(delta(7, [upsert(3, 6), upsert(3, 7)]))
+    assert sink.take() == [] and model.seq == 5 and model.objects[3].version == 1
+
+
+def test_highlight_brightens_hits_labels_them_with_scores_and_dims_the_rest(scene):
+    model, sink = scene
+    model.highlight([(3, 0.8123), (1, 0.41)])
+
+    assert sink.nodes[hit_label_node(3)]["text"] == "chair 0.81"
+    assert sink.nodes[hit_label_node(1)]["text"] == "chair 0.41"
+    hit_boxes = sink.nodes[HIT_BOXES_NODE]
+    assert hit_boxes["segments"].shape == (2 * 12, 2, 3)
+    assert (hit_boxes["colors"] == HIT_BOX_RGB).all()
+    assert sink.nodes[points_node(2)]["color"] == dimmed(object_color(2))
+    assert sink.nodes[points_node(3)]["color"] == object_color(3)
+    assert sink.nodes[LABELS_GROUP]["visible"] is False  # plain labels make way for the hits
+    # Recolouring sends colours only: no cloud is sent again.
+    assert not [op for op in sink.take() if op[0] == "add_point_cloud"]
+
+
+def test_clear_highlight_restores_the_plain_view(scene):
+    model, sink = scene
+    before = {name: dict(node) for name, node in sink.nodes.items()}
+    model.highlight([(2, 0.5)])
+    model.clear_highlight()
+
+    assert not [name for name in sink.nodes if name.startswith("/hits")]
+    assert sink.nodes[LABELS_GROUP]["visible"] is True
+    for oid in (1, 2, 3):
+        assert sink.nodes[points_node(oid)]["color"] == before[points_node(oid)]["color"]
+    assert np.array_equal(sink.nodes[BOXES_NODE]["colors"], before[BOXES_NODE]["colors"])
+    sink.take()
+    model.clear_highlight()  # nothing highlighted: nothing to do
+    assert sink.take() == []
+
+
+def test_a_hit_not_held_yet_is_highlighted_when_it_arrives(scene):
+    model, sink = scene
+    model.highlight([(7, 0.9)])
+    assert hit_label_node(7) not in sink.nodes
+    sink.take()
+
+    model.apply_delta(delta(2, [upsert(7, 1, "mug")]))
+
+    assert sink.nodes[hit_label_node(7)]["text"] == "mug 0.90"
+    assert sink.nodes[points_node(7)]["color"] == object_color(7)  # a hit: not dimmed
+    assert ("set_boxes", HIT_BOXES_NODE) in sink.take()
+
+
+def test_removing_a_highlighted_object_removes_its_hit_nodes(scene):
+    model, sink = scene
+    model.highlight([(1, 0.7)])
+    model.apply_delta(delta(2, removed=[1]))
+    assert not [name for name in sink.nodes if name.startswith("/hits")]
+
+
+def test_colour_by_class_recolours_without_sending_points_again(scene):
+    model, sink = scene
+    model.set_color_by_class(True)
+
+    ops = sink.take()
+    assert {op for op, _ in ops} == {"set_point_color", "set_boxes"}
+    assert sink.nodes[points_node(1)]["color"] == sink.nodes[points_node(3)]["color"]
+    assert sink.nodes[points_node(1)]["color"] == class_color("chair")
+    assert sink.nodes[points_node(2)]["color"] == class_color("table")
+    model.set_color_by_class(True)  # already on
+    assert sink.take() == []
+
+
+def test_object_colours_are_stable_and_tell_neighbours_apart():
+    assert object_color(5) == object_color(5) and class_color("mug") == class_color("mug")
+    assert len({object_color(i) for i in range(1, 50)}) == 49
+
+
+def test_the_labels_toggle_is_one_group_operation_and_the_boxes_toggle_one_node(scene):
+    model, sink = scene
+    model.set_show_labels(False)
+    assert sink.take() == [("set_visible", LABELS_GROUP)]
+    model.set_show_boxes(False)
+    assert sink.take() == [("remove", BOXES_NODE)]
+    model.apply_delta(delta(2, [upsert(4, 1)]))  # hidden boxes are not sent
+    assert ("set_boxes", BOXES_NODE) not in sink.take()
+    model.set_show_boxes(True)
+    assert sink.take() == [("set_boxes", BOXES_NODE)]
+    assert len(sink.nodes[BOXES_NODE]["segments"]) == 4 * 12

@@ -1,0 +1,270 @@
+"""The viewer end to end: a real server on loopback, frames streamed by the device emulator,
+the viewer following the session, and (where Debian's chromium is installed) a real headless
+browser reading the scene viser mounted.
+
+What the viewer shows is checked against the server's own view (GET /objects). Waits are on
+conditions with deadlines, never sleeps.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import shutil
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from app.config import Knobs, updated_knobs
+from client_sim.sources.base import FrameSource
+from client_sim.streaming import DeviceClient
+from viewer.app import ViewerApp
+from viewer.scene import HIT_BOXES_NODE, points_node
+
+# The device tests' analytic scenes (labelled rectangles with exact depth): tests/ has no
+# packages, so their folder is put on the path explicitly.
+sys.path.append(str(Path(__file__).resolve().parents[1] / "client_sim"))
+from helpers_device import BATHROOM, FAST_KNOBS, KITCHEN, RectSource, server_state  # noqa: E402
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
+
+ARTIFACTS = Path(__file__).resolve().parents[2] / "out" / "test-artifacts"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+]
+WAIT_S = 30.0
+OBJECT_NODE = re.compile(r"^/objects/\d+$")
+
+# Names of the scene nodes the page has mounted (viser 1.1.1 exposes its scene internals on
+# window for end-to-end tests: nodeRefFromName maps a node's name to its three.js object,
+# which is unset until mounted and deleted on removal).
+MOUNTED_NODES_JS = """() => {
+    const m = window.__viserMutable;
+    return m ? Object.entries(m.nodeRefFromName).filter(([, ref]) => ref).map(([n]) => n) : null;
+}"""
+
+
+def chromium_path() -> str | None:
+    """Debian's chromium or chromium-headless-shell (Playwright's own download cannot work
+    offline)."""
+    for name in ("chromium", "chromium-headless-shell"):
+        for candidate in (f"/usr/bin/{name}", shutil.which(name)):
+            if candidate and Path(candidate).exists():
+                return candidate
+    return None
+
+
+def wait_for(condition: Callable[[], object], what: str, timeout_s: float = WAIT_S) -> object:
+    """Poll `condition` until it returns something truthy (returned); fail after `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while not (result := condition()):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.05)  # a polling period, not synchronisation
+    return result
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class RestartableServer:
+    """The real app under uvicorn on a fixed port and data dir, so that it can be stopped and
+    started again where the viewer expects it (conftest's live_server picks a new port)."""
+
+    def __init__(self, data_dir: Path, encoder, port: int):
+        self.data_dir, self.encoder, self.port = data_dir, encoder, port
+        self.url = f"http://127.0.0.1:{port}"
+        self._server = None
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> RestartableServer:
+        import uvicorn
+
+        from app.server.app import create_app
+        from app.server.settings import ServerSettings
+
+        settings = ServerSettings(host="127.0.0.1", port=self.port, data_dir=str(self.data_dir))
+        config = uvicorn.Config(
+            create_app(settings, encoder=self.encoder),
+            host="127.0.0.1",
+            port=self.port,
+            log_level="warning",
+            ws_max_size=settings.max_message_bytes,
+            ws_per_message_deflate=False,
+        )
+        self._server = uvicorn.Server(config)
+        self._thread = threading.Thread(target=self._server.run, daemon=True)
+        self._thread.start()
+        wait_for(lambda: self._server.started or not self._thread.is_alive(), "the server to start")
+        assert self._server.started, "the server did not start"
+        return self
+
+    def stop(self) -> None:
+        if self._server is not None:
+            self._server.should_exit = True
+            self._thread.join(timeout=30)
+            self._server = None
+
+
+def new_session(server_url: str, api_key: str | None = None) -> tuple[str, str, Knobs]:
+    sid, token, answer = asyncio.run(
+        DeviceClient.create_session(server_url, knobs=FAST_KNOBS, api_key=api_key)
+    )
+    return sid, token, updated_knobs(Knobs(), answer["knobs"])
+
+
+def stream(server_url: str, sid: str, token: str, knobs: Knobs, source: FrameSource) -> int:
+    """Play `source` to the session (one frame in flight); the server's update seq after."""
+
+    async def play() -> int:
+        device = DeviceClient(server_url, sid, token, knobs=knobs)
+        stats = await device.stream(source, fps=None, max_in_flight=1)
+        await device.stop()
+        assert stats.errors == 0 and stats.frames_sent == len(source)
+        seq, _ = await server_state(server_url, sid, token)
+        return seq
+
+    return asyncio.run(play())
+
+
+def objects_of(server_url: str, sid: str, token: str) -> dict[int, int]:
+    """id -> version of the server's confirmed objects."""
+    _, objects = asyncio.run(server_state(server_url, sid, token))
+    return {o["id"]: o["version"] for o in objects}
+
+
+def viewer_objects(app: ViewerApp) -> dict[int, int]:
+    with app._lock:
+        return {oid: obj.version for oid, obj in app.model.objects.items()}
+
+
+@contextmanager
+def running_viewer(server_url: str, sid: str, token: str) -> Iterator[ViewerApp]:
+    app = ViewerApp(server_url, sid, token, port=0, stats_period_s=0.2)
+    app.start()
+    try:
+        yield app
+    finally:
+        app.stop()
+
+
+@contextmanager
+def browser_page(url: str):
+    executable = chromium_path()
+    if executable is None:
+        pytest.skip("no chromium: install Debian's chromium (or chromium-headless-shell)")
+    playwright_api = pytest.importorskip("playwright.sync_api")
+    with playwright_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=executable, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(url)
+            yield page
+        finally:
+            browser.close()
+
+
+def test_the_browser_shows_one_point_cloud_per_confirmed_object_and_the_query_hits(
+    live_server,
+):
+    server = live_server(api_key="secret")  # as deployed: the session token on every call
+    sid, token, knobs = new_session(server.url, api_key="secret")
+    seq = stream(server.url, sid, token, knobs, RectSource(KITCHEN, 6))
+    expected = objects_of(server.url, sid, token)
+    assert len(expected) == 2, "the kitchen has a chair and a refrigerator"
+
+    with running_viewer(server.url, sid, token) as app:
+        wait_for(lambda: app.applied_seq >= seq, f"the viewer to apply seq {seq}")
+        assert viewer_objects(app) == expected
+        wait_for(lambda: "| objects | 2 (viewer 2) |" in app.gui.stats.content, "the stats")
+        assert "live" in app.gui.status.content
+
+        with browser_page(app.url) as page:
+            wanted = {points_node(oid) for oid in expected}
+
+            def mounted_objects() -> set[str] | None:
+                names = page.evaluate(MOUNTED_NODES_JS) or []
+                shown = {n for n in names if OBJECT_NODE.match(n)}
+                return shown if shown == wanted else None
+
+            wait_for(mounted_objects, f"the page to mount {sorted(wanted)}")
+
+            results = app.run_query("refrigerator", k=1)
+            assert results[0]["label"] == "refrigerator"
+            wait_for(
+                lambda: HIT_BOXES_NODE in (page.evaluate(MOUNTED_NODES_JS) or []),
+                "the hit's box in the page",
+            )
+            ARTIFACTS.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(ARTIFACTS / "viewer_kitchen_query.png"))
+
+            app.clear_query()
+            wait_for(
+                lambda: HIT_BOXES_NODE not in (page.evaluate(MOUNTED_NODES_JS) or []),
+                "the hit's box to go",
+            )
+
+
+def test_the_viewer_shows_the_outage_and_resumes_from_its_seq_after_a_server_restart(
+    tmp_path, encoder
+):
+    port = free_port()
+    server = RestartableServer(tmp_path / "data", encoder, port).start()
+    try:
+        sid, token, knobs = new_session(server.url)
+        seq_before = stream(server.url, sid, token, knobs, RectSource(KITCHEN, 6))
+        with running_viewer(server.url, sid, token) as app:
+            wait_for(lambda: app.applied_seq >= seq_before, f"the viewer to apply {seq_before}")
+            assert app.status.connected and app.status.last_since is None  # a full snapshot
+
+            server.stop()
+            wait_for(lambda: not app.status.connected, "the viewer to notice the server is gone")
+            assert "disconnected — reconnecting" in app.gui.status.content
+
+            server = RestartableServer(tmp_path / "data", encoder, port).start()
+            wait_for(lambda: app.status.connected, "the viewer to reconnect", timeout_s=20)
+            assert app.status.reconnects == 1
+            assert app.status.last_since == seq_before  # resumed, not resynced
+            assert "live" in app.gui.status.content
+
+            seq_after = stream(server.url, sid, token, knobs, RectSource(BATHROOM, 6, 4.0))
+            assert seq_after > seq_before
+            wait_for(lambda: app.applied_seq >= seq_after, f"the viewer to apply {seq_after}")
+            assert viewer_objects(app) == objects_of(server.url, sid, token)
+            assert {o.label for o in app.model.objects.values()} >= {"bathtub", "toilet"}
+            assert app.status.full_snapshots == 1 and app.status.resyncs == 0
+    finally:
+        server.stop()
+
+
+def test_the_viewer_command_takes_the_server_the_session_and_where_to_listen():
+    import argparse
+
+    from viewer.app import add_viewer_parser, run_viewer
+
+    parser = argparse.ArgumentParser()
+    add_viewer_parser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(
+        ["viewer", "--server", "http://10.0.0.2:8000", "--session", "abc", "--port", "8090"]
+    )
+    assert (args.server, args.session, args.port, args.host) == (
+        "http://10.0.0.2:8000",
+        "abc",
+        8090,
+        "127.0.0.1",
+    )
+    assert args.func is run_viewer and args.up == "+z"

@@ -1,0 +1,585 @@
+"""The viser viewer of one session: follows its map updates, shows objects and query hits.
+
+Threads: viser runs its own server thread and calls GUI callbacks from its thread pool; the
+viewer runs one background thread with an asyncio loop that follows the updates WebSocket
+and polls the session's stats. `SceneModel` is not thread-safe, so every use of it holds
+`ViewerApp._lock`.
+
+The updates socket is kept up like the device's (client_sim/streaming.py): exponential
+backoff (0.2 s doubling to 5 s), resume from the last applied seq after a disconnect, resync
+from a full snapshot after a malformed message. While it is down the GUI says so in red.
+
+Not shown: the device's camera pose and path. Neither the REST stats nor the updates carry a
+pose (only the device's acks do), so the viewer cannot draw them without a protocol extension.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import html
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import httpx
+import msgpack
+import numpy as np
+import viser
+import websockets
+from websockets.exceptions import WebSocketException
+
+from client_sim.streaming import Backoff, auth_headers, http_base_url, websocket_base_url
+from viewer.scene import HIT_BOXES_NODE, HITS_GROUP, DeltaError, Rgb, SceneModel
+
+log = logging.getLogger(__name__)
+
+UpDirection = Literal["+x", "+y", "+z", "-x", "-y", "-z"]
+
+OPEN_TIMEOUT_S = 5.0
+"""WebSocket opening handshake timeout."""
+REST_TIMEOUT_S = 10.0
+"""Timeout of a query or a stats request."""
+STATS_PERIOD_S = 2.0
+"""How often the stats panel is refreshed from GET /v1/sessions/{sid}."""
+POINT_SIZE_M = 0.012
+"""Point size in world units: small, so 5,000 clouds stay light to draw and readable."""
+BOX_THICKNESS_PX = 1.5
+"""Line width of the batched boxes, in screen pixels (constant at every distance)."""
+HIT_BOX_THICKNESS_PX = 4.0
+"""Line width of the highlighted hits' boxes."""
+LIVE_RGB, DOWN_RGB, WAITING_RGB = "#1a7f37", "#cf222e", "#6e7781"
+"""Status colours: live (green), disconnected (red), not connected yet (grey)."""
+
+_CONNECTION_ERRORS = (OSError, TimeoutError, EOFError, WebSocketException)
+"""What opening or reading a socket raises when the network or the server goes away."""
+
+
+class ViewerError(RuntimeError):
+    """A REST call of the viewer failed (server unreachable, 4xx/5xx)."""
+
+
+class ViserSceneSink:
+    """`SceneSink` on a viser scene: one viser node per name, handles kept for updates."""
+
+    def __init__(self, scene: viser.SceneApi, point_size_m: float = POINT_SIZE_M):
+        self.scene = scene
+        self.point_size_m = point_size_m
+        self._handles: dict[str, viser.SceneNodeHandle] = {}
+
+    def add_point_cloud(self, name: str, points: np.ndarray, color: Rgb) -> None:
+        self._handles[name] = self.scene.add_point_cloud(
+            name,
+            points,
+            colors=color,  # one colour, sent as 3 bytes rather than 3 per point
+            point_size=self.point_size_m,
+            point_shape="circle",
+            precision="float16",  # the wire precision: no conversion, half the bytes
+        )
+
+    def set_point_color(self, name: str, color: Rgb) -> None:
+        handle = self._handles.get(name)
+        if isinstance(handle, viser.PointCloudHandle):
+            handle.colors = np.asarray(color, np.uint8)
+
+    def add_label(self, name: str, text: str, position: tuple[float, float, float]) -> None:
+        hit = name.startswith(HITS_GROUP)
+        self._handles[name] = self.scene.add_label(
+            name,
+            text,
+            position=position,
+            font_screen_scale=1.0 if hit else 0.7,
+            anchor="bottom-center",
+        )
+
+    def set_boxes(self, name: str, segments: np.ndarray, colors: np.ndarray) -> None:
+        self._handles[name] = self.scene.add_line_segments(
+            name,
+            segments,
+            colors,
+            thickness=HIT_BOX_THICKNESS_PX if name == HIT_BOXES_NODE else BOX_THICKNESS_PX,
+            thickness_units="screen",
+        )
+
+    def set_visible(self, name: str, visible: bool) -> None:
+        handle = self._handles.get(name)
+        if handle is None:  # a group: an invisible frame that parents its children
+            handle = self._handles[name] = self.scene.add_frame(name, show_axes=False)
+        handle.visible = visible
+
+    def remove(self, name: str) -> None:
+        handle = self._handles.pop(name, None)
+        if handle is not None:
+            handle.remove()
+
+
+@dataclass
+class ViewerStatus:
+    """What the viewer knows about its link to the server (read by the GUI and by tests)."""
+
+    connected: bool = False
+    """True while the updates socket is up."""
+    ever_connected: bool = False
+    reconnects: int = 0
+    """Successful re-connections after a loss."""
+    last_since: int | None = None
+    """`since` of the newest updates connection (None: it asked for a full snapshot)."""
+    deltas_applied: int = 0
+    full_snapshots: int = 0
+    resyncs: int = 0
+    """Full-snapshot resyncs after a malformed update."""
+    last_error: str | None = None
+    """The most recent problem, for a human."""
+    stats: dict | None = None
+    """The last GET /v1/sessions/{sid} answer (None until the first one)."""
+    stats_ok: bool = False
+    """Whether the last stats poll succeeded."""
+
+
+@dataclass
+class _Gui:
+    status: viser.GuiHtmlHandle
+    query_text: viser.GuiTextHandle
+    top_k: viser.GuiNumberHandle
+    search: viser.GuiButtonHandle
+    clear: viser.GuiButtonHandle
+    results: viser.GuiMarkdownHandle
+    show_boxes: viser.GuiCheckboxHandle
+    show_labels: viser.GuiCheckboxHandle
+    color_by_class: viser.GuiCheckboxHandle
+    stats: viser.GuiMarkdownHandle
+
+
+def _megabytes(n_bytes: Any) -> str:
+    return f"{n_bytes / 1e6:.2f} MB" if isinstance(n_bytes, int | float) else "-"
+
+
+def _milliseconds(value: Any) -> str:
+    return f"{value:.0f} ms" if isinstance(value, int | float) else "-"
+
+
+def _up_vector(direction: UpDirection) -> np.ndarray:
+    axis = {"x": 0, "y": 1, "z": 2}[direction[1]]
+    up = np.zeros(3)
+    up[axis] = 1.0 if direction[0] == "+" else -1.0
+    return up
+
+
+class ViewerApp:
+    """A viser server showing one session's confirmed map, live.
+
+    server_url: http(s)://host:port of the SemanticXR server. token: the session token (or
+    the API key), sent as `Authorization: Bearer`. port / host: where the viewer listens
+    (port 0: any free port; see `port` after construction). up_direction: the up axis of the
+    device's world frame (the synthetic world is +z up).
+
+    `start()` begins following updates; `stop()` ends everything. Usable as a context manager.
+    """
+
+    def __init__(
+        self,
+        server_url: str,
+        session_id: str,
+        token: str | None = None,
+        port: int = 8080,
+        host: str = "127.0.0.1",
+        *,
+        up_direction: UpDirection = "+z",
+        stats_period_s: float = STATS_PERIOD_S,
+        verbose: bool = False,
+    ):
+        self.http_url = http_base_url(server_url)
+        self.ws_url = websocket_base_url(server_url)
+        self.session_id = session_id
+        self.token = token
+        self.host = host
+        self.stats_period_s = stats_period_s
+        self.status = ViewerStatus()
+        self.up = _up_vector(up_direction)
+        self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        self.server.scene.set_up_direction(up_direction)
+        self._lock = threading.RLock()
+        self.model = SceneModel(ViserSceneSink(self.server.scene))
+        self._camera_framed = False  # frame the map once, when it first has objects
+        self.gui = self._build_gui()
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._main_task: asyncio.Task | None = None
+        self._loop_ready = threading.Event()
+
+    # --- lifecycle --------------------------------------------------------------------------
+
+    @property
+    def port(self) -> int:
+        return self.server.get_port()
+
+    @property
+    def url(self) -> str:
+        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
+        return f"http://{host}:{self.port}"
+
+    @property
+    def applied_seq(self) -> int:
+        """Seq of the last delta the viewer applied."""
+        # No lock: an int read is atomic, and the event loop must not wait for a big apply.
+        return self.model.seq
+
+    def start(self) -> ViewerApp:
+        """Start following the session's updates and polling its stats (background thread)."""
+        if self._thread is not None:
+            raise RuntimeError("the viewer is already started")
+        self._thread = threading.Thread(target=self._run, name="viewer-updates", daemon=True)
+        self._thread.start()
+        self._loop_ready.wait(10)
+        return self
+
+    def stop(self) -> None:
+        """Stop following updates and shut the viser server down."""
+        if self._loop is not None and self._main_task is not None:
+            self._loop.call_soon_threadsafe(self._main_task.cancel)
+        if self._thread is not None:
+            self._thread.join(timeout=15)
+        self.server.stop()
+
+    def __enter__(self) -> ViewerApp:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        try:
+            loop.run_until_complete(self._main())
+            loop.run_until_complete(loop.shutdown_default_executor())  # an apply in flight
+        finally:
+            loop.close()
+
+    async def _main(self) -> None:
+        self._main_task = asyncio.current_task()
+        self._loop_ready.set()
+        with contextlib.suppress(asyncio.CancelledError):
+            await asyncio.gather(self._follow_updates(), self._poll_stats())
+
+    # --- updates ----------------------------------------------------------------------------
+
+    async def _follow_updates(self) -> None:
+        """Apply the session's deltas until cancelled; resume from the applied seq after a
+        disconnect, resync from a full snapshot after a malformed message."""
+        backoff = Backoff()
+        resync = True  # the first connection asks for a full snapshot
+        down_told = False  # log "lost" once per outage, not once per failed attempt
+        path = f"/v1/sessions/{self.session_id}/updates"
+        while True:
+            since = None if resync else self.applied_seq
+            url = self.ws_url + path + ("" if since is None else f"?since={since}")
+            try:
+                ws = await websockets.connect(
+                    url,
+                    additional_headers=auth_headers(self.token),
+                    open_timeout=OPEN_TIMEOUT_S,
+                    compression=None,  # float16 points do not deflate; save the CPU
+                    max_size=None,  # a full snapshot of a large map is big; the server is trusted
+                )
+            except _CONNECTION_ERRORS as exc:
+                self._set_connected(False, f"{type(exc).__name__}: {exc}", quiet=down_told)
+                down_told = True
+            else:
+                self.status.last_since = since
+                self._set_connected(True)
+                down_told = False
+                reason = "closed by the server"
+                try:
+                    async for raw in ws:
+                        # Off the loop: a big snapshot takes a while to hand to viser, and
+                        # the socket's keepalive pings must still be answered meanwhile.
+                        problem = await asyncio.to_thread(self._apply_update, raw)
+                        if problem is not None:
+                            self.status.resyncs += 1
+                            reason = f"bad update ({problem}); resyncing with a full snapshot"
+                            resync = True
+                            break
+                        resync = False
+                        backoff.reset()
+                except _CONNECTION_ERRORS as exc:
+                    reason = f"{type(exc).__name__}: {exc}"
+                finally:
+                    with contextlib.suppress(Exception):
+                        await ws.close()
+                self._set_connected(False, reason)
+            await asyncio.sleep(backoff.next_delay())  # a backoff timer, not synchronisation
+
+    def _apply_update(self, raw: bytes | str) -> str | None:
+        """Apply one updates-socket message; what was wrong with it, or None if applied."""
+        if not isinstance(raw, bytes):
+            return "a text message; updates are binary msgpack"
+        try:
+            message = msgpack.unpackb(raw, raw=False)
+        except Exception as exc:  # msgpack raises many types for garbage
+            return f"not msgpack ({type(exc).__name__})"
+        with self._lock:
+            try:
+                summary = self.model.apply_delta(message)
+            except DeltaError as exc:
+                return str(exc)
+            self.status.deltas_applied += 1
+            self.status.full_snapshots += summary.full
+            if not self._camera_framed and self.model.objects:
+                self._camera_framed = True
+                self._frame_camera()
+        self._show_status()
+        return None
+
+    def _set_connected(self, connected: bool, reason: str = "", quiet: bool = False) -> None:
+        status = self.status
+        if connected:
+            status.reconnects += status.ever_connected and not status.connected
+            status.connected = status.ever_connected = True
+        else:
+            status.connected = False
+            status.last_error = reason
+            if not quiet:
+                log.warning("updates socket down (%s); reconnecting", reason)
+        self._show_status()
+
+    # --- stats ------------------------------------------------------------------------------
+
+    async def _poll_stats(self) -> None:
+        url = f"{self.http_url}/v1/sessions/{self.session_id}"
+        async with httpx.AsyncClient(
+            timeout=REST_TIMEOUT_S, headers=auth_headers(self.token)
+        ) as http:
+            while True:
+                try:
+                    response = await http.get(url)
+                    response.raise_for_status()
+                    self.status.stats = response.json()
+                    self.status.stats_ok = True
+                except (httpx.HTTPError, ValueError):
+                    self.status.stats_ok = False
+                self._show_stats()
+                await asyncio.sleep(self.stats_period_s)  # a polling period
+
+    # --- queries ----------------------------------------------------------------------------
+
+    def run_query(self, text: str, k: int = 5) -> list[dict]:
+        """GET /v1/sessions/{sid}/query, highlight the hits and list them in the GUI; the
+        results, best first.
+
+        Raises ViewerError when the server cannot answer (the highlight is left as it was).
+        """
+        url = f"{self.http_url}/v1/sessions/{self.session_id}/query"
+        params = {"text": text, "k": k, "points": "false"}  # hits are drawn from the model
+        try:
+            response = httpx.get(
+                url, params=params, headers=auth_headers(self.token), timeout=REST_TIMEOUT_S
+            )
+        except httpx.HTTPError as exc:
+            raise ViewerError(f"query failed: {type(exc).__name__}: {exc}") from exc
+        if response.status_code != 200:
+            raise ViewerError(f"query failed: HTTP {response.status_code}: {response.text[:200]}")
+        results = response.json()["results"]
+        with self._lock:
+            self.model.highlight((r["id"], r["score"]) for r in results)
+            held = set(self.model.objects)
+        lines = [f"**{len(results)} hits** for *{html.escape(text)}*:", ""]
+        for rank, r in enumerate(results, 1):
+            missing = "" if r["id"] in held else " (not received yet)"
+            lines.append(
+                f"{rank}. {html.escape(r['label'])} — `{r['score']:.3f}` (#{r['id']}){missing}"
+            )
+        self.gui.results.content = "\n".join(lines)
+        return results
+
+    def clear_query(self) -> None:
+        """Drop the highlight: every object drawn plainly again."""
+        with self._lock:
+            self.model.clear_highlight()
+        self.gui.results.content = ""
+
+    # --- GUI --------------------------------------------------------------------------------
+
+    def _build_gui(self) -> _Gui:
+        gui = self.server.gui
+        # No share button or logo: the viewer runs on private networks, often offline.
+        gui.configure_theme(control_width="large", show_logo=False, show_share_button=False)
+        with gui.add_folder("Connection"):
+            status = gui.add_html(self._status_html())
+        with gui.add_folder("Query"):
+            query_text = gui.add_text("Find", "", hint="e.g. 'where can I sit'")
+            top_k = gui.add_number("Top k", 5, min=1, max=100, step=1)
+            search = gui.add_button("Search", icon=viser.Icon.SEARCH)
+            clear = gui.add_button("Clear", icon=viser.Icon.X, color="gray")
+            results = gui.add_markdown("")
+        with gui.add_folder("Display"):
+            show_boxes = gui.add_checkbox("Boxes", True)
+            show_labels = gui.add_checkbox("Labels", True)
+            color_by_class = gui.add_checkbox("Colour by class", False)
+        with gui.add_folder("Session"):
+            stats = gui.add_markdown("waiting for the first stats…")
+        handles = _Gui(
+            status=status,
+            query_text=query_text,
+            top_k=top_k,
+            search=search,
+            clear=clear,
+            results=results,
+            show_boxes=show_boxes,
+            show_labels=show_labels,
+            color_by_class=color_by_class,
+            stats=stats,
+        )
+
+        @search.on_click
+        def _(_event: viser.GuiEvent) -> None:
+            self._search_clicked()
+
+        @clear.on_click
+        def _(_event: viser.GuiEvent) -> None:
+            self.clear_query()
+
+        def toggled(apply: Callable[[bool], None], checkbox: viser.GuiCheckboxHandle) -> None:
+            @checkbox.on_update
+            def _(_event: viser.GuiEvent) -> None:
+                with self._lock:
+                    apply(checkbox.value)
+
+        toggled(self.model.set_show_boxes, show_boxes)
+        toggled(self.model.set_show_labels, show_labels)
+        toggled(self.model.set_color_by_class, color_by_class)
+        return handles
+
+    def _search_clicked(self) -> None:
+        text = self.gui.query_text.value.strip()
+        if not text:
+            self.clear_query()
+            return
+        self.gui.search.disabled = True
+        try:
+            self.run_query(text, int(self.gui.top_k.value))
+        except ViewerError as exc:
+            self.gui.results.content = f"**{html.escape(str(exc))}**"
+        finally:
+            self.gui.search.disabled = False
+
+    def _status_html(self) -> str:
+        status = self.status
+        # No lock (atomic reads): this runs on the event loop, which must not wait for an apply.
+        seq, n_objects = self.model.seq, len(self.model.objects)
+        if status.connected:
+            color, headline = LIVE_RGB, "● live"
+            detail = f"seq {seq} · {n_objects} objects"
+        elif status.ever_connected or status.last_error:
+            color, headline = DOWN_RGB, "● disconnected — reconnecting…"
+            detail = html.escape(status.last_error or "")
+        else:
+            color, headline, detail = WAITING_RGB, "● connecting…", ""
+        return (
+            f'<div style="padding:0 0.5em"><div style="color:{color};font-weight:600">'
+            f'{headline}</div><div style="font-size:0.8em;color:#57606a">{detail}</div></div>'
+        )
+
+    def _show_status(self) -> None:
+        self.gui.status.content = self._status_html()
+
+    def _show_stats(self) -> None:
+        stats = self.status.stats
+        if stats is None:
+            self.gui.stats.content = "stats unavailable (server unreachable)"
+            return
+        latency = stats.get("mapping_latency_ms") or {}
+        held, applied = len(self.model.objects), self.model.seq  # atomic reads, as above
+        stale = "" if self.status.stats_ok else "\n\n*stale: the server is unreachable*"
+        self.gui.stats.content = (
+            "| | |\n|---|---|\n"
+            f"| objects | {stats.get('objects', '-')} (viewer {held}) |\n"
+            f"| frames | {stats.get('frames', '-')} ({stats.get('keyframes', '-')} keyframes) |\n"
+            f"| mapping p50 / p95 | {_milliseconds(latency.get('p50'))} / "
+            f"{_milliseconds(latency.get('p95'))} |\n"
+            f"| bytes in | {_megabytes((stats.get('bytes_in') or {}).get('total'))} |\n"
+            f"| bytes out | {_megabytes((stats.get('bytes_out') or {}).get('total'))} |\n"
+            f"| update seq | {stats.get('update_seq', '-')} (applied {applied}) |" + stale
+        )
+
+    # --- camera ---------------------------------------------------------------------------
+
+    def _frame_camera(self) -> None:
+        """Look at the whole map from above and aside (caller holds the lock): the starting
+        view of new clients and of "Reset View", and the view of clients already open."""
+        bounds = self.model.bounds()
+        if bounds is None:
+            return
+        lo, hi = bounds
+        center = (lo + hi) / 2
+        size = float(np.linalg.norm(hi - lo)) or 1.0
+        # A horizontal direction: the diagonal of the two axes that are not `up`.
+        side = np.ones(3) - np.abs(self.up)
+        side = -side / np.linalg.norm(side)
+        position = center + size * (0.55 * side + 0.45 * self.up)
+        self.server.initial_camera.position = position
+        self.server.initial_camera.look_at = center
+        for client in self.server.get_clients().values():
+            # position first: viser moves look_at along with the position, then we re-aim.
+            with contextlib.suppress(AssertionError):  # its camera is not known yet
+                client.camera.position = position
+                client.camera.look_at = center
+
+
+# --- command line -------------------------------------------------------------------------
+
+
+def add_viewer_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the `viewer` subcommand to `semanticxr`'s subparsers."""
+    parser = subparsers.add_parser(
+        "viewer",
+        help="3D viewer of a session's map (viser): objects, boxes, labels, queries",
+        description="Follow a session's map updates and show them in the browser; ask "
+        "natural-language queries and see the hits highlighted.",
+    )
+    parser.add_argument("--server", required=True, metavar="URL", help="e.g. http://host:8000")
+    parser.add_argument("--session", required=True, metavar="SID", help="session id to show")
+    parser.add_argument(
+        "--token",
+        default=os.environ.get("SEMANTICXR_TOKEN"),
+        help="the session's token (default: env SEMANTICXR_TOKEN; none for an open server)",
+    )
+    parser.add_argument("--port", type=int, default=8080, help="viewer port (default 8080)")
+    parser.add_argument(
+        "--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1)"
+    )
+    parser.add_argument(
+        "--up",
+        default="+z",
+        choices=("+x", "+y", "+z", "-x", "-y", "-z"),
+        help="up axis of the device's world frame (default +z, the synthetic world's)",
+    )
+    parser.set_defaults(func=run_viewer)
+    return parser
+
+
+def run_viewer(args: argparse.Namespace) -> int:
+    """Run the viewer until Ctrl-C; prints its URL."""
+    app = ViewerApp(
+        args.server,
+        args.session,
+        token=args.token,
+        port=args.port,
+        host=args.host,
+        up_direction=args.up,
+    )
+    app.start()
+    print(f"SemanticXR viewer of session {args.session} on {app.url}  (Ctrl-C to stop)")
+    try:
+        while True:
+            time.sleep(3600)  # idle: the work happens in the viewer's threads
+    except KeyboardInterrupt:
+        pass
+    finally:
+        app.stop()
+    return 0

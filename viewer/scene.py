@@ -1,0 +1,490 @@
+"""Map updates -> scene-node operations, with no viser and no I/O (testable without a browser).
+
+`SceneModel` applies v1 `delta` messages with the device's semantics (a `full` snapshot
+replaces the map, upserts are keyed by id and ordered by version, removals drop ids) and
+tells a `SceneSink` the fewest node operations that make the scene match: an object that did
+not change causes none. `viewer.app` implements the sink on viser; tests record it.
+
+Node names (stable per object, so an update replaces exactly its own nodes):
+
+    /objects/{id}          the object's point cloud, one colour per object (or per class)
+    /labels/{id}           its label, under the /labels group (toggled by one visibility op)
+    /boxes                 every object's bounding box, batched into ONE line-segments node
+    /hits/boxes            the boxes of the highlighted query hits, bright
+    /hits/labels/{id}      a hit's label with its score
+
+The cloud is the object's node itself, not a child like /objects/{id}/points: viser would
+create an implicit frame node for every /objects/{id} parent, which costs a fifth of a
+5,000-object snapshot's time for nothing. Labels live in their own group for the same
+reason and so that hiding them all is one operation.
+
+While a query is highlighted the other objects are dimmed (points and boxes) and the plain
+labels are hidden, so the hits stand out.
+"""
+
+from __future__ import annotations
+
+import colorsys
+import math
+import zlib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from app.codecs import CodecError, float16_points_from_bytes
+
+Rgb = tuple[int, int, int]
+
+OBJECTS_GROUP = "/objects"
+LABELS_GROUP = "/labels"
+BOXES_NODE = "/boxes"
+HITS_GROUP = "/hits"
+HIT_BOXES_NODE = "/hits/boxes"
+
+HIT_BOX_RGB: Rgb = (255, 214, 0)
+"""Bright yellow: readable against every object colour and the light background."""
+DIM_GREY_RGB: Rgb = (150, 150, 150)
+"""What dimmed colours are blended towards."""
+DIM_KEEP = 0.25
+"""Share of an object's own colour left when it is dimmed."""
+
+# The 12 edges of a box as pairs of corner indices; corner k has x = bit 0, y = bit 1, z = bit 2.
+_BOX_EDGES = np.array(
+    [(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
+)
+_CORNER_BITS = np.array([[(k >> axis) & 1 for axis in range(3)] for k in range(8)], bool)
+
+
+def points_node(object_id: int) -> str:
+    """Scene name of an object's point cloud."""
+    return f"{OBJECTS_GROUP}/{object_id}"
+
+
+def label_node(object_id: int) -> str:
+    """Scene name of an object's plain label."""
+    return f"{LABELS_GROUP}/{object_id}"
+
+
+def hit_label_node(object_id: int) -> str:
+    """Scene name of a highlighted hit's label (with its score)."""
+    return f"{HITS_GROUP}/labels/{object_id}"
+
+
+class DeltaError(ValueError):
+    """A malformed or out-of-order delta; nothing was applied."""
+
+
+class SceneSink(Protocol):
+    """Where scene-node operations go (viser in the app, a recorder in tests).
+
+    `add_*` and `set_boxes` create the node or replace it whole; the others change one
+    property of an existing node.
+    """
+
+    def add_point_cloud(self, name: str, points: np.ndarray, color: Rgb) -> None:
+        """points: float16 or float32 [N, 3] metres; one colour for all of them."""
+
+    def set_point_color(self, name: str, color: Rgb) -> None:
+        """Recolour an existing point cloud (its points are not sent again)."""
+
+    def add_label(self, name: str, text: str, position: tuple[float, float, float]) -> None:
+        """A text label anchored at `position` (metres)."""
+
+    def set_boxes(self, name: str, segments: np.ndarray, colors: np.ndarray) -> None:
+        """One line-segments node: segments float32 [M, 2, 3] metres, colors uint8 [M, 2, 3]."""
+
+    def set_visible(self, name: str, visible: bool) -> None:
+        """Show or hide a node and its children (used for groups)."""
+
+    def remove(self, name: str) -> None:
+        """Remove a node and its children."""
+
+
+@dataclass(frozen=True)
+class ViewObject:
+    """One confirmed object as the viewer holds it (client resolution, wire precision)."""
+
+    id: int
+    version: int
+    label: str
+    bbox: tuple[float, float, float, float, float, float]
+    """[x0, y0, z0, x1, y1, z1] metres."""
+    points: np.ndarray = field(repr=False)
+    """float16 [N, 3] metres, as received."""
+    n_obs: int
+
+    @property
+    def center(self) -> tuple[float, float, float]:
+        x0, y0, z0, x1, y1, z1 = self.bbox
+        return ((x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2)
+
+
+@dataclass
+class DeltaSummary:
+    """What one `apply_delta` changed, by object id."""
+
+    seq: int
+    full: bool
+    added: list[int] = field(default_factory=list)
+    updated: list[int] = field(default_factory=list)
+    removed: list[int] = field(default_factory=list)
+    unchanged: list[int] = field(default_factory=list)
+    """Upserts whose version the viewer already held (or newer): no node operation."""
+
+    @property
+    def changed(self) -> bool:
+        return bool(self.added or self.updated or self.removed)
+
+
+# --- colours and boxes (pure helpers) -------------------------------------------------------
+
+
+def _hue_color(key: int) -> Rgb:
+    """A saturated colour from an integer key; golden-ratio hue steps keep consecutive keys
+    far apart on the colour wheel."""
+    hue = (key * 0.618033988749895) % 1.0
+    r, g, b = colorsys.hsv_to_rgb(hue, 0.65, 0.92)
+    return (round(r * 255), round(g * 255), round(b * 255))
+
+
+def object_color(object_id: int) -> Rgb:
+    """A stable colour per object id (the same in every run and every viewer)."""
+    return _hue_color(object_id)  # ids are consecutive: neighbours get distant hues
+
+
+def class_color(label: str) -> Rgb:
+    """A stable colour per class label (crc32: Python's str hash is salted per process)."""
+    return _hue_color(zlib.crc32(label.encode("utf-8")))
+
+
+def dimmed(color: Rgb) -> Rgb:
+    """`color` faded towards grey: still tells objects apart, but recedes behind the hits."""
+    return tuple(  # type: ignore[return-value]
+        round(DIM_KEEP * c + (1 - DIM_KEEP) * g) for c, g in zip(color, DIM_GREY_RGB, strict=True)
+    )
+
+
+def box_segments(bboxes: np.ndarray) -> np.ndarray:
+    """float32 [12 * N, 2, 3]: the edges of N axis-aligned boxes [N, 6] (x0 y0 z0 x1 y1 z1)."""
+    bboxes = np.asarray(bboxes, np.float32).reshape(-1, 6)
+    lo, hi = bboxes[:, None, :3], bboxes[:, None, 3:]
+    corners = np.where(_CORNER_BITS[None], hi, lo)  # [N, 8, 3]
+    return corners[:, _BOX_EDGES].reshape(-1, 2, 3)
+
+
+def _segment_colors(colors: list[Rgb]) -> np.ndarray:
+    """uint8 [12 * N, 2, 3]: each box's colour on both ends of its 12 edges."""
+    per_box = np.asarray(colors, np.uint8).reshape(-1, 1, 1, 3)
+    return np.broadcast_to(per_box, (per_box.shape[0], 12, 2, 3)).reshape(-1, 2, 3).copy()
+
+
+# --- parsing --------------------------------------------------------------------------------
+
+
+def _int(value: Any, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise DeltaError(f"{where}: expected an integer, got {type(value).__name__}")
+    return value
+
+
+def _bbox(value: Any, where: str) -> tuple[float, float, float, float, float, float]:
+    if not isinstance(value, list | tuple) or len(value) != 6:
+        raise DeltaError(f"{where}: expected 6 numbers")
+    numbers = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise DeltaError(f"{where}: expected 6 finite numbers")
+        numbers.append(float(v))
+    return tuple(numbers)  # type: ignore[return-value]
+
+
+def parse_delta(message: Any) -> tuple[int, bool, list[ViewObject], list[int]]:
+    """(seq, full, upserts, removed) of a v1 `delta`, or DeltaError naming the first wrong
+    field. The embedding is not needed to draw and is not decoded."""
+    if not isinstance(message, dict) or message.get("type") != "delta":
+        raise DeltaError("message: expected a map with type 'delta'")
+    for key in ("seq", "full", "upserts", "removed"):
+        if key not in message:
+            raise DeltaError(f"{key}: missing")
+    seq = _int(message["seq"], "seq")
+    full = message["full"]
+    if not isinstance(full, bool):
+        raise DeltaError("full: expected a boolean")
+    if not isinstance(message["upserts"], list) or not isinstance(message["removed"], list):
+        raise DeltaError("upserts and removed must be lists")
+    upserts: list[ViewObject] = []
+    for i, up in enumerate(message["upserts"]):
+        where = f"upserts[{i}]"
+        if not isinstance(up, dict):
+            raise DeltaError(f"{where}: expected a map")
+        missing = [k for k in ("id", "version", "label", "points", "bbox", "n_obs") if k not in up]
+        if missing:
+            raise DeltaError(f"{where}: missing {', '.join(missing)}")
+        if not isinstance(up["label"], str):
+            raise DeltaError(f"{where}.label: expected a string")
+        try:
+            points = float16_points_from_bytes(up["points"], f"{where}.points")
+        except CodecError as exc:
+            raise DeltaError(str(exc)) from exc
+        upserts.append(
+            ViewObject(
+                id=_int(up["id"], f"{where}.id"),
+                version=_int(up["version"], f"{where}.version"),
+                label=up["label"],
+                bbox=_bbox(up["bbox"], f"{where}.bbox"),
+                points=points,
+                n_obs=_int(up["n_obs"], f"{where}.n_obs"),
+            )
+        )
+    removed = [_int(oid, f"removed[{i}]") for i, oid in enumerate(message["removed"])]
+    ids = [o.id for o in upserts]
+    if len(set(ids)) != len(ids):
+        raise DeltaError("upserts: an id appears more than once")
+    if set(ids) & set(removed):
+        raise DeltaError("removed: an id is also upserted")
+    return seq, full, upserts, removed
+
+
+# --- the model ------------------------------------------------------------------------------
+
+
+class SceneModel:
+    """The viewer's copy of a session's confirmed map and the scene nodes that draw it.
+
+    Not thread-safe: the caller serialises `apply_delta`, the toggles and highlighting.
+    On construction it tells the sink the initial visibility of the /labels group.
+    """
+
+    def __init__(
+        self,
+        sink: SceneSink,
+        *,
+        color_by_class: bool = False,
+        show_boxes: bool = True,
+        show_labels: bool = True,
+    ):
+        self.sink = sink
+        self.seq = 0
+        """Seq of the last applied delta (what `?since=` resumes from)."""
+        self._objects: dict[int, ViewObject] = {}
+        self._color_by_class = color_by_class
+        self._show_boxes = show_boxes
+        self._show_labels = show_labels
+        self._hits: dict[int, float] = {}
+        """Highlighted query hits: id -> score; hits not (yet) held are shown when they arrive."""
+        self._highlighting = False
+        self._point_colors: dict[int, Rgb] = {}  # the colour each points node has now
+        self._hit_labels: dict[int, tuple[str, tuple[float, float, float]]] = {}
+        """(text, position) each hit label node has now."""
+        self._boxes_shown = False  # whether /boxes exists in the scene
+        self._hit_boxes_shown = False
+        self._labels_visible = self._labels_group_visible()
+        sink.set_visible(LABELS_GROUP, self._labels_visible)
+
+    # --- reading ----------------------------------------------------------------------------
+
+    @property
+    def objects(self) -> Mapping[int, ViewObject]:
+        return self._objects
+
+    @property
+    def hits(self) -> Mapping[int, float]:
+        """The highlighted hits (id -> score); empty when nothing is highlighted."""
+        return dict(self._hits)
+
+    @property
+    def highlighting(self) -> bool:
+        return self._highlighting
+
+    @property
+    def color_by_class(self) -> bool:
+        return self._color_by_class
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(min, max) corners of all boxes, metres; None when the map is empty."""
+        if not self._objects:
+            return None
+        boxes = np.array([o.bbox for o in self._objects.values()], np.float64)
+        return boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0)
+
+    # --- updates ----------------------------------------------------------------------------
+
+    def apply_delta(self, message: dict) -> DeltaSummary:
+        """Apply one v1 `delta` (msgpack-unpacked, bytes fields) and update the scene.
+
+        Validates first: a malformed delta, or a non-full one older than `seq`, raises
+        DeltaError and changes nothing. Upserts at a version the viewer already holds (or
+        older) cause no node operation, so a resync snapshot only redraws what changed.
+        """
+        seq, full, upserts, removed = parse_delta(message)
+        if not full and seq < self.seq:
+            raise DeltaError(f"seq: {seq} is older than the applied seq {self.seq} (out of order)")
+        summary = DeltaSummary(seq=seq, full=full)
+        if full:
+            fresh = {o.id for o in upserts}
+            removed = [oid for oid in self._objects if oid not in fresh]
+        boxes_changed = False  # /boxes is one node: resend it only when a box looks different
+        hits_changed = False
+        for oid in removed:
+            if self._objects.pop(oid, None) is not None:
+                self._drop_nodes(oid)
+                summary.removed.append(oid)
+                boxes_changed = True
+                hits_changed |= oid in self._hits
+        for obj in upserts:
+            held = self._objects.get(obj.id)
+            if held is not None and obj.version <= held.version:
+                summary.unchanged.append(obj.id)
+                continue
+            self._objects[obj.id] = obj
+            self._draw_object(obj, held)
+            (summary.updated if held is not None else summary.added).append(obj.id)
+            looks_different = (
+                held is None or held.bbox != obj.bbox or self._color_of(held) != self._color_of(obj)
+            )
+            boxes_changed |= looks_different
+            hits_changed |= looks_different and obj.id in self._hits
+        self.seq = seq
+        if boxes_changed or hits_changed:
+            self._redraw_boxes(all_boxes=boxes_changed, hits=hits_changed)
+        return summary
+
+    def _draw_object(self, obj: ViewObject, held: ViewObject | None) -> None:
+        """The point and label nodes of a new or changed object (only the parts that changed)."""
+        color = self._color_of(obj)
+        if held is None or not np.array_equal(held.points, obj.points):
+            if len(obj.points):
+                self.sink.add_point_cloud(points_node(obj.id), obj.points, color)
+                self._point_colors[obj.id] = color
+            elif obj.id in self._point_colors:  # nothing to draw any more
+                self.sink.remove(points_node(obj.id))
+                del self._point_colors[obj.id]
+        elif obj.id in self._point_colors and self._point_colors[obj.id] != color:
+            self.sink.set_point_color(points_node(obj.id), color)  # its class changed
+            self._point_colors[obj.id] = color
+        if held is None or held.label != obj.label or held.center != obj.center:
+            self.sink.add_label(label_node(obj.id), obj.label, obj.center)
+        if obj.id in self._hits:
+            self._draw_hit_label(obj)
+
+    def _drop_nodes(self, oid: int) -> None:
+        if self._point_colors.pop(oid, None) is not None:
+            self.sink.remove(points_node(oid))
+        self.sink.remove(label_node(oid))
+        if self._hit_labels.pop(oid, None) is not None:
+            self.sink.remove(hit_label_node(oid))
+
+    # --- toggles ----------------------------------------------------------------------------
+
+    def set_color_by_class(self, by_class: bool) -> None:
+        """Colour objects by class label (True) or by object id (False)."""
+        if by_class != self._color_by_class:
+            self._color_by_class = by_class
+            self._recolor()
+            self._redraw_boxes(all_boxes=True, hits=False)
+
+    def set_show_boxes(self, show: bool) -> None:
+        """Show or hide the batched /boxes node (highlighted hits keep their boxes)."""
+        if show != self._show_boxes:
+            self._show_boxes = show
+            self._redraw_boxes(all_boxes=True, hits=False)
+
+    def set_show_labels(self, show: bool) -> None:
+        """Show or hide every plain label at once (one group visibility operation)."""
+        if show != self._show_labels:
+            self._show_labels = show
+            self._update_labels_group()
+
+    # --- query highlighting -----------------------------------------------------------------
+
+    def highlight(self, hits: Iterable[tuple[int, float]]) -> None:
+        """Highlight query hits (id, score), best first: bright boxes and labels with scores;
+        everything else dimmed. Replaces any earlier highlight."""
+        new_hits = {int(oid): float(score) for oid, score in hits}
+        for oid in [o for o in self._hit_labels if o not in new_hits]:
+            self.sink.remove(hit_label_node(oid))
+            del self._hit_labels[oid]
+        self._hits = new_hits
+        self._highlighting = True
+        for oid in new_hits:
+            if oid in self._objects:
+                self._draw_hit_label(self._objects[oid])
+        self._recolor()
+        self._update_labels_group()
+        self._redraw_boxes(all_boxes=True, hits=True)
+
+    def clear_highlight(self) -> None:
+        """Back to the plain view: hit nodes removed, colours and labels restored."""
+        if not self._highlighting:
+            return
+        for oid in list(self._hit_labels):
+            self.sink.remove(hit_label_node(oid))
+        self._hit_labels.clear()
+        self._hits = {}
+        self._highlighting = False
+        self._recolor()
+        self._update_labels_group()
+        self._redraw_boxes(all_boxes=True, hits=True)
+
+    # --- internals --------------------------------------------------------------------------
+
+    def _base_color(self, obj: ViewObject) -> Rgb:
+        return class_color(obj.label) if self._color_by_class else object_color(obj.id)
+
+    def _color_of(self, obj: ViewObject) -> Rgb:
+        color = self._base_color(obj)
+        return dimmed(color) if self._highlighting and obj.id not in self._hits else color
+
+    def _recolor(self) -> None:
+        """Recolour the point clouds whose colour changed (the caller redraws the boxes)."""
+        for oid, current in list(self._point_colors.items()):
+            color = self._color_of(self._objects[oid])
+            if color != current:
+                self.sink.set_point_color(points_node(oid), color)
+                self._point_colors[oid] = color
+
+    def _draw_hit_label(self, obj: ViewObject) -> None:
+        """A hit's label with its score (sent only if its text or place changed)."""
+        drawn = (f"{obj.label} {self._hits[obj.id]:.2f}", obj.center)
+        if self._hit_labels.get(obj.id) != drawn:
+            self.sink.add_label(hit_label_node(obj.id), *drawn)
+            self._hit_labels[obj.id] = drawn
+
+    def _labels_group_visible(self) -> bool:
+        return self._show_labels and not self._highlighting
+
+    def _update_labels_group(self) -> None:
+        visible = self._labels_group_visible()
+        if visible != self._labels_visible:
+            self.sink.set_visible(LABELS_GROUP, visible)
+            self._labels_visible = visible
+
+    def _redraw_boxes(self, all_boxes: bool = True, hits: bool = True) -> None:
+        """Send /boxes (every object, one node) and /hits/boxes (the held hits), or remove
+        them when there is nothing to show."""
+        if all_boxes:
+            shown = list(self._objects.values()) if self._show_boxes else []
+            if shown:
+                self.sink.set_boxes(
+                    BOXES_NODE,
+                    box_segments(np.array([o.bbox for o in shown], np.float32)),
+                    _segment_colors([self._color_of(o) for o in shown]),
+                )
+                self._boxes_shown = True
+            elif self._boxes_shown:
+                self.sink.remove(BOXES_NODE)
+                self._boxes_shown = False
+        if hits:
+            held_hits = [self._objects[oid] for oid in self._hits if oid in self._objects]
+            if held_hits:
+                self.sink.set_boxes(
+                    HIT_BOXES_NODE,
+                    box_segments(np.array([o.bbox for o in held_hits], np.float32)),
+                    _segment_colors([HIT_BOX_RGB] * len(held_hits)),
+                )
+                self._hit_boxes_shown = True
+            elif self._hit_boxes_shown:
+                self.sink.remove(HIT_BOXES_NODE)
+                self._hit_boxes_shown = False
