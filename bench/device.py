@@ -73,6 +73,35 @@ def upstream_by_ratio(frames: list[SourceFrame]) -> dict[int, dict]:
     return out
 
 
+def upstream_by_codec(frames: list[SourceFrame], ratio: int = 5) -> list[dict]:
+    """Upstream at one depth ratio for JPEG qualities x depth codecs (what else can shrink)."""
+    from client_sim.encoder import FrameEncoder
+
+    rows = []
+    for depth_codec in ("zstd", "png"):
+        for quality in (85, 75, 60, 50):
+            encoder = FrameEncoder(ratio, jpeg_quality=quality, depth_codec=depth_codec)
+            total = np.mean(
+                [
+                    encoder.encode(
+                        seq=f.index,
+                        t=f.t,
+                        rgb=f.rgb,
+                        depth_m=f.depth_m,
+                        pose=f.pose,
+                        intrinsics=f.intrinsics,
+                        instance_ids=f.instance_ids,
+                        instances=f.instances,
+                    ).bytes_by_kind["total"]
+                    for f in frames
+                ]
+            )
+            mbps = float(total) * 8 * STREAM_FPS / 1e6
+            rows.append({"jpeg_quality": quality, "depth_codec": depth_codec, "mbps_at_5fps": mbps})
+            print(f"  depth ÷{ratio} {depth_codec:4s} JPEG q{quality}: {mbps:.2f} Mbps at 5 fps")
+    return rows
+
+
 def quality_by_ratio(scene: str, frames: int) -> dict[int, float]:
     from app.config import Knobs
     from app.semantics import get_text_encoder
@@ -138,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
     frames = list(source.frames())
     print("upstream bandwidth by depth ratio:")
     upstream = upstream_by_ratio(frames)
+    print("upstream at depth ÷5 by JPEG quality and depth codec:")
+    by_codec = upstream_by_codec(frames[::3])
     quality = {} if args.no_quality else quality_by_ratio(args.scene, args.eval_frames)
     with tempfile.TemporaryDirectory() as data_dir:
         server = Server(data_dir)
@@ -164,6 +195,7 @@ def main(argv: list[str] | None = None) -> int:
             "machine": machine(),
             "scene": args.scene,
             "upstream": upstream,
+            "upstream_by_codec": by_codec,
             "f_miou_by_ratio": quality,
             "device_cpu": cpu,
             "targets": targets,
