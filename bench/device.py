@@ -51,16 +51,7 @@ def upstream_by_ratio(frames: list[SourceFrame]) -> dict[int, dict]:
         encoder = FrameEncoder(ratio)
         sizes = {"rgb": [], "depth": [], "detections": [], "total": []}
         for f in frames:
-            enc = encoder.encode(
-                seq=f.index,
-                t=f.t,
-                rgb=f.rgb,
-                depth_m=f.depth_m,
-                pose=f.pose,
-                intrinsics=f.intrinsics,
-                instance_ids=f.instance_ids,
-                instances=f.instances,
-            )
+            enc = encoder.encode_source_frame(f)
             for kind in sizes:
                 sizes[kind].append(enc.bytes_by_kind.get(kind, 0))
         mean = {k: float(np.mean(v)) for k, v in sizes.items()}
@@ -81,21 +72,7 @@ def upstream_by_codec(frames: list[SourceFrame], ratio: int = 5) -> list[dict]:
     for depth_codec in ("zstd", "png"):
         for quality in (85, 75, 60, 50):
             encoder = FrameEncoder(ratio, jpeg_quality=quality, depth_codec=depth_codec)
-            total = np.mean(
-                [
-                    encoder.encode(
-                        seq=f.index,
-                        t=f.t,
-                        rgb=f.rgb,
-                        depth_m=f.depth_m,
-                        pose=f.pose,
-                        intrinsics=f.intrinsics,
-                        instance_ids=f.instance_ids,
-                        instances=f.instances,
-                    ).bytes_by_kind["total"]
-                    for f in frames
-                ]
-            )
+            total = np.mean([encoder.encode_source_frame(f).bytes_by_kind["total"] for f in frames])
             mbps = float(total) * 8 * STREAM_FPS / 1e6
             rows.append({"jpeg_quality": quality, "depth_codec": depth_codec, "mbps_at_5fps": mbps})
             print(f"  depth ÷{ratio} {depth_codec:4s} JPEG q{quality}: {mbps:.2f} Mbps at 5 fps")

@@ -83,16 +83,7 @@ def encode_frames(n_frames: int, scene: str) -> tuple[list[bytes], list[bytes]]:
     encoder = FrameEncoder(5)
     out = []
     for frame in source.frames():
-        msg = encoder.encode(
-            seq=frame.index,
-            t=frame.t,
-            rgb=frame.view.rgb,
-            depth_m=frame.detections.depth_m,
-            pose=frame.pose,
-            intrinsics=frame.camera.intrinsics,
-            instance_ids=frame.detections.instance_ids,
-            instances=frame.detections.instances,
-        ).message
+        msg = encoder.encode_source_frame(frame).message
         out.append(msgpack.packb(msg))
         if (frame.index + 1) % 50 == 0:
             print(f"  encoded {frame.index + 1}/{n_frames} frames", file=sys.stderr)

@@ -15,9 +15,13 @@ intrinsics are therefore (fx / ratio, fy / ratio, (cx - ratio // 2) / ratio,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import msgpack
 import numpy as np
+
+if TYPE_CHECKING:
+    from client_sim.sources.base import SourceFrame
 
 from app.codecs import (
     DEPTH_CODECS,
@@ -137,6 +141,19 @@ class FrameEncoder:
         self.detections_codec = detections_codec
         self.depth_scale_m = float(depth_scale_m)
         self.depth_method = depth_method
+
+    def encode_source_frame(self, frame: SourceFrame, seq: int | None = None) -> EncodedFrame:
+        """The wire message of a frame from a FrameSource (seq defaults to its index)."""
+        return self.encode(
+            seq=frame.index if seq is None else seq,
+            t=frame.t,
+            rgb=frame.rgb,
+            depth_m=frame.depth_m,
+            pose=frame.pose,
+            intrinsics=frame.intrinsics,
+            instance_ids=frame.instance_ids,
+            instances=frame.instances,
+        )
 
     def encode(
         self,

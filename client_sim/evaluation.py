@@ -74,16 +74,7 @@ def _encode_keyframes(cfg: EvalConfig, progress: Progress) -> tuple[list, object
     interval = cfg.knobs.keyframe_interval
     n_keyframes = len(range(0, cfg.frames, interval))
     for i, frame in enumerate(source.frames(every=interval)):
-        encoded = encoder.encode(
-            seq=frame.index,
-            t=frame.t,
-            rgb=frame.view.rgb,
-            depth_m=frame.detections.depth_m,
-            pose=frame.pose,
-            intrinsics=frame.camera.intrinsics,
-            instance_ids=frame.detections.instance_ids,
-            instances=frame.detections.instances,
-        )
+        encoded = encoder.encode_source_frame(frame)
         messages.append(encoded.message)
         for kind in upstream:
             upstream[kind] += encoded.bytes_by_kind.get(kind, 0)

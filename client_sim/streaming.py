@@ -463,16 +463,7 @@ class DeviceClient:
         """In a worker thread: read (render) frame `index` and encode it as frame `seq`
         (slow: rendering, JPEG, zstd; off the loop so acks and deltas keep flowing)."""
         frame = source.frame(index)
-        encoded = encoder.encode(
-            seq=seq,
-            t=frame.t,
-            rgb=frame.rgb,
-            depth_m=frame.depth_m,
-            pose=frame.pose,
-            intrinsics=frame.intrinsics,
-            instance_ids=frame.instance_ids,
-            instances=frame.instances,
-        )
+        encoded = encoder.encode_source_frame(frame, seq)
         return encoded, [float(v) for v in frame.pose[:3, 3]]
 
     # --- map updates down -----------------------------------------------------------------
