@@ -9,8 +9,9 @@ The updates socket is kept up like the device's (client_sim/streaming.py): expon
 backoff (0.2 s doubling to 5 s), resume from the last applied seq after a disconnect, resync
 from a full snapshot after a malformed message. While it is down the GUI says so in red.
 
-Not shown: the device's camera pose and path. Neither the REST stats nor the updates carry a
-pose (only the device's acks do), so the viewer cannot draw them without a protocol extension.
+The device's camera pose and path come from the optional "device_pose" field of updates
+(an extension of v1: the newest mapped keyframe's camera-to-world pose): a frustum at the
+newest pose and a line through the poses seen so far.
 """
 
 from __future__ import annotations
@@ -31,11 +32,17 @@ import httpx
 import msgpack
 import numpy as np
 import viser
+import viser.transforms as vtf
 import websockets
 from websockets.exceptions import WebSocketException
 
+from app.codecs import pose_from_bytes, validate_rigid_pose
+from app.errors import InputError
 from client_sim.streaming import Backoff, auth_headers, http_base_url, websocket_base_url
 from viewer.scene import HIT_BOXES_NODE, HITS_GROUP, DeltaError, Rgb, SceneModel
+
+MAX_PATH_POINTS = 5000
+"""Device path vertices kept (one per update that moved more than 1 cm)."""
 
 log = logging.getLogger(__name__)
 
@@ -205,6 +212,7 @@ class ViewerApp:
         self.server.scene.set_up_direction(up_direction)
         self._lock = threading.RLock()
         self.model = SceneModel(ViserSceneSink(self.server.scene))
+        self._device_path: list[np.ndarray] = []
         self._camera_framed = False  # frame the map once, when it first has objects
         self.gui = self._build_gui()
         self._thread: threading.Thread | None = None
@@ -330,6 +338,8 @@ class ViewerApp:
                 return str(exc)
             self.status.deltas_applied += 1
             self.status.full_snapshots += summary.full
+            if isinstance(message.get("device_pose"), bytes):
+                self._show_device(message["device_pose"])
             if not self._camera_framed and self.model.objects:
                 self._camera_framed = True
                 self._frame_camera()
@@ -506,6 +516,33 @@ class ViewerApp:
             f"| bytes out | {_megabytes((stats.get('bytes_out') or {}).get('total'))} |\n"
             f"| update seq | {stats.get('update_seq', '-')} (applied {applied}) |" + stale
         )
+
+    # --- the device ---------------------------------------------------------------------------
+
+    def _show_device(self, pose_bytes: bytes) -> None:
+        """Frustum at the device's newest pose, and its path so far (held: self._lock)."""
+        try:
+            pose = validate_rigid_pose(pose_from_bytes(pose_bytes, "device_pose"), "device_pose")
+        except InputError:
+            return  # an optional field: a bad one is ignored, the map is not affected
+        position = pose[:3, 3]
+        if not self._device_path or np.linalg.norm(self._device_path[-1] - position) > 0.01:
+            self._device_path.append(position)
+            del self._device_path[:-MAX_PATH_POINTS]
+        scene = self.server.scene
+        scene.add_camera_frustum(
+            "/device/frustum",
+            fov=np.deg2rad(60.0),
+            aspect=4 / 3,
+            scale=0.25,
+            color=(255, 120, 0),
+            wxyz=vtf.SO3.from_matrix(pose[:3, :3]).wxyz,
+            position=position,
+        )
+        if len(self._device_path) >= 2:
+            path = np.asarray(self._device_path, np.float32)
+            segments = np.stack([path[:-1], path[1:]], axis=1)
+            scene.add_line_segments("/device/path", segments, (255, 160, 60), thickness=0.02)
 
     # --- camera ---------------------------------------------------------------------------
 

@@ -101,6 +101,8 @@ class MappingEngine:
         self.objects: dict[int, MapObject] = {}
         self.log = DeltaLog()
         self.keyframes = 0
+        self.last_pose: np.ndarray | None = None
+        """Camera-to-world [4, 4] of the newest mapped keyframe (where the device is)."""
         self.next_object_id = 1
         self._changed_since_cleanup: set[int] = set()
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
@@ -158,6 +160,7 @@ class MappingEngine:
         t1 = time.perf_counter()
 
         self.keyframes += 1
+        self.last_pose = np.asarray(frame.pose, np.float64)
         stats = IntegrationStats(seq=self.log.seq, keyframe=self.keyframes)
         stats.detections = len(detections.detections)
         observations = self._observe(frame, detections, stats)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
+from app.codecs import float16_points_to_bytes, float16_vector_to_bytes, pose_to_bytes
 from app.mapping.deltas import Delta
 from app.mapping.engine import MappingEngine
 from app.mapping.geometry import cap_points
@@ -63,8 +63,15 @@ def update_message(engine: MappingEngine, since: int | None) -> dict:
 
     semanticxr: the objects changed since `since`, coalesced, at client resolution.
     baseline: the whole confirmed map at full resolution, every time (DESIGN.md's table).
+    Extension of v1 (an optional field): "device_pose", the newest mapped keyframe's
+    camera-to-world pose in the frame's own encoding (16 float32 LE, row-major), so viewers
+    can show where the device is.
     """
     if engine.mode == "baseline":
-        return delta_message(engine.delta_since(None), engine.objects, None)
-    max_points = engine.knobs.max_object_points_client
-    return delta_message(engine.delta_since(since), engine.objects, max_points)
+        message = delta_message(engine.delta_since(None), engine.objects, None)
+    else:
+        max_points = engine.knobs.max_object_points_client
+        message = delta_message(engine.delta_since(since), engine.objects, max_points)
+    if engine.last_pose is not None:
+        message["device_pose"] = pose_to_bytes(engine.last_pose)
+    return message

@@ -202,6 +202,8 @@ def test_the_browser_shows_one_point_cloud_per_confirmed_object_and_the_query_hi
                 return shown if shown == wanted else None
 
             wait_for(mounted_objects, f"the page to mount {sorted(wanted)}")
+            # where the device is: its newest pose, from the updates' device_pose
+            assert "/device/frustum" in (page.evaluate(MOUNTED_NODES_JS) or [])
 
             results = app.run_query("refrigerator", k=1)
             assert results[0]["label"] == "refrigerator"
