@@ -16,7 +16,7 @@ import tempfile
 import time
 from typing import Any
 
-DEFAULT_QUERIES = ("where are my keys?", "something to sit on", "a cup for coffee", "the fridge")
+DEFAULT_QUERIES = ("something to sit on", "where can I wash the dishes?", "the fridge", "a bed")
 
 
 def add_demo_parser(subparsers: Any) -> None:
