@@ -71,6 +71,11 @@ class Session:
     _fps_window: deque = field(default_factory=lambda: deque(maxlen=60))
 
     @property
+    def closed(self) -> bool:
+        """True once the session is deleted (its sockets then close)."""
+        return self._closed
+
+    @property
     def id(self) -> str:
         return self.record.session_id
 
@@ -264,7 +269,7 @@ class SessionManager:
     async def _map_loop(self, session: Session, pending: _Pending | None) -> None:
         loop = asyncio.get_running_loop()
         try:
-            while pending is not None and not session._closed:
+            while pending is not None and not session.closed:
                 try:
                     stats = await loop.run_in_executor(
                         self.pool, self._map_and_persist, session, pending.frame
@@ -298,7 +303,7 @@ class SessionManager:
     def _map_and_persist(self, session: Session, frame: FrameInput) -> IntegrationStats:
         """In a worker thread: integrate, then make the change durable before the ack."""
         with session._map_lock:
-            if session._closed:
+            if session.closed:
                 raise InputError("session", "the session was deleted")
             engine = session.engine
             stats = engine.integrate(frame)

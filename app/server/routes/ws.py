@@ -64,7 +64,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
 
     bad_in_a_row = 0
     try:
-        while not session._closed:
+        while not session.closed:
             event = await ws.receive()
             if event["type"] == "websocket.disconnect":
                 break
@@ -119,7 +119,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
         return
     finally:
         session.flush()  # the device stopped: its last changes go out now
-    if session._closed:
+    if session.closed:
         with contextlib.suppress(Exception):
             await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")
 
@@ -153,7 +153,7 @@ async def updates(ws: WebSocket, sid: str) -> None:
     watcher = asyncio.create_task(watch_disconnect())
     try:
         first = True
-        while not session._closed and not gone.is_set():
+        while not session.closed and not gone.is_set():
             published = session.wait_published()  # taken before building: no publication is missed
             message = await asyncio.to_thread(session.build_delta, since)
             if first or message["full"] or message["upserts"] or message["removed"]:
@@ -171,6 +171,6 @@ async def updates(ws: WebSocket, sid: str) -> None:
     finally:
         session.subscribers -= 1
         watcher.cancel()
-        if session._closed:
+        if session.closed:
             with contextlib.suppress(Exception):
                 await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")
