@@ -25,8 +25,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=400)
     parser.add_argument("--noise", default="standard")
     parser.add_argument("--out", default="out", help="folder for mapping.json and mapping.png")
+    parser.add_argument(
+        "--caps",
+        default="1000,4000,8000",
+        help="extra max_object_points_server values to map in semanticxr mode (quality/speed "
+        "trade-off of the cap; empty for none)",
+    )
     args = parser.parse_args(argv)
 
+    from app.config import Knobs
     from app.semantics import get_text_encoder
     from client_sim.evaluation import EvalConfig, run_eval
 
@@ -41,7 +48,48 @@ def main(argv: list[str] | None = None) -> int:
         check("F-mIoU gap (baseline - semanticxr)", bl["F_mIoU"] - sx["F_mIoU"], "<=", 1.0, " pts"),
         check("semanticxr p50 per keyframe", sx["latency_ms"]["p50"], "<=", 40.0, " ms"),
     ]
-    document = {"bench": "mapping", "machine": machine(), "targets": targets, "eval": result}
+    sweep = [
+        {
+            "cap": cfg.knobs.max_object_points_server,
+            "F_mIoU": sx["F_mIoU"],
+            "p50_ms": sx["latency_ms"]["p50"],
+            "mean_ms": sx["latency_ms"]["mean"],
+        }
+    ]
+    for cap in [int(c) for c in args.caps.split(",") if c.strip()]:
+        capped = EvalConfig(
+            scene=args.scene,
+            seed=args.seed,
+            frames=args.frames,
+            noise=args.noise,
+            modes=("semanticxr",),
+            knobs=Knobs(max_object_points_server=cap),
+        )
+        m = run_eval(capped, get_text_encoder(), progress=lambda _: None)["modes"]["semanticxr"]
+        sweep.append(
+            {
+                "cap": cap,
+                "F_mIoU": m["F_mIoU"],
+                "p50_ms": m["latency_ms"]["p50"],
+                "mean_ms": m["latency_ms"]["mean"],
+            }
+        )
+    print(
+        f"  point cap sweep (baseline F-mIoU {bl['F_mIoU']:.2f}, p50 {bl['latency_ms']['p50']:.1f} ms, "
+        f"mean {bl['latency_ms']['mean']:.1f} ms):"
+    )
+    for row in sorted(sweep, key=lambda r: r["cap"]):
+        print(
+            f"    cap {row['cap']:6d}: F-mIoU {row['F_mIoU']:.2f} (gap {bl['F_mIoU'] - row['F_mIoU']:+.2f}), "
+            f"p50 {row['p50_ms']:.1f} ms, mean {row['mean_ms']:.1f} ms"
+        )
+    document = {
+        "bench": "mapping",
+        "machine": machine(),
+        "targets": targets,
+        "eval": result,
+        "cap_sweep": sweep,
+    }
     write_outputs(args.out, "mapping", document)
 
     import matplotlib
