@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,8 +28,14 @@ from app.config import MODES, Knobs, Mode
 from app.mapping import geometry as geo
 from app.mapping.deltas import Delta, DeltaLog
 from app.mapping.object import MapObject
-from app.perception.base import Detection, FrameDetections, FrameInput, InputError
-from app.perception.detections import DetectionsBackend
+from app.perception import make_backend
+from app.perception.base import (
+    Detection,
+    FrameDetections,
+    FrameInput,
+    InputError,
+    PerceptionBackend,
+)
 from app.semantics import TextEncoder
 
 MERGE_OVERLAP = 0.7
@@ -91,13 +96,14 @@ class MappingEngine:
         encoder: TextEncoder,
         knobs: Knobs | None = None,
         mode: Mode = "semanticxr",
+        backend: PerceptionBackend | None = None,
     ):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         self.encoder = encoder
         self.knobs = knobs or Knobs()
         self.mode = mode
-        self.backend = DetectionsBackend()
+        self.backend = backend or make_backend("detections")
         self.objects: dict[int, MapObject] = {}
         self.log = DeltaLog()
         self.keyframes = 0
@@ -434,6 +440,3 @@ class MappingEngine:
         scores = matrix @ embedding.astype(np.float32)
         top = np.argsort(-scores, kind="stable")[:k]
         return [QueryHit(objs[i], float(scores[i])) for i in top]
-
-    def label_counts(self) -> Counter:
-        return Counter(o.label for o in self.confirmed_objects())
