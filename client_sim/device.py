@@ -83,7 +83,7 @@ def add_device_parser(subparsers: Any) -> None:
     parser.add_argument(
         "--max-in-flight", type=int, default=4, metavar="N", help="un-acked frames at most"
     )
-    parser.add_argument("--jpeg-quality", type=int, default=85, help="RGB JPEG quality 1..95")
+    add_encoder_flags(parser)
     parser.add_argument(
         "--query",
         action="append",
@@ -95,6 +95,69 @@ def add_device_parser(subparsers: Any) -> None:
     parser.add_argument("--json", metavar="PATH", help="write a summary as JSON here")
     add_knob_flags(parser)
     parser.set_defaults(func=run_device)
+
+
+def add_encoder_flags(parser: argparse.ArgumentParser) -> None:
+    """Flags of the upstream encoding (defaults: client_sim/encoder.py, chosen by bench.device)."""
+    from app.codecs import DEPTH_CODECS
+    from client_sim import encoder
+
+    group = parser.add_argument_group("upstream encoding (all within wire protocol v1)")
+    group.add_argument(
+        "--jpeg-quality",
+        type=int,
+        default=encoder.DEFAULT_JPEG_QUALITY,
+        help="RGB JPEG quality 1..100 (default %(default)s; the `detections` backend does not "
+        "look at RGB, a `clip` backend would)",
+    )
+    group.add_argument(
+        "--no-jpeg-optimize",
+        dest="jpeg_optimize",
+        action="store_false",
+        help="skip the optimised Huffman tables (lossless, ~2 kB smaller per 640x480 frame)",
+    )
+    group.add_argument(
+        "--depth-codec",
+        choices=DEPTH_CODECS,
+        default=encoder.DEFAULT_DEPTH_CODEC,
+        help="codec of the uint16 depth image (default %(default)s)",
+    )
+    group.add_argument(
+        "--depth-step-mm",
+        type=float,
+        default=encoder.DEFAULT_DEPTH_SCALE_M * 1000,
+        metavar="MM",
+        help="depth units on the wire (the frame's depth.scale): depth is rounded to this "
+        "step; 1 keeps millimetres (default %(default)g)",
+    )
+    group.add_argument(
+        "--detections-codec",
+        choices=DEPTH_CODECS,
+        default=encoder.DEFAULT_DETECTIONS_CODEC,
+        help="codec of the instance-id image (default %(default)s)",
+    )
+    group.add_argument(
+        "--zstd-level",
+        type=int,
+        default=encoder.DEFAULT_ZSTD_LEVEL,
+        help=f"zstd level 1..{encoder.MAX_ZSTD_LEVEL} of zstd images (default %(default)s)",
+    )
+
+
+def encoder_options_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """FrameEncoder keyword arguments of the encoding flags; ValueError if one is bad."""
+    from client_sim.encoder import FrameEncoder
+
+    options = {
+        "jpeg_quality": args.jpeg_quality,
+        "jpeg_optimize": args.jpeg_optimize,
+        "depth_codec": args.depth_codec,
+        "depth_scale_m": args.depth_step_mm / 1000,
+        "detections_codec": args.detections_codec,
+        "zstd_level": args.zstd_level,
+    }
+    FrameEncoder(**options)  # validates each option; the message names the bad one
+    return options
 
 
 def run_device(args: argparse.Namespace) -> int:
@@ -115,6 +178,7 @@ def run_device(args: argparse.Namespace) -> int:
         return 2
     try:
         http_base_url(args.server)
+        encoder_options_from_args(args)
         # The source first: a wrong path should not leave an empty session behind.
         source = make_device_source(args.source, args.frames)
     except (ValueError, OSError) as exc:
@@ -227,7 +291,7 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
         sid,
         token,
         knobs=knobs,
-        jpeg_quality=args.jpeg_quality,
+        encoder_options=encoder_options_from_args(args),
         send_every=args.send_every,
         local_map=make_local_map(knobs, embedding["dim"]),
         on_log=lambda message: print(f"[device] {message}", file=sys.stderr, flush=True),
@@ -347,6 +411,7 @@ def _summary(
             "lost_in_flight": stats.lost_in_flight,
             "errors": stats.errors,
         },
+        "encoder": client.encoder_options,
         "bytes_up": dict(stats.bytes_up_by_kind),
         "upstream_mbps": stats.bytes_up_by_kind.get("total", 0) * 8 / duration_s / 1e6,
         "bytes_down": stats.bytes_down,

@@ -14,11 +14,14 @@ intrinsics are therefore (fx / ratio, fy / ratio, (cx - ratio // 2) / ratio,
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import msgpack
 import numpy as np
+import zstandard
+from PIL import Image
 
 if TYPE_CHECKING:
     from client_sim.sources.base import SourceFrame
@@ -35,6 +38,29 @@ DEPTH_DOWNSAMPLING_METHODS: tuple[str, ...] = ("nearest", "min")
 """'nearest': the block's centre pixel; 'min': the block's nearest valid depth."""
 
 MAX_UINT16 = 65535
+
+# Upstream defaults, chosen with `python -m bench.device` (issue 4): together they keep a
+# 640x480 frame with depth ÷5 and detections under 1.25 Mbps at 5 fps.
+DEFAULT_JPEG_QUALITY = 50
+"""RGB JPEG quality (pillow's 1..100 scale). The `detections` backend never looks at RGB."""
+DEFAULT_JPEG_OPTIMIZE = True
+"""Optimised Huffman tables: lossless, about 2 kB less per 640x480 frame for ~1 ms."""
+DEFAULT_DEPTH_CODEC = "png"
+"""PNG's row prediction beats zstd on depth images (smooth surfaces)."""
+DEFAULT_DEPTH_SCALE_M = 0.01
+"""Depth units on the wire (the frame's depth.scale): 1 cm. Depth comes back within 5 mm (RMS
+2.9 mm), a fifth of a 2.5 cm map voxel and under Kinect-like noise beyond ~1.4 m; the low
+bits of finer units are mostly that noise, which no lossless codec can compress."""
+DEFAULT_DETECTIONS_CODEC = "zstd"
+"""zstd beats PNG on instance-id images (large flat regions)."""
+DEFAULT_ZSTD_LEVEL = 12
+"""zstd level of the device's uint16 images; 12 shrinks instance images by a third against
+level 3 for ~1 ms per 640x480 frame (levels from 15 on cost several times more)."""
+MAX_ZSTD_LEVEL = 22
+
+
+def _is_int(value: object) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | np.integer)
 
 
 def downsample_depth(depth_m: np.ndarray, ratio: int, method: str = "nearest") -> np.ndarray:
@@ -89,6 +115,39 @@ def depth_to_uint16(depth_m: np.ndarray, scale_m: float = 0.001) -> np.ndarray:
     return np.clip(units, 0, MAX_UINT16).astype(np.uint16)
 
 
+def encode_rgb_jpeg(rgb: np.ndarray, quality: int, optimize: bool) -> bytes:
+    """JPEG bytes of `rgb`, uint8 [H, W, 3]; `optimize` adds optimised Huffman tables.
+
+    Any baseline JPEG decodes with `app.codecs.decode_jpeg`; the optimised one only differs
+    in its entropy coding, so the decoded pixels are the same.
+    """
+    if not optimize:
+        return encode_jpeg(rgb, quality)
+    rgb = np.asarray(rgb)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb must be uint8 [H, W, 3], got {rgb.dtype} {list(rgb.shape)}")
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb)).save(
+        buffer, format="JPEG", quality=quality, optimize=True
+    )
+    return buffer.getvalue()
+
+
+def encode_uint16_image_at_level(img: np.ndarray, codec: str, zstd_level: int) -> bytes:
+    """`app.codecs.encode_uint16_image`, with zstd at `zstd_level` instead of its fixed level.
+
+    The wire format does not depend on the level: any zstd frame of the little-endian
+    row-major bytes decodes the same way.
+    """
+    if codec != "zstd":
+        return encode_uint16_image(img, codec)
+    img = np.asarray(img)
+    if img.dtype != np.uint16 or img.ndim != 2 or img.size == 0:
+        raise ValueError(f"expected uint16 [h, w], got {img.dtype} {list(img.shape)}")
+    little_endian = np.ascontiguousarray(img, dtype="<u2").tobytes()
+    return zstandard.ZstdCompressor(level=zstd_level).compress(little_endian)
+
+
 @dataclass
 class EncodedFrame:
     """One encoded frame and what each part of it costs on the wire."""
@@ -107,12 +166,17 @@ class FrameEncoder:
     def __init__(
         self,
         depth_downsampling_ratio: int = 5,
-        jpeg_quality: int = 85,
-        depth_codec: str = "zstd",
-        detections_codec: str = "zstd",
-        depth_scale_m: float = 0.001,
+        jpeg_quality: int = DEFAULT_JPEG_QUALITY,
+        depth_codec: str = DEFAULT_DEPTH_CODEC,
+        detections_codec: str = DEFAULT_DETECTIONS_CODEC,
+        depth_scale_m: float = DEFAULT_DEPTH_SCALE_M,
         depth_method: str = "nearest",
+        jpeg_optimize: bool = DEFAULT_JPEG_OPTIMIZE,
+        zstd_level: int = DEFAULT_ZSTD_LEVEL,
     ) -> None:
+        """depth_scale_m: metres per depth unit on the wire (0 < scale <= 1, the protocol's
+        range); depth is rounded to it, so it comes back within scale / 2. zstd_level: 1..22,
+        for whichever of depth and detections uses zstd. Bad values raise ValueError."""
         if depth_codec not in DEPTH_CODECS:
             raise ValueError(f"unknown depth codec {depth_codec!r}, expected one of {DEPTH_CODECS}")
         if detections_codec not in DEPTH_CODECS:
@@ -124,23 +188,33 @@ class FrameEncoder:
                 f"unknown depth method {depth_method!r}, "
                 f"expected one of {DEPTH_DOWNSAMPLING_METHODS}"
             )
-        if (
-            isinstance(depth_downsampling_ratio, bool)
-            or not isinstance(depth_downsampling_ratio, int)
-            or depth_downsampling_ratio < 1
-        ):
+        if not _is_int(depth_downsampling_ratio) or depth_downsampling_ratio < 1:
             raise ValueError(
                 f"depth_downsampling_ratio must be a positive integer, "
                 f"got {depth_downsampling_ratio!r}"
             )
-        if not (np.isfinite(depth_scale_m) and depth_scale_m > 0):
-            raise ValueError(f"depth_scale_m must be positive, got {depth_scale_m!r}")
+        if not _is_int(jpeg_quality) or not 1 <= jpeg_quality <= 100:
+            raise ValueError(f"jpeg_quality must be an integer in 1..100, got {jpeg_quality!r}")
+        if not _is_int(zstd_level) or not 1 <= zstd_level <= MAX_ZSTD_LEVEL:
+            raise ValueError(
+                f"zstd_level must be an integer in 1..{MAX_ZSTD_LEVEL}, got {zstd_level!r}"
+            )
+        if (
+            isinstance(depth_scale_m, bool)
+            or not isinstance(depth_scale_m, int | float | np.floating)
+            or not (np.isfinite(depth_scale_m) and 0 < depth_scale_m <= 1)
+        ):
+            raise ValueError(
+                f"depth_scale_m must be metres per unit in (0, 1], got {depth_scale_m!r}"
+            )
         self.depth_downsampling_ratio = depth_downsampling_ratio
-        self.jpeg_quality = jpeg_quality
+        self.jpeg_quality = int(jpeg_quality)
+        self.jpeg_optimize = bool(jpeg_optimize)
         self.depth_codec = depth_codec
         self.detections_codec = detections_codec
         self.depth_scale_m = float(depth_scale_m)
         self.depth_method = depth_method
+        self.zstd_level = int(zstd_level)
 
     def encode_source_frame(self, frame: SourceFrame, seq: int | None = None) -> EncodedFrame:
         """The wire message of a frame from a FrameSource (seq defaults to its index)."""
@@ -190,10 +264,10 @@ class FrameEncoder:
         if instances is not None and instance_ids is None:
             raise ValueError("instances given without an instance_ids image")
 
-        rgb_jpeg = encode_jpeg(rgb, self.jpeg_quality)
+        rgb_jpeg = encode_rgb_jpeg(rgb, self.jpeg_quality, self.jpeg_optimize)
         depth_small_m = downsample_depth(depth_m, self.depth_downsampling_ratio, self.depth_method)
         depth_units = depth_to_uint16(depth_small_m, self.depth_scale_m)
-        depth_data = encode_uint16_image(depth_units, self.depth_codec)
+        depth_data = encode_uint16_image_at_level(depth_units, self.depth_codec, self.zstd_level)
         pose_data = pose_to_bytes(validate_rigid_pose(pose))
 
         message: dict = {
@@ -246,6 +320,8 @@ class FrameEncoder:
             "codec": self.detections_codec,
             "w": int(width_px),
             "h": int(height_px),
-            "data": encode_uint16_image(instance_ids.astype(np.uint16), self.detections_codec),
+            "data": encode_uint16_image_at_level(
+                instance_ids.astype(np.uint16), self.detections_codec, self.zstd_level
+            ),
             "instances": wire_instances,
         }

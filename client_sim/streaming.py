@@ -29,7 +29,7 @@ import logging
 import math
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 from urllib.parse import urlsplit
@@ -190,8 +190,9 @@ class DeviceClient:
 
     server_url: http(s)://host:port of the server. token: the session token (or the API key).
     knobs: the session's knobs (depth ratio for the encoder; point cap and budget for a
-    default local map). send_every: the device's keyframe-rate knob, send only every n-th
-    source frame. local_map: where deltas go (default: `make_local_map(knobs,
+    default local map). encoder_options: FrameEncoder keyword arguments besides the depth
+    ratio (jpeg_quality, depth_codec, depth_scale_m, ...); unset ones keep FrameEncoder's
+    defaults. send_every: the device's keyframe-rate knob, send only every n-th source frame. local_map: where deltas go (default: `make_local_map(knobs,
     embedding_dim)`). on_log: receives one human-readable line per event worth telling
     (reconnects, server errors, resyncs); default: this module's logger.
     """
@@ -203,7 +204,7 @@ class DeviceClient:
         token: str | None = None,
         *,
         knobs: Knobs | None = None,
-        jpeg_quality: int = 85,
+        encoder_options: Mapping[str, Any] | None = None,
         send_every: int = 1,
         local_map: LocalMap | None = None,
         on_log: Callable[[str], None] | None = None,
@@ -216,7 +217,8 @@ class DeviceClient:
         self.session_id = session_id
         self.token = token
         self.knobs = knobs or Knobs()
-        self.jpeg_quality = jpeg_quality
+        self.encoder_options = dict(encoder_options or {})
+        FrameEncoder(self.knobs.depth_downsampling_ratio, **self.encoder_options)  # fail early
         self.send_every = send_every
         self.local_map = (
             local_map if local_map is not None else make_local_map(self.knobs, embedding_dim)
@@ -413,10 +415,7 @@ class DeviceClient:
             raise ValueError(f"fps must be a positive number or None, got {fps!r}")
         if max_in_flight < 1:
             raise ValueError(f"max_in_flight must be >= 1, got {max_in_flight!r}")
-        encoder = FrameEncoder(
-            depth_downsampling_ratio=self.knobs.depth_downsampling_ratio,
-            jpeg_quality=self.jpeg_quality,
-        )
+        encoder = FrameEncoder(self.knobs.depth_downsampling_ratio, **self.encoder_options)
         n_frames = len(source) if limit is None else min(len(source), max(0, limit))
         link = _StreamLink(self, max_in_flight)
         self._links.add(link)

@@ -15,7 +15,12 @@ from app.codecs import (
     pose_from_bytes,
     validate_rigid_pose,
 )
-from client_sim.encoder import FrameEncoder, depth_to_uint16, downsample_depth
+from client_sim.encoder import (
+    DEFAULT_DEPTH_SCALE_M,
+    FrameEncoder,
+    depth_to_uint16,
+    downsample_depth,
+)
 
 FEW = settings(max_examples=25, deadline=None)
 INTRINSICS = (525.0, 525.0, 319.5, 239.5)
@@ -174,10 +179,11 @@ def test_encoded_frame_decodes_back_to_the_downsampled_depth_and_pose(codec: str
     )
     message = msgpack.unpackb(msgpack.packb(encoded.message), raw=False)
     depth = message["depth"]
-    assert (depth["codec"], depth["w"], depth["h"], depth["scale"]) == (codec, 128, 96, 0.001)
+    assert (depth["codec"], depth["w"], depth["h"]) == (codec, 128, 96)
+    assert depth["scale"] == DEFAULT_DEPTH_SCALE_M
     units = decode_uint16_image(depth["data"], depth["codec"], depth["w"], depth["h"])
     expected_m = downsample_depth(depth_m, 5, "nearest")
-    np.testing.assert_allclose(units * depth["scale"], expected_m, atol=0.0005 + 1e-6)
+    np.testing.assert_allclose(units * depth["scale"], expected_m, atol=depth["scale"] / 2 + 1e-6)
     pose = validate_rigid_pose(pose_from_bytes(message["pose"]))
     np.testing.assert_allclose(pose, camera_pose(), atol=1e-6)
 
@@ -211,7 +217,8 @@ def test_min_method_reaches_the_wire() -> None:
         .message
     )
     units = decode_uint16_image(message["depth"]["data"], "raw", 128, 96)
-    np.testing.assert_array_equal(units, depth_to_uint16(downsample_depth(depth_m, 5, "min")))
+    expected = depth_to_uint16(downsample_depth(depth_m, 5, "min"), DEFAULT_DEPTH_SCALE_M)
+    np.testing.assert_array_equal(units, expected)
 
 
 def test_detections_travel_at_rgb_size_with_their_instances() -> None:
