@@ -52,11 +52,13 @@ def _image_size(message: dict, where: str) -> tuple[int, int]:
     return w, h
 
 
-def decode_frame(message: Any) -> FrameInput:
+def decode_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
     """A v1 `frame` message (already unpacked from msgpack) -> FrameInput.
 
     Validates every field and raises InputError naming the first bad one; does not check
     what only the engine knows (depth/RGB size ratio, detections vs labels).
+    rgb_pixels=False: the JPEG is fully validated but its pixels are not kept (`rgb` is None),
+    for perception backends that do not look at the image (`PerceptionBackend.needs_rgb`).
     """
     if not isinstance(message, dict):
         raise InputError("message", f"must be a map, got {type(message).__name__}")
@@ -82,8 +84,13 @@ def decode_frame(message: Any) -> FrameInput:
     rgb_msg = _require(message, "rgb", dict)
     if rgb_msg.get("codec") != "jpeg":
         raise InputError("rgb.codec", f"must be 'jpeg', got {rgb_msg.get('codec')!r}")
-    rgb = codecs.decode_jpeg(_require(rgb_msg, "data", bytes, "rgb."), field="rgb")
-    height, width = rgb.shape[:2]
+    rgb_data = _require(rgb_msg, "data", bytes, "rgb.")
+    if rgb_pixels:
+        rgb = codecs.decode_jpeg(rgb_data, field="rgb")
+        height, width = rgb.shape[:2]
+    else:
+        rgb = None
+        width, height = codecs.validate_jpeg(rgb_data, field="rgb")
 
     depth_msg = _require(message, "depth", dict)
     dw, dh = _image_size(depth_msg, "depth.")

@@ -91,7 +91,7 @@ def map_keyframes(
     latencies, update_bytes, published = [], [], 0
     for i, message in enumerate(messages):
         t0 = time.perf_counter()
-        stats = engine.integrate(decode_frame(message))
+        stats = engine.integrate(decode_frame(message, engine.backend.needs_rgb))
         if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
             update = update_message(engine, published)
             update_bytes.append(len(msgpack.packb(update)))

@@ -112,6 +112,7 @@ class MappingEngine:
         self.next_object_id = 1
         self._changed_since_cleanup: set[int] = set()
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
+        geo.preload_outlier_removal()
 
     def restore(
         self, objects: list[MapObject], log: DeltaLog, keyframes: int, next_object_id: int
@@ -251,6 +252,12 @@ class MappingEngine:
         it apart)."""
         return max(self.knobs.voxel_size_m, obj.resolution_m)
 
+    def _combined_score(self, spatial, semantic):
+        """ConceptGraphs' match score (scalars or arrays): spatial + semantic, or -inf where
+        the observation does not touch the object or the two disagree semantically."""
+        ok = (semantic >= self.knobs.association_min_semantic) & (spatial > 0)
+        return np.where(ok, spatial + semantic, -np.inf)
+
     def _similarity(self, obs: _Observation, obj: MapObject, semantic: float) -> float:
         """Spatial + semantic similarity of one observation and one object (ConceptGraphs).
 
@@ -259,30 +266,39 @@ class MappingEngine:
         """
         if semantic < self.knobs.association_min_semantic:
             return -math.inf
-        radius = self._match_radius_m(obj)
-        spatial = geo.overlap_fraction(obs.points, obj.tree, radius)
-        return spatial + semantic if spatial > 0 else -math.inf
+        spatial = geo.overlap_fraction(obs.points, obj.tree, self._match_radius_m(obj))
+        return float(self._combined_score(spatial, semantic))
 
     def _associate_batched(self, observations: list[_Observation]) -> list[int | None]:
-        """Object id per observation (None = new object), all observations at once."""
+        """Object id per observation (None = new object), all observations at once.
+
+        One box test and one semantic matrix for every pair, then one tree query per
+        candidate object for all the observations that may match it.
+        """
         if not observations or not self.objects:
             return [None] * len(observations)
         objects = list(self.objects.values())
         obs_boxes = np.stack([o.bbox for o in observations])
         obj_boxes = np.stack([o.bbox for o in objects])
-        candidates = geo.bbox_intersects_matrix(obs_boxes, obj_boxes, self.knobs.voxel_size_m)
         semantic = (
             np.stack([o.embedding for o in observations])
             @ np.stack([o.embedding for o in objects]).T
         )
+        candidates = geo.bbox_intersects_matrix(obs_boxes, obj_boxes, self.knobs.voxel_size_m)
+        candidates &= semantic >= self.knobs.association_min_semantic
+        scores = np.full(semantic.shape, -np.inf)
+        for j in np.flatnonzero(candidates.any(axis=0)):
+            rows = np.flatnonzero(candidates[:, j])
+            spatial = geo.overlap_fractions(
+                [observations[i].points for i in rows],
+                objects[j].tree,
+                self._match_radius_m(objects[j]),
+            )
+            scores[rows, j] = self._combined_score(spatial, semantic[rows, j])
         matches: list[int | None] = []
-        for i, obs in enumerate(observations):
-            best, best_score = None, self.knobs.association_threshold
-            for j in np.flatnonzero(candidates[i]):
-                score = self._similarity(obs, objects[j], float(semantic[i, j]))
-                if score >= best_score:
-                    best, best_score = objects[j].id, score
-            matches.append(best)
+        for row in scores:
+            j = len(row) - 1 - int(np.argmax(row[::-1]))  # ties: the last, as pair by pair
+            matches.append(objects[j].id if row[j] >= self.knobs.association_threshold else None)
         return matches
 
     def _associate_one_by_one(self, observations: list[_Observation]) -> list[int | None]:
@@ -306,10 +322,12 @@ class MappingEngine:
         """Voxel at which object geometry is kept: coarse and capped, or sensor resolution."""
         return self.knobs.voxel_size_m if self.mode == "semanticxr" else BASELINE_RESOLUTION_M
 
-    def _cap(self, points: np.ndarray) -> tuple[np.ndarray, float]:
-        """The object's geometry after a merge: capped in semanticxr mode, not in baseline."""
+    def _cap(self, points: np.ndarray, start_m: float | None = None) -> tuple[np.ndarray, float]:
+        """The object's geometry after a merge: capped in semanticxr mode, not in baseline.
+
+        start_m: the merged objects' current spacing (the cap never refines it)."""
         max_points = self.knobs.max_object_points_server if self.mode == "semanticxr" else 1 << 62
-        return geo.cap_points(points, max_points, self._resolution_m)
+        return geo.cap_points(points, max_points, self._resolution_m, start_m)
 
     def _apply(
         self, observations: list[_Observation], matches: list[int | None], stats: IntegrationStats
@@ -327,7 +345,9 @@ class MappingEngine:
                 stats.created += 1
             else:
                 obj = self.objects[match]
-                obj.set_points(*self._cap(np.concatenate([obj.points, obs.points])))
+                obj.set_points(
+                    *self._cap(np.concatenate([obj.points, obs.points]), obj.resolution_m)
+                )
                 obj.embedding_sum = obj.embedding_sum + obs.embedding
                 stats.matched += 1
             obj.label_counts[obs.detection.label] += 1
@@ -342,7 +362,12 @@ class MappingEngine:
         return touched
 
     def _merge_objects(self, keep: MapObject, gone: MapObject) -> None:
-        keep.set_points(*self._cap(np.concatenate([keep.points, gone.points])))
+        keep.set_points(
+            *self._cap(
+                np.concatenate([keep.points, gone.points]),
+                max(keep.resolution_m, gone.resolution_m),
+            )
+        )
         keep.embedding_sum = keep.embedding_sum + gone.embedding_sum
         keep.label_counts.update(gone.label_counts)
         keep.n_obs += gone.n_obs

@@ -133,33 +133,34 @@ def voxel_sample(points: np.ndarray, voxel_m: float) -> np.ndarray:
     return points[order[first]].astype(np.float32, copy=False)
 
 
-def cap_points(points: np.ndarray, max_points: int, voxel_m: float) -> tuple[np.ndarray, float]:
+def cap_points(
+    points: np.ndarray, max_points: int, voxel_m: float, start_m: float | None = None
+) -> tuple[np.ndarray, float]:
     """At most `max_points` points that still cover the whole object, and their spacing.
 
-    Voxel de-duplication at `voxel_m` first; if that is still over the cap, the finest
-    coarser voxel that fits (a short bisection; uniform coverage beats random dropping),
-    one real point per voxel. Deterministic.
+    Voxel de-duplication at `voxel_m` first; if that is still over the cap, one real point
+    per voxel of the finest coarser voxel that fits (uniform coverage beats random
+    dropping). The search starts at `start_m` when given (an object's current spacing: a
+    merge into a capped object keeps at least that spacing, so the cap costs one or two
+    samplings instead of a search), else at the estimate for a surface (n ~ 1 / voxel^2),
+    and grows by that estimate until the sample fits. Deterministic.
     Returns (float32 [M <= max_points, 3], the voxel in metres).
     """
     points = voxel_downsample(points, voxel_m)
     if len(points) <= max_points:
         return points, voxel_m
-    lo, hi = voxel_m, voxel_m * np.sqrt(len(points) / max_points)  # surfaces: n ~ 1 / voxel^2
-    best = voxel_sample(points, hi)
+    if start_m is None:
+        spacing = voxel_m * np.sqrt(len(points) / max_points)
+    else:
+        spacing = max(voxel_m, start_m)
+    best = voxel_sample(points, spacing)
     extent_m = float(np.ptp(points, axis=0).max()) + voxel_m
-    while len(best) > max_points and hi < 4 * extent_m:
-        lo, hi = hi, hi * 1.5
-        best = voxel_sample(points, hi)
+    while len(best) > max_points and spacing < 4 * extent_m:
+        spacing *= max(1.02, 1.005 * np.sqrt(len(best) / max_points))
+        best = voxel_sample(points, spacing)
     if len(best) > max_points:  # a cap below the 2x2x2 voxels any grid can straddle
-        return best[np.linspace(0, len(best) - 1, max_points).astype(np.intp)], hi
-    for _ in range(4):
-        mid = 0.5 * (lo + hi)
-        candidate = voxel_sample(points, mid)
-        if len(candidate) <= max_points:
-            hi, best = mid, candidate
-        else:
-            lo = mid
-    return best, float(hi)
+        return best[np.linspace(0, len(best) - 1, max_points).astype(np.intp)], float(spacing)
+    return best, float(spacing)
 
 
 def bbox_of(points: np.ndarray) -> np.ndarray:
@@ -189,10 +190,31 @@ def bbox_iou(box_a: np.ndarray, box_b: np.ndarray) -> float:
 
 def overlap_fraction(points: np.ndarray, tree: cKDTree, radius_m: float) -> float:
     """Fraction of `points` [N, 3] with a point of `tree` within radius_m (0 for no points)."""
-    if len(points) == 0 or tree.n == 0:
-        return 0.0
+    return float(overlap_fractions([points], tree, radius_m)[0])
+
+
+def overlap_fractions(point_sets: list[np.ndarray], tree: cKDTree, radius_m: float) -> np.ndarray:
+    """`overlap_fraction` of each point set against one tree, in one tree query.
+
+    Returns float64 [len(point_sets)] (0 for an empty set or an empty tree).
+    """
+    sizes = np.array([len(p) for p in point_sets], np.intp)
+    fractions = np.zeros(len(point_sets))
+    nonempty = np.flatnonzero(sizes)
+    if tree.n == 0 or len(nonempty) == 0:
+        return fractions
+    points = np.concatenate([point_sets[i] for i in nonempty])
     dist, _ = tree.query(points, k=1, distance_upper_bound=radius_m)
-    return float(np.count_nonzero(np.isfinite(dist))) / len(points)
+    starts = np.cumsum(sizes[nonempty]) - sizes[nonempty]
+    hits = np.add.reduceat(np.isfinite(dist).astype(np.intp), starts)
+    fractions[nonempty] = hits / sizes[nonempty]
+    return fractions
+
+
+def preload_outlier_removal() -> None:
+    """Import open3d now: about a second, once per process, better spent at start-up than
+    inside the first clean-up's keyframe."""
+    import open3d  # noqa: F401
 
 
 def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.ndarray:

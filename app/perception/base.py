@@ -75,6 +75,8 @@ class PerceptionBackend(abc.ABC):
     """frame -> the frame's detections."""
 
     name: str = "abstract"
+    needs_rgb: bool = True
+    """Whether `detect` reads `FrameInput.rgb`; if not, frames skip decoding the pixels."""
 
     @abc.abstractmethod
     def detect(self, frame: FrameInput) -> FrameDetections:

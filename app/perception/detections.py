@@ -92,6 +92,7 @@ class DetectionsBackend(PerceptionBackend):
     """Client-supplied detections (the embedded default)."""
 
     name = "detections"
+    needs_rgb = False
 
     def detect(self, frame: FrameInput) -> FrameDetections:
         width, height = frame.rgb_size

@@ -28,6 +28,7 @@ from app.codecs import (
     float16_vector_to_bytes,
     pose_from_bytes,
     pose_to_bytes,
+    validate_jpeg,
     validate_rigid_pose,
 )
 
@@ -102,12 +103,40 @@ def test_jpeg_round_trip_keeps_any_image_size(width: int, height: int, seed: int
     assert decode_jpeg(encode_jpeg(rgb)).shape == (height, width, 3)
 
 
-def test_corrupt_jpeg_is_a_codec_error_naming_the_field() -> None:
+@pytest.mark.parametrize("decode", [decode_jpeg, validate_jpeg])
+def test_corrupt_jpeg_is_a_codec_error_naming_the_field(decode) -> None:
     jpeg = encode_jpeg(np.zeros((32, 32, 3), np.uint8))
     for corrupt in (b"", b"\xff\xd8garbage", jpeg[: len(jpeg) // 2], b"\x00" * 100):
         with pytest.raises(CodecError, match="^rgb: ") as info:
-            decode_jpeg(corrupt)
+            decode(corrupt)
         assert info.value.field == "rgb"
+
+
+@FEW
+@given(seed=st.integers(0, 2**32 - 1), at=st.floats(0.05, 0.95), length=st.integers(1, 200))
+def test_validating_a_jpeg_refuses_exactly_what_decoding_refuses(seed, at, length) -> None:
+    rng = np.random.default_rng(seed)
+    jpeg = bytearray(encode_jpeg(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)))
+    start = int(at * len(jpeg))
+    jpeg[start : start + length] = (
+        rng.integers(0, 256, len(jpeg[start : start + length])).astype(np.uint8).tobytes()
+    )
+
+    def outcome(decode):
+        try:
+            decode(bytes(jpeg))
+        except CodecError:
+            return "refused"
+        return "accepted"
+
+    assert outcome(validate_jpeg) == outcome(decode_jpeg)
+
+
+@FEW
+@given(width=st.integers(1, 200), height=st.integers(1, 200))
+def test_validating_a_jpeg_gives_its_size_without_keeping_pixels(width: int, height: int) -> None:
+    rgb = np.random.default_rng(width * height).integers(0, 256, (height, width, 3), np.uint8)
+    assert validate_jpeg(encode_jpeg(rgb)) == (width, height)
 
 
 @FEW

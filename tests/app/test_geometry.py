@@ -80,6 +80,38 @@ def test_cap_always_holds_and_stays_within_the_object(points, cap):
     assert np.all(out >= box[:3] - 1e-3) and np.all(out <= box[3:] + 1e-3)
 
 
+@settings(max_examples=60, deadline=None)
+@given(points=clouds, cap=st.integers(1, 100), start=st.floats(0.01, 5.0))
+def test_cap_from_a_start_spacing_holds_and_never_refines_it(points, cap, start):
+    out, spacing = geo.cap_points(points, cap, 0.05, start_m=start)
+    assert 1 <= len(out) <= cap
+    if len(geo.voxel_downsample(points, 0.05)) > cap:  # capped: at least the start spacing
+        assert spacing >= start
+        assert len(np.unique(geo._voxel_keys(out, spacing))) == len(out) or len(out) == cap
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    sets=st.lists(
+        arrays(np.float32, st.tuples(st.integers(0, 30), st.just(3)), elements=finite), max_size=5
+    ),
+    target=clouds,
+    radius=st.floats(0.01, 20.0),
+)
+def test_batched_overlap_equals_overlap_of_each_set(sets, target, radius):
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(target)
+    batched = geo.overlap_fractions(sets, tree, radius)
+    assert batched.shape == (len(sets),)
+    for points, fraction in zip(sets, batched, strict=True):
+        if len(points) == 0:
+            assert fraction == 0.0
+        else:
+            dist, _ = tree.query(points, k=1)
+            assert fraction == np.count_nonzero(dist <= radius) / len(points)
+
+
 boxes = st.lists(finite, min_size=6, max_size=6).map(
     lambda v: np.array(
         [

@@ -45,6 +45,18 @@ def test_an_encoded_frame_decodes_to_the_same_geometry_and_detections():
     assert (frame.instance_ids == 3).sum() == 20 * 30
 
 
+def test_without_rgb_pixels_everything_but_the_pixels_is_the_same():
+    full, lean = decode_frame(encoded()), decode_frame(encoded(), rgb_pixels=False)
+    assert full.rgb is not None and full.rgb.shape == (H, W, 3) and lean.rgb is None
+    assert lean.rgb_size == full.rgb_size == (W, H)
+    np.testing.assert_array_equal(lean.depth_m, full.depth_m)
+    np.testing.assert_array_equal(lean.instance_ids, full.instance_ids)
+    bad = encoded()
+    bad["rgb"]["data"] = bad["rgb"]["data"][: len(bad["rgb"]["data"]) // 2]
+    with pytest.raises(InputError, match="^rgb: "):
+        decode_frame(bad, rgb_pixels=False)
+
+
 def test_detections_are_optional():
     frame = decode_frame(encoded(with_detections=False))
     assert frame.instance_ids is None and frame.instances == []

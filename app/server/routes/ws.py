@@ -40,7 +40,7 @@ def _payload_bytes(message: dict) -> dict[str, int]:
 
 def _decode_and_validate(message: dict, session: Session) -> FrameInput:
     """In a worker thread: everything the engine would refuse is refused here, for every frame."""
-    frame = decode_frame(message)
+    frame = decode_frame(message, rgb_pixels=session.engine.backend.needs_rgb)
     session.engine.validate_frame(frame)
     session.engine.backend.detect(frame)
     return frame
