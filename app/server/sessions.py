@@ -20,6 +20,7 @@ from collections import deque
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from app.errors import InputError
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
-from app.perception.base import FrameInput
+from app.perception.base import FrameDetections, FrameInput
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
 from app.server.settings import ServerSettings
@@ -39,6 +40,9 @@ FLUSH_AFTER_S = 1.0
 """Longest a confirmed change waits for its publication when keyframes stop coming."""
 
 
+T = TypeVar("T")
+
+
 def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
@@ -46,6 +50,7 @@ def hash_token(token: str) -> str:
 @dataclass
 class _Pending:
     frame: FrameInput
+    detections: FrameDetections | None
     reply: Reply
     received_t: float
 
@@ -240,7 +245,8 @@ class SessionManager:
         return knobs
 
     # ------------------------------------------------------------------ ingest
-    async def decode(self, decode: Callable[[], FrameInput]) -> FrameInput:
+    async def decode(self, decode: Callable[[], T]) -> T:
+        """Run a frame's decoding and validation in the worker pool."""
         return await asyncio.get_running_loop().run_in_executor(self.pool, decode)
 
     def count_frame(self, session: Session, frame_bytes: dict[str, int]) -> bool:
@@ -253,9 +259,17 @@ class SessionManager:
             self.metrics.inc("semanticxr_bytes_in_total", n, kind=kind)
         return (rec.frames - 1) % session.knobs.keyframe_interval == 0
 
-    async def submit_keyframe(self, session: Session, frame: FrameInput, reply: Reply) -> None:
-        """Map now, or wait as the newest keyframe (acknowledging any older one as dropped)."""
-        pending = _Pending(frame, reply, time.perf_counter())
+    async def submit_keyframe(
+        self,
+        session: Session,
+        frame: FrameInput,
+        reply: Reply,
+        detections: FrameDetections | None = None,
+    ) -> None:
+        """Map now, or wait as the newest keyframe (acknowledging any older one as dropped).
+
+        detections: the frame's, when validation already ran the perception backend."""
+        pending = _Pending(frame, detections, reply, time.perf_counter())
         if session._mapping:
             older, session._pending = session._pending, pending
             if older is not None:
@@ -272,7 +286,11 @@ class SessionManager:
             while pending is not None and not session.closed:
                 try:
                     stats = await loop.run_in_executor(
-                        self.pool, self._map_and_persist, session, pending.frame
+                        self.pool,
+                        self._map_and_persist,
+                        session,
+                        pending.frame,
+                        pending.detections,
                     )
                 except InputError as exc:
                     await pending.reply(error(pending.frame.seq, "bad_frame", str(exc)))
@@ -300,13 +318,15 @@ class SessionManager:
         finally:
             session._mapping = False
 
-    def _map_and_persist(self, session: Session, frame: FrameInput) -> IntegrationStats:
+    def _map_and_persist(
+        self, session: Session, frame: FrameInput, detections: FrameDetections | None
+    ) -> IntegrationStats:
         """In a worker thread: integrate, then make the change durable before the ack."""
         with session._map_lock:
             if session.closed:
                 raise InputError("session", "the session was deleted")
             engine = session.engine
-            stats = engine.integrate(frame)
+            stats = engine.integrate(frame, detections)
             rec = session.record
             rec.keyframes = engine.keyframes
             rec.next_object_id = engine.next_object_id

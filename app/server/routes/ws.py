@@ -9,7 +9,7 @@ import msgpack
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 
 from app.errors import InputError
-from app.perception.base import FrameInput
+from app.perception.base import FrameDetections, FrameInput
 from app.protocol import decode_frame
 from app.server.auth import authorize_session, bearer
 from app.server.sessions import Session, SessionManager, ack, error
@@ -38,12 +38,13 @@ def _payload_bytes(message: dict) -> dict[str, int]:
     return sizes
 
 
-def _decode_and_validate(message: dict, session: Session) -> FrameInput:
-    """In a worker thread: everything the engine would refuse is refused here, for every frame."""
-    frame = decode_frame(message, rgb_pixels=session.engine.backend.needs_rgb)
-    session.engine.validate_frame(frame)
-    session.engine.backend.detect(frame)
-    return frame
+def _decode_and_validate(message: dict, session: Session) -> tuple[FrameInput, FrameDetections]:
+    """In a worker thread: everything the engine would refuse is refused here, for every
+    frame. Returns the frame and its detections (mapped as they are if it is a keyframe)."""
+    engine = session.engine
+    frame = decode_frame(message, rgb_pixels=engine.backend.needs_rgb)
+    engine.validate_frame(frame)
+    return frame, engine.backend.detect(frame)
 
 
 @router.websocket("/sessions/{sid}/stream")
@@ -98,7 +99,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
                     seq = message.get("seq") if isinstance(message, dict) else None
                     seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
                     try:
-                        frame = await manager.decode(
+                        frame, detections = await manager.decode(
                             lambda m=message: _decode_and_validate(m, session)
                         )
                     except InputError as exc:
@@ -109,7 +110,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
                         bad_in_a_row = 0
                         manager.metrics.inc("semanticxr_frames_total", outcome="ok")
                         if manager.count_frame(session, _payload_bytes(message)):
-                            await manager.submit_keyframe(session, frame, reply)
+                            await manager.submit_keyframe(session, frame, reply, detections)
                         else:
                             await reply(ack(frame.seq, keyframe=False))
             if bad_in_a_row >= settings.max_bad_frames:
