@@ -15,11 +15,12 @@ TIMEOUT_S = 20.0
 
 
 def frame_message(rects: list[Rect], seq: int, cam_xy=(0.0, 0.0)) -> dict:
-    """A v1 frame of the analytic scene, encoded like a device would (depth ÷2)."""
+    """A v1 frame of the analytic scene, encoded like a device would (depth ÷2, zstd depth:
+    test_server's bad-frame variants corrupt a zstd depth image)."""
     full = render_rects(rects, cam_xy=cam_xy, ratio=1, seq=seq)
     rgb = np.full((*full.depth_m.shape, 3), 128, np.uint8)
     return (
-        FrameEncoder(2)
+        FrameEncoder(2, depth_codec="zstd")
         .encode(
             seq=seq,
             t=seq / 30,
