@@ -293,6 +293,7 @@ class MappingEngine:
                 [observations[i].points for i in rows],
                 objects[j].tree,
                 self._match_radius_m(objects[j]),
+                objects[j].bbox,
             )
             scores[rows, j] = self._combined_score(spatial, semantic[rows, j])
         matches: list[int | None] = []

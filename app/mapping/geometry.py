@@ -193,9 +193,13 @@ def overlap_fraction(points: np.ndarray, tree: cKDTree, radius_m: float) -> floa
     return float(overlap_fractions([points], tree, radius_m)[0])
 
 
-def overlap_fractions(point_sets: list[np.ndarray], tree: cKDTree, radius_m: float) -> np.ndarray:
+def overlap_fractions(
+    point_sets: list[np.ndarray], tree: cKDTree, radius_m: float, bbox: np.ndarray | None = None
+) -> np.ndarray:
     """`overlap_fraction` of each point set against one tree, in one tree query.
 
+    bbox: the box of the tree's points, if known: points farther than radius_m outside it
+    cannot have a neighbour and skip the query (same result, less work).
     Returns float64 [len(point_sets)] (0 for an empty set or an empty tree).
     """
     sizes = np.array([len(p) for p in point_sets], np.intp)
@@ -204,10 +208,15 @@ def overlap_fractions(point_sets: list[np.ndarray], tree: cKDTree, radius_m: flo
     if tree.n == 0 or len(nonempty) == 0:
         return fractions
     points = np.concatenate([point_sets[i] for i in nonempty])
-    dist, _ = tree.query(points, k=1, distance_upper_bound=radius_m)
+    hit = np.zeros(len(points), np.intp)
+    if bbox is None:
+        near = slice(None)
+    else:
+        near = np.all((points >= bbox[:3] - radius_m) & (points <= bbox[3:] + radius_m), axis=1)
+    dist, _ = tree.query(points[near], k=1, distance_upper_bound=radius_m)
+    hit[near] = np.isfinite(dist)
     starts = np.cumsum(sizes[nonempty]) - sizes[nonempty]
-    hits = np.add.reduceat(np.isfinite(dist).astype(np.intp), starts)
-    fractions[nonempty] = hits / sizes[nonempty]
+    fractions[nonempty] = np.add.reduceat(hit, starts) / sizes[nonempty]
     return fractions
 
 

@@ -104,6 +104,8 @@ def test_batched_overlap_equals_overlap_of_each_set(sets, target, radius):
     tree = cKDTree(target)
     batched = geo.overlap_fractions(sets, tree, radius)
     assert batched.shape == (len(sets),)
+    boxed = geo.overlap_fractions(sets, tree, radius, geo.bbox_of(target))
+    np.testing.assert_array_equal(boxed, batched)
     for points, fraction in zip(sets, batched, strict=True):
         if len(points) == 0:
             assert fraction == 0.0
