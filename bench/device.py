@@ -212,24 +212,18 @@ def real_frames(path: str, count: int) -> list[SourceFrame] | None:
 def semanticxr_f_miou(scene: str, frames: int, ratio: int, **encoder_options) -> float:
     """F-mIoU of the semanticxr organisation (client_sim.evaluation.run_eval) with the
     device encoder at `ratio` and `encoder_options` (unset ones: FrameEncoder defaults)."""
-    import functools
-    from unittest import mock
-
     import client_sim.evaluation as evaluation
     from app.config import Knobs
     from app.semantics import get_text_encoder
-    from client_sim.encoder import FrameEncoder
 
     cfg = evaluation.EvalConfig(
         scene=scene,
         frames=frames,
         modes=("semanticxr",),
         knobs=Knobs(depth_downsampling_ratio=ratio),
+        encoder_options=encoder_options,
     )
-    # EvalConfig sets only the ratio and JPEG quality of its encoder; the rest is injected.
-    encoder = functools.partial(FrameEncoder, **encoder_options)
-    with mock.patch.object(evaluation, "FrameEncoder", encoder):
-        result = evaluation.run_eval(cfg, get_text_encoder(), progress=lambda _: None)
+    result = evaluation.run_eval(cfg, get_text_encoder(), progress=lambda _: None)
     return result["modes"]["semanticxr"]["F_mIoU"]
 
 

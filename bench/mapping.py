@@ -4,7 +4,9 @@
 
 Targets (DESIGN.md "Targets"): semanticxr at least 3x faster per keyframe (p50) than the
 baseline with F-mIoU within 1 point of it, and semanticxr p50 <= 40 ms per keyframe,
-at 640x480 RGB, depth ÷5, noise `standard`.
+at 640x480 RGB, depth ÷5, noise `standard`. The organisations (and the cap variants) take
+turns keyframe by keyframe, so machine load drifts affect all alike; the speed-up is also
+reported at equal quality: for the cap variants within 1 F-mIoU point of the baseline.
 """
 
 from __future__ import annotations
@@ -28,8 +30,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--caps",
         default="1000,4000,8000",
-        help="extra max_object_points_server values to map in semanticxr mode (quality/speed "
-        "trade-off of the cap; empty for none)",
+        help="extra max_object_points_server values to map in semanticxr mode, side by side "
+        "with the two organisations (quality/speed trade-off of the cap; empty for none)",
     )
     args = parser.parse_args(argv)
 
@@ -38,50 +40,53 @@ def main(argv: list[str] | None = None) -> int:
     from client_sim.evaluation import EvalConfig, run_eval
 
     cfg = EvalConfig(scene=args.scene, seed=args.seed, frames=args.frames, noise=args.noise)
-    result = run_eval(cfg, get_text_encoder(), keep_latencies=True)
+    caps = [int(c) for c in args.caps.split(",") if c.strip()]
+    variants = {f"cap {cap}": Knobs(max_object_points_server=cap) for cap in caps}
+    result = run_eval(cfg, get_text_encoder(), keep_latencies=True, variants=variants)
     sx, bl = result["modes"]["semanticxr"], result["modes"]["baseline"]
     print(
         f"mapping on {args.scene}: {result['keyframes']} keyframes, 640x480, depth ÷5, noise {args.noise}"
     )
+    rows = [(cfg.knobs.max_object_points_server, sx)]
+    rows += [(cap, result["variants"][f"cap {cap}"]) for cap in caps]
+    sweep = [
+        {
+            "cap": cap,
+            "F_mIoU": m["F_mIoU"],
+            "gap": bl["F_mIoU"] - m["F_mIoU"],
+            "p50_ms": m["latency_ms"]["p50"],
+            "mean_ms": m["latency_ms"]["mean"],
+            "speedup_p50": bl["latency_ms"]["p50"] / m["latency_ms"]["p50"],
+            "speedup_mean": bl["latency_ms"]["mean"] / m["latency_ms"]["mean"],
+        }
+        for cap, m in sorted(rows, key=lambda row: row[0])
+    ]
+    equal_quality = [row for row in sweep if row["gap"] <= 1.0]
+    best = max(equal_quality, key=lambda row: row["speedup_p50"], default=None)
     targets = [
         check("speed-up p50 (baseline / semanticxr)", result["speedup_p50"], ">=", 3.0, "x"),
         check("F-mIoU gap (baseline - semanticxr)", bl["F_mIoU"] - sx["F_mIoU"], "<=", 1.0, " pts"),
         check("semanticxr p50 per keyframe", sx["latency_ms"]["p50"], "<=", 40.0, " ms"),
     ]
-    sweep = [
-        {
-            "cap": cfg.knobs.max_object_points_server,
-            "F_mIoU": sx["F_mIoU"],
-            "p50_ms": sx["latency_ms"]["p50"],
-            "mean_ms": sx["latency_ms"]["mean"],
-        }
-    ]
-    for cap in [int(c) for c in args.caps.split(",") if c.strip()]:
-        capped = EvalConfig(
-            scene=args.scene,
-            seed=args.seed,
-            frames=args.frames,
-            noise=args.noise,
-            modes=("semanticxr",),
-            knobs=Knobs(max_object_points_server=cap),
-        )
-        m = run_eval(capped, get_text_encoder(), progress=lambda _: None)["modes"]["semanticxr"]
-        sweep.append(
-            {
-                "cap": cap,
-                "F_mIoU": m["F_mIoU"],
-                "p50_ms": m["latency_ms"]["p50"],
-                "mean_ms": m["latency_ms"]["mean"],
-            }
+    if best is not None:
+        targets.append(
+            check(
+                f"speed-up p50 at equal quality (cap {best['cap']}, gap {best['gap']:.2f} pts)",
+                best["speedup_p50"],
+                ">=",
+                3.0,
+                "x",
+            )
         )
     print(
-        f"  point cap sweep (baseline F-mIoU {bl['F_mIoU']:.2f}, p50 {bl['latency_ms']['p50']:.1f} ms, "
-        f"mean {bl['latency_ms']['mean']:.1f} ms):"
+        f"  point cap sweep, all mapped side by side (baseline F-mIoU {bl['F_mIoU']:.2f}, "
+        f"p50 {bl['latency_ms']['p50']:.1f} ms, mean {bl['latency_ms']['mean']:.1f} ms):"
     )
-    for row in sorted(sweep, key=lambda r: r["cap"]):
+    for row in sweep:
         print(
-            f"    cap {row['cap']:6d}: F-mIoU {row['F_mIoU']:.2f} (gap {bl['F_mIoU'] - row['F_mIoU']:+.2f}), "
-            f"p50 {row['p50_ms']:.1f} ms, mean {row['mean_ms']:.1f} ms"
+            f"    cap {row['cap']:6d}: F-mIoU {row['F_mIoU']:.2f} (gap {row['gap']:+.2f}), "
+            f"p50 {row['p50_ms']:.1f} ms ({row['speedup_p50']:.2f}x), "
+            f"mean {row['mean_ms']:.1f} ms ({row['speedup_mean']:.2f}x)"
         )
     document = {
         "bench": "mapping",

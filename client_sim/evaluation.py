@@ -48,7 +48,9 @@ class EvalConfig:
     """Detection noise profile: none | standard."""
     modes: tuple[str, ...] = MODES
     knobs: Knobs = field(default_factory=Knobs)
-    jpeg_quality: int = 85
+    encoder_options: dict = field(default_factory=dict)
+    """FrameEncoder options besides the depth ratio (which comes from the knobs); unset
+    ones keep the device's defaults."""
 
 
 def _percentiles(values: list[float]) -> dict[str, float]:
@@ -69,7 +71,7 @@ def _encode_keyframes(cfg: EvalConfig, progress: Progress) -> tuple[list, object
         noise=cfg.noise,
         seed=cfg.seed,
     )
-    encoder = FrameEncoder(cfg.knobs.depth_downsampling_ratio, jpeg_quality=cfg.jpeg_quality)
+    encoder = FrameEncoder(cfg.knobs.depth_downsampling_ratio, **cfg.encoder_options)
     messages, upstream = [], {"rgb": 0, "depth": 0, "detections": 0, "total": 0}
     interval = cfg.knobs.keyframe_interval
     n_keyframes = len(range(0, cfg.frames, interval))
@@ -83,26 +85,41 @@ def _encode_keyframes(cfg: EvalConfig, progress: Progress) -> tuple[list, object
     return messages, source.scene, upstream
 
 
+def _labels_of(messages: list[dict]) -> list[str]:
+    """The distinct detection labels in encoded frames, in first-seen order."""
+    labels = (
+        inst["label"]
+        for message in messages
+        for inst in message.get("detections", {}).get("instances", [])
+    )
+    return list(dict.fromkeys(labels))
+
+
 def map_keyframes(
-    messages: list[dict], engine: MappingEngine, progress: Progress, label: str
-) -> tuple[list[float], list[int]]:
+    messages: list[dict], engines: dict[str, MappingEngine], progress: Progress
+) -> dict[str, tuple[list[float], list[int]]]:
     """Feed wire messages through decode + mapping + the downstream update (DESIGN.md
-    "Mapping latency"); per-keyframe latency in ms and bytes of each update."""
-    latencies, update_bytes, published = [], [], 0
+    "Mapping latency") for each engine; per engine, per-keyframe latency in ms and the bytes
+    of each update. The engines take turns keyframe by keyframe, so a change in machine
+    load during the run affects every organisation alike."""
+    out = {name: ([], []) for name in engines}
+    published = dict.fromkeys(engines, 0)
     for i, message in enumerate(messages):
-        t0 = time.perf_counter()
-        stats = engine.integrate(decode_frame(message, engine.backend.needs_rgb))
-        if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
-            update = update_message(engine, published)
-            update_bytes.append(len(msgpack.packb(update)))
-            published = update["seq"]
-        latencies.append((time.perf_counter() - t0) * 1e3)
+        for name, engine in engines.items():
+            latencies, update_bytes = out[name]
+            t0 = time.perf_counter()
+            stats = engine.integrate(decode_frame(message, engine.backend.needs_rgb))
+            if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
+                update = update_message(engine, published[name])
+                update_bytes.append(len(msgpack.packb(update)))
+                published[name] = update["seq"]
+            latencies.append((time.perf_counter() - t0) * 1e3)
         if (i + 1) % 20 == 0 or i + 1 == len(messages):
             progress(
-                f"[eval] {label}: {i + 1}/{len(messages)} keyframes, "
-                f"{stats.confirmed} objects, p50 {np.median(latencies):.1f} ms"
+                f"[eval] mapped {i + 1}/{len(messages)} keyframes: "
+                + ", ".join(f"{name} p50 {np.median(out[name][0]):.1f} ms" for name in engines)
             )
-    return latencies, update_bytes
+    return out
 
 
 def score_map(engine: MappingEngine, gt, encoder: TextEncoder, categories: list[str]) -> dict:
@@ -157,13 +174,24 @@ def run_eval(
     encoder: TextEncoder,
     progress: Progress = _stderr,
     keep_latencies: bool = False,
+    variants: dict[str, Knobs] | None = None,
 ) -> dict:
-    """Run the pipeline for each mode in `cfg.modes`; the DESIGN.md `eval --json` document."""
+    """Run the pipeline for each mode in `cfg.modes`; the DESIGN.md `eval --json` document.
+
+    variants: extra semanticxr engines with other knobs (say, another point cap), mapped on
+    the same keyframes in the same interleaved loop and reported under "variants" by name.
+    """
+    variants = variants or {}
+    clash = variants.keys() & set(cfg.modes)
+    if clash:
+        raise ValueError(f"variant names must differ from the modes, got {sorted(clash)}")
     started = time.perf_counter()
     messages, scene, upstream = _encode_keyframes(cfg, progress)
     gt = gt_point_cloud(scene)
     categories = scene.categories_present
-    encoder.encode(gt.class_names)  # warm the label cache outside the timed loop
+    # Label embeddings are computed once per process and cached (a long-running server has
+    # them all): warm the cache with every label the keyframes carry, outside the timed loop.
+    encoder.encode([*gt.class_names, *_labels_of(messages)])
 
     result: dict = {
         "scene": cfg.scene,
@@ -176,16 +204,21 @@ def run_eval(
         "upstream_bytes_per_keyframe": {k: v / max(len(messages), 1) for k, v in upstream.items()},
         "modes": {},
     }
-    for mode in cfg.modes:
-        engine = MappingEngine(encoder, cfg.knobs, mode=mode)
-        latencies, update_bytes = map_keyframes(messages, engine, progress, mode)
+    engines = {mode: MappingEngine(encoder, cfg.knobs, mode=mode) for mode in cfg.modes}
+    for name, knobs in variants.items():
+        engines[name] = MappingEngine(encoder, knobs, mode="semanticxr")
+    mapped = map_keyframes(messages, engines, progress)
+    if variants:
+        result["variants"] = {}
+    for mode, engine in engines.items():
+        latencies, update_bytes = mapped[mode]
         scored = score_map(engine, gt, encoder, categories)
         scored["latency_ms"] = _percentiles(latencies)
         scored["downstream_bytes_per_update"] = _percentiles(update_bytes) if update_bytes else None
         scored["downstream_bytes_total"] = int(sum(update_bytes))
         if keep_latencies:
             scored["latencies_ms"] = latencies
-        result["modes"][mode] = scored
+        result["variants" if mode in variants else "modes"][mode] = scored
         progress(
             f"[eval] {mode}: mAcc {scored['mAcc']:.1f}  F-mIoU {scored['F_mIoU']:.1f}  "
             f"objects {scored['objects']}  p50 {scored['latency_ms']['p50']:.1f} ms  "

@@ -59,12 +59,20 @@ def test_both_organisations_build_maps_of_equal_quality_on_a_small_scene(encoder
     cfg = EvalConfig(
         scene="living_room", frames=300, width=160, height=120, noise="standard", knobs=knobs
     )
-    result = run_eval(cfg, encoder, progress=lambda _: None)
+    result = run_eval(cfg, encoder, progress=lambda _: None, variants={"again": knobs})
     sx, bl = result["modes"]["semanticxr"], result["modes"]["baseline"]
+    # engines mapped side by side stay independent: the same knobs give the same map
+    again = result["variants"]["again"]
+    assert (again["F_mIoU"], again["objects"]) == (sx["F_mIoU"], sx["objects"])
     assert sx["objects"] >= 15 and bl["objects"] >= 15
     assert sx["F_mIoU"] > 35 and bl["F_mIoU"] > 35
     assert abs(sx["F_mIoU"] - bl["F_mIoU"]) < 3.0
     assert abs(sx["mAcc"] - bl["mAcc"]) < 6.0
+
+
+def test_a_variant_named_like_a_mode_is_refused_before_any_work(encoder):
+    with pytest.raises(ValueError, match="baseline"):
+        run_eval(EvalConfig(), encoder, progress=lambda _: None, variants={"baseline": Knobs()})
 
 
 def test_a_query_for_a_category_returns_an_object_of_that_category(living_room, encoder):
