@@ -16,6 +16,8 @@ import os
 
 from bench.common import check, machine, save_plot, write_outputs
 
+FULL_DEPTH_BASELINE = "baseline, depth ÷1"
+
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -33,6 +35,13 @@ def main(argv: list[str] | None = None) -> int:
         help="extra max_object_points_server values to map in semanticxr mode, side by side "
         "with the two organisations (quality/speed trade-off of the cap; empty for none)",
     )
+    parser.add_argument(
+        "--no-full-depth-baseline",
+        dest="full_depth_baseline",
+        action="store_false",
+        help="skip the extra baseline that gets depth at full resolution (÷1), i.e. the "
+        "device-cloud system without SemanticXR's depth co-design",
+    )
     args = parser.parse_args(argv)
 
     from app.config import Knobs
@@ -41,7 +50,9 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = EvalConfig(scene=args.scene, seed=args.seed, frames=args.frames, noise=args.noise)
     caps = [int(c) for c in args.caps.split(",") if c.strip()]
-    variants = {f"cap {cap}": Knobs(max_object_points_server=cap) for cap in caps}
+    variants = {f"cap {cap}": ("semanticxr", Knobs(max_object_points_server=cap)) for cap in caps}
+    if args.full_depth_baseline:
+        variants[FULL_DEPTH_BASELINE] = ("baseline", Knobs(depth_downsampling_ratio=1))
     result = run_eval(cfg, get_text_encoder(), keep_latencies=True, variants=variants)
     sx, bl = result["modes"]["semanticxr"], result["modes"]["baseline"]
     print(
@@ -77,6 +88,14 @@ def main(argv: list[str] | None = None) -> int:
                 3.0,
                 "x",
             )
+        )
+    full = result.get("variants", {}).get(FULL_DEPTH_BASELINE)
+    if full is not None:
+        speedup = full["latency_ms"]["p50"] / sx["latency_ms"]["p50"]
+        print(
+            f"  not a target: against a baseline fed full-resolution depth (÷1, no depth "
+            f"co-design): p50 {full['latency_ms']['p50']:.1f} ms, F-mIoU {full['F_mIoU']:.2f}; "
+            f"semanticxr is {speedup:.2f}x faster at p50"
         )
     print(
         f"  point cap sweep, all mapped side by side (baseline F-mIoU {bl['F_mIoU']:.2f}, "

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import msgpack
 import numpy as np
 
-from app.config import MODES, Knobs
+from app.config import MODES, Knobs, Mode
 from app.mapping.engine import MappingEngine
 from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
 from app.mapping.publish import update_message
@@ -62,8 +62,12 @@ def _percentiles(values: list[float]) -> dict[str, float]:
     }
 
 
-def _encode_keyframes(cfg: EvalConfig, progress: Progress) -> tuple[list, object, dict]:
-    """Render and encode the keyframes once; both organisations map the same bytes."""
+def _encode_keyframes(
+    cfg: EvalConfig, ratios: list[int], progress: Progress
+) -> tuple[dict[int, list], object, dict]:
+    """Render the keyframes once and encode them at each depth ratio; every organisation at
+    one ratio maps the same bytes. Returns (messages by ratio, scene, upstream bytes at the
+    configured ratio)."""
     source = SyntheticSource(
         cfg.scene,
         n_frames=cfg.frames,
@@ -71,15 +75,18 @@ def _encode_keyframes(cfg: EvalConfig, progress: Progress) -> tuple[list, object
         noise=cfg.noise,
         seed=cfg.seed,
     )
-    encoder = FrameEncoder(cfg.knobs.depth_downsampling_ratio, **cfg.encoder_options)
-    messages, upstream = [], {"rgb": 0, "depth": 0, "detections": 0, "total": 0}
+    encoders = {ratio: FrameEncoder(ratio, **cfg.encoder_options) for ratio in ratios}
+    messages: dict[int, list] = {ratio: [] for ratio in ratios}
+    upstream = {"rgb": 0, "depth": 0, "detections": 0, "total": 0}
     interval = cfg.knobs.keyframe_interval
     n_keyframes = len(range(0, cfg.frames, interval))
     for i, frame in enumerate(source.frames(every=interval)):
-        encoded = encoder.encode_source_frame(frame)
-        messages.append(encoded.message)
-        for kind in upstream:
-            upstream[kind] += encoded.bytes_by_kind.get(kind, 0)
+        for ratio, encoder in encoders.items():
+            encoded = encoder.encode_source_frame(frame)
+            messages[ratio].append(encoded.message)
+            if ratio == cfg.knobs.depth_downsampling_ratio:
+                for kind in upstream:
+                    upstream[kind] += encoded.bytes_by_kind.get(kind, 0)
         if (i + 1) % 20 == 0 or i + 1 == n_keyframes:
             progress(f"[eval] rendered and encoded {i + 1}/{n_keyframes} keyframes")
     return messages, source.scene, upstream
@@ -96,17 +103,19 @@ def _labels_of(messages: list[dict]) -> list[str]:
 
 
 def map_keyframes(
-    messages: list[dict], engines: dict[str, MappingEngine], progress: Progress
+    messages: dict[str, list[dict]], engines: dict[str, MappingEngine], progress: Progress
 ) -> dict[str, tuple[list[float], list[int]]]:
-    """Feed wire messages through decode + mapping + the downstream update (DESIGN.md
-    "Mapping latency") for each engine; per engine, per-keyframe latency in ms and the bytes
-    of each update. The engines take turns keyframe by keyframe, so a change in machine
-    load during the run affects every organisation alike."""
+    """Feed each engine its wire messages through decode + mapping + the downstream update
+    (DESIGN.md "Mapping latency"); per engine, per-keyframe latency in ms and the bytes of
+    each update. The engines take turns keyframe by keyframe, so a change in machine load
+    during the run affects every organisation alike."""
+    n_keyframes = len(next(iter(messages.values()), []))
     out = {name: ([], []) for name in engines}
     published = dict.fromkeys(engines, 0)
-    for i, message in enumerate(messages):
+    for i in range(n_keyframes):
         for name, engine in engines.items():
             latencies, update_bytes = out[name]
+            message = messages[name][i]
             t0 = time.perf_counter()
             stats = engine.integrate(decode_frame(message, engine.backend.needs_rgb))
             if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
@@ -114,9 +123,9 @@ def map_keyframes(
                 update_bytes.append(len(msgpack.packb(update)))
                 published[name] = update["seq"]
             latencies.append((time.perf_counter() - t0) * 1e3)
-        if (i + 1) % 20 == 0 or i + 1 == len(messages):
+        if (i + 1) % 20 == 0 or i + 1 == n_keyframes:
             progress(
-                f"[eval] mapped {i + 1}/{len(messages)} keyframes: "
+                f"[eval] mapped {i + 1}/{n_keyframes} keyframes: "
                 + ", ".join(f"{name} p50 {np.median(out[name][0]):.1f} ms" for name in engines)
             )
     return out
@@ -174,40 +183,49 @@ def run_eval(
     encoder: TextEncoder,
     progress: Progress = _stderr,
     keep_latencies: bool = False,
-    variants: dict[str, Knobs] | None = None,
+    variants: dict[str, tuple[Mode, Knobs]] | None = None,
 ) -> dict:
     """Run the pipeline for each mode in `cfg.modes`; the DESIGN.md `eval --json` document.
 
-    variants: extra semanticxr engines with other knobs (say, another point cap), mapped on
-    the same keyframes in the same interleaved loop and reported under "variants" by name.
+    variants: extra engines by name, (mode, knobs) each (say, another point cap, or the
+    baseline at another depth ratio: keyframes are encoded at each ratio the engines use),
+    mapped in the same interleaved loop and reported under "variants".
     """
     variants = variants or {}
     clash = variants.keys() & set(cfg.modes)
     if clash:
         raise ValueError(f"variant names must differ from the modes, got {sorted(clash)}")
     started = time.perf_counter()
-    messages, scene, upstream = _encode_keyframes(cfg, progress)
+    knobs_of = {mode: (mode, cfg.knobs) for mode in cfg.modes} | variants
+    ratio = cfg.knobs.depth_downsampling_ratio
+    ratios = sorted({ratio, *(knobs.depth_downsampling_ratio for _, knobs in knobs_of.values())})
+    by_ratio, scene, upstream = _encode_keyframes(cfg, ratios, progress)
+    n_keyframes = len(by_ratio[ratio])
     gt = gt_point_cloud(scene)
     categories = scene.categories_present
     # Label embeddings are computed once per process and cached (a long-running server has
     # them all): warm the cache with every label the keyframes carry, outside the timed loop.
-    encoder.encode([*gt.class_names, *_labels_of(messages)])
+    encoder.encode([*gt.class_names, *_labels_of(by_ratio[ratio])])
 
     result: dict = {
         "scene": cfg.scene,
         "seed": cfg.seed,
         "frames": cfg.frames,
-        "keyframes": len(messages),
+        "keyframes": n_keyframes,
         "noise": cfg.noise,
         "resolution": [cfg.width, cfg.height],
         "depth_downsampling_ratio": cfg.knobs.depth_downsampling_ratio,
-        "upstream_bytes_per_keyframe": {k: v / max(len(messages), 1) for k, v in upstream.items()},
+        "upstream_bytes_per_keyframe": {k: v / max(n_keyframes, 1) for k, v in upstream.items()},
         "modes": {},
     }
-    engines = {mode: MappingEngine(encoder, cfg.knobs, mode=mode) for mode in cfg.modes}
-    for name, knobs in variants.items():
-        engines[name] = MappingEngine(encoder, knobs, mode="semanticxr")
-    mapped = map_keyframes(messages, engines, progress)
+    engines = {
+        name: MappingEngine(encoder, knobs, mode) for name, (mode, knobs) in knobs_of.items()
+    }
+    mapped = map_keyframes(
+        {name: by_ratio[knobs.depth_downsampling_ratio] for name, (_, knobs) in knobs_of.items()},
+        engines,
+        progress,
+    )
     if variants:
         result["variants"] = {}
     for mode, engine in engines.items():

@@ -59,7 +59,9 @@ def test_both_organisations_build_maps_of_equal_quality_on_a_small_scene(encoder
     cfg = EvalConfig(
         scene="living_room", frames=300, width=160, height=120, noise="standard", knobs=knobs
     )
-    result = run_eval(cfg, encoder, progress=lambda _: None, variants={"again": knobs})
+    result = run_eval(
+        cfg, encoder, progress=lambda _: None, variants={"again": ("semanticxr", knobs)}
+    )
     sx, bl = result["modes"]["semanticxr"], result["modes"]["baseline"]
     # engines mapped side by side stay independent: the same knobs give the same map
     again = result["variants"]["again"]
@@ -72,7 +74,12 @@ def test_both_organisations_build_maps_of_equal_quality_on_a_small_scene(encoder
 
 def test_a_variant_named_like_a_mode_is_refused_before_any_work(encoder):
     with pytest.raises(ValueError, match="baseline"):
-        run_eval(EvalConfig(), encoder, progress=lambda _: None, variants={"baseline": Knobs()})
+        run_eval(
+            EvalConfig(),
+            encoder,
+            progress=lambda _: None,
+            variants={"baseline": ("baseline", Knobs())},
+        )
 
 
 def test_a_query_for_a_category_returns_an_object_of_that_category(living_room, encoder):
