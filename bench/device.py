@@ -268,7 +268,7 @@ async def device_cpu(server: Server, source: FrameSource, seconds: float) -> dic
         "cpu_s_per_s": cpu / wall,
         "objects_held": len(device.local_map),
         "local_map_bytes": device.local_map.memory_bytes(),
-        "bytes_up": sum(s.bytes_up_by_kind.values()),
+        "bytes_up": s.bytes_up_by_kind["total"],
         "bytes_down": s.bytes_down,
     }
 

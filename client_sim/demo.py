@@ -69,7 +69,7 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
 
             viewer = ViewerApp(server_url, sid, token, port=args.viewer_port)
             viewer.start()
-            _say(f"3D viewer on http://127.0.0.1:{args.viewer_port}")
+            _say(f"3D viewer on {viewer.url}")
         except Exception as exc:  # the demo goes on without a viewer
             _say(f"(no 3D viewer: {exc})")
 
@@ -85,10 +85,15 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     async def progress(until: int) -> None:
         while device.stats.frames_sent < until and not device.stopped:
             s = device.stats
-            mbps = 8 * sum(s.bytes_up_by_kind.values()) / max(time.perf_counter() - t0, 1e-3) / 1e6
+            elapsed_s = max(time.perf_counter() - t0, 1e-3)
+            sent = s.bytes_up_by_kind["total"]
+            rate = (
+                f"up {8 * sent / elapsed_s / 1e6:.1f} Mbps at {s.frames_sent / elapsed_s:.1f} fps"
+                f" ({sent / max(s.frames_sent, 1) / 1e3:.0f} kB/frame)"
+            )
             rtt = f"{device.rtt_ms:.0f} ms" if device.rtt_ms is not None else "?"
             print(
-                f"\r  frames {s.frames_sent}/{args.frames}  up {mbps:.1f} Mbps  "
+                f"\r  frames {s.frames_sent}/{args.frames}  {rate}  "
                 f"objects held {len(device.local_map)}  RTT {rtt}   ",
                 end="",
                 flush=True,
@@ -156,6 +161,8 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     await router.aclose()
     await device.stop()
     follower.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await follower  # lets the updates socket close cleanly before the loop ends
     proxy.stop()
     return {"session_id": sid, "token": token, "viewer": viewer, "in_sync": same}
 
@@ -176,7 +183,7 @@ def run_demo(args: argparse.Namespace) -> int:
         _say("")
         _say(f"dashboard: {server.url}/   API docs: {server.url}/docs")
         if outcome["viewer"] is not None:
-            _say(f"3D viewer: http://127.0.0.1:{args.viewer_port}")
+            _say(f"3D viewer: {outcome['viewer'].url}")
         _say(
             f"curl '{server.url}/v1/sessions/{outcome['session_id']}/query?text=keys&k=3&points=false'"
         )

@@ -267,6 +267,12 @@ class ViewerApp:
             loop.run_until_complete(self._main())
             loop.run_until_complete(loop.shutdown_default_executor())  # an apply in flight
         finally:
+            # As asyncio.run does: finish what is left (a socket's keepalive) before closing.
+            leftovers = asyncio.all_tasks(loop)
+            for task in leftovers:
+                task.cancel()
+            if leftovers:
+                loop.run_until_complete(asyncio.wait(leftovers))
             loop.close()
 
     async def _main(self) -> None:
