@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import threading
 import warnings
 from collections.abc import Iterator
 from typing import Any
@@ -30,7 +31,9 @@ MAX_IMAGE_SIDE_PX = 8192
 """Largest width or height any image decoder accepts (decompression-bomb guard)."""
 
 ZSTD_LEVEL = 3
-"""zstd level of uint16 images: fast enough for a device, most of the gain of higher levels."""
+"""Default zstd level of uint16 images."""
+PNG_LEVEL = 6
+"""Default PNG (zlib) level of uint16 images: pillow's."""
 
 ENVELOPE_DTYPES: tuple[str, ...] = (
     "bool", "uint8", "int8", "uint16", "int16", "uint32", "int32", "int64",
@@ -132,11 +135,12 @@ def _opened_jpeg(data: bytes, field: str) -> Iterator[Image.Image]:
 # --- uint16 images: depth and instance ids --------------------------------------------------
 
 
-def encode_uint16_image(img: np.ndarray, codec: str) -> bytes:
+def encode_uint16_image(img: np.ndarray, codec: str, level: int | None = None) -> bytes:
     """Bytes of `img`, uint16 [h, w], in `codec` (one of `DEPTH_CODECS`).
 
-    zstd: zstd (level 3) of the little-endian row-major bytes; png: 16-bit greyscale PNG;
-    raw: the little-endian row-major bytes.
+    zstd: zstd of the little-endian row-major bytes; png: 16-bit greyscale PNG;
+    raw: the little-endian row-major bytes. level: the codec's compression level (zstd
+    1..22, default 3; png 0..9, default 6); any level decodes the same way.
     """
     img = np.asarray(img)
     if img.dtype != np.uint16 or img.ndim != 2 or img.size == 0:
@@ -147,11 +151,27 @@ def encode_uint16_image(img: np.ndarray, codec: str) -> bytes:
     if codec == "raw":
         return little_endian.tobytes()
     if codec == "zstd":
-        return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(little_endian.tobytes())
+        return _zstd_compressor(ZSTD_LEVEL if level is None else level).compress(
+            little_endian.tobytes()
+        )
     buffer = io.BytesIO()
     # Pillow maps a native uint16 array to mode "I;16", which PNG stores as 16-bit greyscale.
-    Image.fromarray(np.ascontiguousarray(img, dtype=np.uint16)).save(buffer, format="PNG")
+    Image.fromarray(np.ascontiguousarray(img, dtype=np.uint16)).save(
+        buffer, format="PNG", compress_level=PNG_LEVEL if level is None else level
+    )
     return buffer.getvalue()
+
+
+_compressors = threading.local()
+
+
+def _zstd_compressor(level: int) -> zstandard.ZstdCompressor:
+    """This thread's zstd compressor at `level`: building one costs more than compressing a
+    small image at high levels, and one must not be used by two threads at once."""
+    cache = _compressors.__dict__.setdefault("by_level", {})
+    if level not in cache:
+        cache[level] = zstandard.ZstdCompressor(level=level)
+    return cache[level]
 
 
 def decode_uint16_image(

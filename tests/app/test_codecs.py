@@ -458,3 +458,20 @@ def test_float16_vector_of_the_wrong_dimension_is_refused() -> None:
     data = float16_vector_to_bytes(np.ones(384, np.float32))
     with pytest.raises(CodecError, match="upserts.embedding: 768 bytes, expected 1024"):
         float16_vector_from_bytes(data, 512, "upserts.embedding")
+
+
+@pytest.mark.parametrize(("codec", "level"), [("zstd", 1), ("zstd", 12), ("png", 0), ("png", 9)])
+def test_any_compression_level_decodes_to_the_same_image(codec: str, level: int) -> None:
+    img = np.random.default_rng(level).integers(0, 5000, (24, 32)).astype(np.uint16)
+    data = encode_uint16_image(img, codec, level)
+    np.testing.assert_array_equal(decode_uint16_image(data, codec, 32, 24), img)
+
+
+def test_threads_compressing_at_once_each_get_the_bytes_of_their_own_image() -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    images = [np.full((64, 64), i, np.uint16) + np.arange(64, dtype=np.uint16) for i in range(32)]
+    with ThreadPoolExecutor(4) as pool:
+        encoded = list(pool.map(lambda img: encode_uint16_image(img, "zstd", 12), images))
+    for img, data in zip(images, encoded, strict=True):
+        np.testing.assert_array_equal(decode_uint16_image(data, "zstd", 64, 64), img)
