@@ -89,6 +89,13 @@ def main(argv: list[str] | None = None) -> int:
                 "x",
             )
         )
+    print("  per-stage p50 / mean in ms, semanticxr vs baseline:")
+    for stage, sx_ms in sx["stages_ms"].items():
+        bl_ms = bl["stages_ms"][stage]
+        print(
+            f"    {stage:10s} {sx_ms['p50']:6.2f} / {sx_ms['mean']:6.2f}   "
+            f"{bl_ms['p50']:6.2f} / {bl_ms['mean']:6.2f}"
+        )
     full = result.get("variants", {}).get(FULL_DEPTH_BASELINE)
     if full is not None:
         speedup = full["latency_ms"]["p50"] / sx["latency_ms"]["p50"]

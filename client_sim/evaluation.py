@@ -102,33 +102,58 @@ def _labels_of(messages: list[dict]) -> list[str]:
     return list(dict.fromkeys(labels))
 
 
+@dataclass
+class MappedRun:
+    """What mapping the keyframes cost one engine."""
+
+    latencies_ms: list[float] = field(default_factory=list)
+    """Per keyframe: decode + mapping + the downstream update."""
+    update_bytes: list[int] = field(default_factory=list)
+    """Size of each downstream update."""
+    stages_ms: dict[str, list[float]] = field(default_factory=dict)
+    """Per keyframe, by stage: "decode", the engine's own stages (IntegrationStats.timings_ms
+    but its "total") and "update" (0 on keyframes without one)."""
+
+    def add_stage(self, stage: str, ms: float) -> None:
+        self.stages_ms.setdefault(stage, []).append(ms)
+
+
 def map_keyframes(
     messages: dict[str, list[dict]], engines: dict[str, MappingEngine], progress: Progress
-) -> dict[str, tuple[list[float], list[int]]]:
+) -> dict[str, MappedRun]:
     """Feed each engine its wire messages through decode + mapping + the downstream update
-    (DESIGN.md "Mapping latency"); per engine, per-keyframe latency in ms and the bytes of
-    each update. The engines take turns keyframe by keyframe, so a change in machine load
-    during the run affects every organisation alike."""
+    (DESIGN.md "Mapping latency"). The engines take turns keyframe by keyframe, so a change
+    in machine load during the run affects every organisation alike."""
     n_keyframes = len(next(iter(messages.values()), []))
-    out = {name: ([], []) for name in engines}
+    runs = {name: MappedRun() for name in engines}
     published = dict.fromkeys(engines, 0)
     for i in range(n_keyframes):
         for name, engine in engines.items():
-            latencies, update_bytes = out[name]
-            message = messages[name][i]
+            run = runs[name]
             t0 = time.perf_counter()
-            stats = engine.integrate(decode_frame(message, engine.backend.needs_rgb))
+            frame = decode_frame(messages[name][i], engine.backend.needs_rgb)
+            t1 = time.perf_counter()
+            stats = engine.integrate(frame)
+            t2 = time.perf_counter()
             if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
                 update = update_message(engine, published[name])
-                update_bytes.append(len(msgpack.packb(update)))
+                run.update_bytes.append(len(msgpack.packb(update)))
                 published[name] = update["seq"]
-            latencies.append((time.perf_counter() - t0) * 1e3)
+            t3 = time.perf_counter()
+            run.latencies_ms.append((t3 - t0) * 1e3)
+            run.add_stage("decode", (t1 - t0) * 1e3)
+            for stage, ms in stats.timings_ms.items():
+                if stage != "total":
+                    run.add_stage(stage, ms)
+            run.add_stage("update", (t3 - t2) * 1e3)
         if (i + 1) % 20 == 0 or i + 1 == n_keyframes:
             progress(
                 f"[eval] mapped {i + 1}/{n_keyframes} keyframes: "
-                + ", ".join(f"{name} p50 {np.median(out[name][0]):.1f} ms" for name in engines)
+                + ", ".join(
+                    f"{name} p50 {np.median(runs[name].latencies_ms):.1f} ms" for name in engines
+                )
             )
-    return out
+    return runs
 
 
 def score_map(engine: MappingEngine, gt, encoder: TextEncoder, categories: list[str]) -> dict:
@@ -229,9 +254,11 @@ def run_eval(
     if variants:
         result["variants"] = {}
     for mode, engine in engines.items():
-        latencies, update_bytes = mapped[mode]
+        run = mapped[mode]
+        latencies, update_bytes = run.latencies_ms, run.update_bytes
         scored = score_map(engine, gt, encoder, categories)
         scored["latency_ms"] = _percentiles(latencies)
+        scored["stages_ms"] = {stage: _percentiles(ms) for stage, ms in run.stages_ms.items()}
         scored["downstream_bytes_per_update"] = _percentiles(update_bytes) if update_bytes else None
         scored["downstream_bytes_total"] = int(sum(update_bytes))
         if keep_latencies:

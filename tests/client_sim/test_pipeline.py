@@ -66,6 +66,8 @@ def test_both_organisations_build_maps_of_equal_quality_on_a_small_scene(encoder
     # engines mapped side by side stay independent: the same knobs give the same map
     again = result["variants"]["again"]
     assert (again["F_mIoU"], again["objects"]) == (sx["F_mIoU"], sx["objects"])
+    stages = {"decode", "perception", "lift", "associate", "merge", "publish", "update"}
+    assert set(sx["stages_ms"]) == set(bl["stages_ms"]) == stages
     assert sx["objects"] >= 15 and bl["objects"] >= 15
     assert sx["F_mIoU"] > 35 and bl["F_mIoU"] > 35
     assert abs(sx["F_mIoU"] - bl["F_mIoU"]) < 3.0
