@@ -114,6 +114,20 @@ def test_batched_overlap_equals_overlap_of_each_set(sets, target, radius):
             assert fraction == np.count_nonzero(dist <= radius) / len(points)
 
 
+@settings(max_examples=60, deadline=None)
+@given(points=clouds, voxel=st.floats(0.01, 5.0))
+def test_voxel_sample_keeps_per_voxel_the_point_nearest_its_centre(points, voxel):
+    out = geo.voxel_sample(points, voxel)
+    keys = geo._voxel_keys(points, voxel)
+    offset = points / voxel - np.floor(points / voxel) - 0.5
+    dist = np.einsum("ij,ij->i", offset, offset)
+    assert len(out) == len(np.unique(keys))
+    for point in out:
+        same_voxel = keys == geo._voxel_keys(point[None], voxel)[0]
+        chosen = np.flatnonzero(same_voxel & np.all(points == point, axis=1))[0]
+        assert dist[chosen] == dist[same_voxel].min()
+
+
 boxes = st.lists(finite, min_size=6, max_size=6).map(
     lambda v: np.array(
         [
