@@ -95,6 +95,45 @@ class FrameSource(abc.ABC):
         return f"<{type(self).__name__} {self.name!r}: {len(self)} frames>"
 
 
+class RecordedSource(FrameSource):
+    """A recorded dataset: frames read from files, detections from an optional labels folder.
+
+    Subclasses set `intrinsics` and `labels_dir` and define `stem` (a frame's file stem, also
+    its name in the labels folder); `_recorded_frame` assembles what they read.
+    """
+
+    intrinsics: Intrinsics
+    labels_dir: Path | None = None
+
+    @abc.abstractmethod
+    def stem(self, index: int) -> str:
+        """Frame `index`'s file stem, also its name in the labels folder."""
+
+    def _recorded_frame(
+        self,
+        index: int,
+        t: float,
+        rgb: np.ndarray,
+        depth_raw: np.ndarray,
+        depth_units_per_m: float,
+        pose: np.ndarray,
+        invalid_depth_raw: int | None = None,
+    ) -> SourceFrame:
+        """The frame of RGB, raw uint16 depth and a checked pose, with its labels if any."""
+        depth_m = depth_png_to_m(depth_raw, depth_units_per_m, invalid_depth_raw)
+        instance_ids, instances = load_labels(self.labels_dir, self.stem(index), rgb.shape)
+        return SourceFrame(
+            index=index,
+            t=t,
+            rgb=rgb,
+            depth_m=depth_at_rgb_size(depth_m, rgb.shape),
+            pose=pose,
+            intrinsics=self.intrinsics,
+            instance_ids=instance_ids,
+            instances=instances,
+        )
+
+
 # --------------------------------------------------------------------------------------
 # Readers shared by the dataset loaders. Every error names the file (and line) at fault.
 # --------------------------------------------------------------------------------------

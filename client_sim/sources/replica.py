@@ -26,13 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from client_sim.sources.base import (
-    FrameSource,
     Intrinsics,
+    RecordedSource,
     SourceFrame,
     checked_pose,
-    depth_at_rgb_size,
-    depth_png_to_m,
-    load_labels,
     parse_floats,
     read_rgb,
     read_uint16_png,
@@ -47,7 +44,7 @@ DEFAULT_DEPTH_SCALE = 6553.5
 _RGB_NAME = re.compile(r"^frame(\d+)\.jpg$")
 
 
-class ReplicaSource(FrameSource):
+class ReplicaSource(RecordedSource):
     """Frames of one Replica scene folder in the NICE-SLAM layout, in frame-number order.
 
     root: the scene folder (holding results/ and traj.txt). cam_params: path of
@@ -116,19 +113,8 @@ class ReplicaSource(FrameSource):
                 f"{self.cam_params_path} says {self.image_size_px[0]}x{self.image_size_px[1]}"
             )
         raw = read_uint16_png(self._depth_path(number), "Replica depth image")
-        depth_m = depth_at_rgb_size(depth_png_to_m(raw, self.depth_scale), rgb.shape)
         pose = checked_pose(self._trajectory[number], f"{self.trajectory_path}:{number + 1}")
-        instance_ids, instances = load_labels(self.labels_dir, self.stem(index), rgb.shape)
-        return SourceFrame(
-            index=index,
-            t=number / self.fps,
-            rgb=rgb,
-            depth_m=depth_m,
-            pose=pose,
-            intrinsics=self.intrinsics,
-            instance_ids=instance_ids,
-            instances=instances,
-        )
+        return self._recorded_frame(index, number / self.fps, rgb, raw, self.depth_scale, pose)
 
     def _depth_path(self, number: int) -> Path:
         return self.root / "results" / f"depth{number:06d}.png"

@@ -25,13 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from client_sim.sources.base import (
-    FrameSource,
     Intrinsics,
+    RecordedSource,
     SourceFrame,
     checked_pose,
-    depth_at_rgb_size,
-    depth_png_to_m,
-    load_labels,
     read_matrix_file,
     read_rgb,
     read_uint16_png,
@@ -46,7 +43,7 @@ INTRINSICS_FILE = "camera-intrinsics.txt"
 _COLOR_NAME = re.compile(r"^frame-(\d+)\.color\.(jpg|png)$")
 
 
-class SevenScenesSource(FrameSource):
+class SevenScenesSource(RecordedSource):
     """Frames of one 7-Scenes sequence folder, in frame-number order.
 
     root: the folder holding the frame-*.color.jpg files, or its parent if they are in
@@ -102,22 +99,10 @@ class SevenScenesSource(FrameSource):
         number = self._numbers[index]
         rgb = read_rgb(self._color_paths[number])
         raw = read_uint16_png(self._depth_path(number), "7-Scenes depth image")
-        depth_m = depth_at_rgb_size(
-            depth_png_to_m(raw, DEPTH_UNITS_PER_M, INVALID_DEPTH_RAW), rgb.shape
-        )
         pose_path = self._pose_path(number)
         pose = checked_pose(read_matrix_file(pose_path, (4, 4), "7-Scenes pose"), str(pose_path))
-        instance_ids, instances = load_labels(self.labels_dir, self.stem(index), rgb.shape)
-        return SourceFrame(
-            index=index,
-            t=number / self.fps,
-            rgb=rgb,
-            depth_m=depth_m,
-            pose=pose,
-            intrinsics=self.intrinsics,
-            instance_ids=instance_ids,
-            instances=instances,
-        )
+        t = number / self.fps
+        return self._recorded_frame(index, t, rgb, raw, DEPTH_UNITS_PER_M, pose, INVALID_DEPTH_RAW)
 
     def _depth_path(self, number: int) -> Path:
         return self.root / f"frame-{number:06d}.depth.png"

@@ -25,13 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from client_sim.sources.base import (
-    FrameSource,
     Intrinsics,
+    RecordedSource,
     SourceFrame,
     checked_pose,
-    depth_at_rgb_size,
-    depth_png_to_m,
-    load_labels,
     parse_floats,
     read_rgb,
     read_uint16_png,
@@ -44,7 +41,7 @@ DEPTH_UNITS_PER_M = 5000.0
 MAX_ASSOCIATION_DT_S = 0.02
 
 
-class TumSource(FrameSource):
+class TumSource(RecordedSource):
     """Associated (RGB, depth, pose) triples of one TUM RGB-D sequence, in time order.
 
     root: the sequence folder. intrinsics: (fx, fy, cx, cy) of the RGB image (default
@@ -111,18 +108,9 @@ class TumSource(FrameSource):
         index = self._check_index(index)
         rgb = read_rgb(self._rgb_paths[index])
         raw = read_uint16_png(self._depth_paths[index], "TUM depth image")
-        depth_m = depth_at_rgb_size(depth_png_to_m(raw, self.depth_units_per_m), rgb.shape)
-        instance_ids, instances = load_labels(self.labels_dir, self.stem(index), rgb.shape)
-        return SourceFrame(
-            index=index,
-            t=float(self.timestamps_s[index] - self.timestamps_s[0]),
-            rgb=rgb,
-            depth_m=depth_m,
-            pose=checked_pose(self._poses[index], self._pose_lines[index]),
-            intrinsics=self.intrinsics,
-            instance_ids=instance_ids,
-            instances=instances,
-        )
+        t = float(self.timestamps_s[index] - self.timestamps_s[0])
+        pose = checked_pose(self._poses[index], self._pose_lines[index])
+        return self._recorded_frame(index, t, rgb, raw, self.depth_units_per_m, pose)
 
 
 def associate(times_a: np.ndarray, times_b: np.ndarray, max_dt_s: float) -> np.ndarray:
