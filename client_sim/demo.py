@@ -16,7 +16,12 @@ import tempfile
 import time
 from typing import Any
 
-DEFAULT_QUERIES = ("something to sit on", "where can I wash the dishes?", "the fridge", "a bed")
+DEFAULT_QUERIES = (
+    "something to sit on",
+    "where can I wash the dishes?",
+    "the fridge",
+    "where can I make coffee?",
+)
 
 
 def add_demo_parser(subparsers: Any) -> None:
