@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import msgpack
 import numpy as np
 
 from app import codecs
@@ -134,3 +135,17 @@ def decode_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
         instance_ids=instance_ids,
         instances=instances,
     )
+
+
+def unpack_update(raw: bytes | str) -> dict | str:
+    """A message from the updates socket, unpacked; or what is wrong with it (a string).
+
+    Only the framing is checked here (binary msgpack); the delta itself is validated by
+    whoever applies it.
+    """
+    if not isinstance(raw, bytes):
+        return "a text message; updates are binary msgpack"
+    try:
+        return msgpack.unpackb(raw, raw=False)
+    except Exception as exc:  # msgpack raises many types for garbage
+        return f"not msgpack ({type(exc).__name__})"

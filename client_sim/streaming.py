@@ -41,6 +41,7 @@ from websockets.asyncio.client import ClientConnection
 from websockets.exceptions import WebSocketException
 
 from app.config import Knobs
+from app.protocol import unpack_update
 from client_sim.encoder import EncodedFrame, FrameEncoder
 from client_sim.local_map import DeltaError, LocalMap
 from client_sim.sources.base import FrameSource
@@ -522,12 +523,9 @@ class DeviceClient:
 
     def _apply_update(self, raw: bytes | str) -> str | None:
         """Apply one updates-socket message; what was wrong with it, or None if applied."""
-        if not isinstance(raw, bytes):
-            return "a text message; updates are binary msgpack"
-        try:
-            message = msgpack.unpackb(raw, raw=False)
-        except Exception as exc:  # msgpack raises many types for garbage
-            return f"not msgpack ({type(exc).__name__})"
+        message = unpack_update(raw)
+        if isinstance(message, str):
+            return message
         try:
             self.local_map.apply_delta(message)
         except DeltaError as exc:

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import httpx
-import msgpack
 import numpy as np
 import viser
 import viser.transforms as vtf
@@ -38,6 +37,7 @@ from websockets.exceptions import WebSocketException
 
 from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
+from app.protocol import unpack_update
 from client_sim.streaming import Backoff, auth_headers, http_base_url, websocket_base_url
 from viewer.scene import HIT_BOXES_NODE, HITS_GROUP, DeltaError, Rgb, SceneModel
 
@@ -331,12 +331,9 @@ class ViewerApp:
 
     def _apply_update(self, raw: bytes | str) -> str | None:
         """Apply one updates-socket message; what was wrong with it, or None if applied."""
-        if not isinstance(raw, bytes):
-            return "a text message; updates are binary msgpack"
-        try:
-            message = msgpack.unpackb(raw, raw=False)
-        except Exception as exc:  # msgpack raises many types for garbage
-            return f"not msgpack ({type(exc).__name__})"
+        message = unpack_update(raw)
+        if isinstance(message, str):
+            return message
         with self._lock:
             try:
                 summary = self.model.apply_delta(message)
