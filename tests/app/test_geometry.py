@@ -72,6 +72,22 @@ def test_voxel_downsample_keeps_one_point_per_voxel_inside_the_box(points, voxel
 
 
 @settings(max_examples=60, deadline=None)
+@given(points=clouds, voxel=st.floats(0.01, 2.0))
+def test_voxel_downsample_is_the_mean_of_each_voxel_and_voxel_count_counts_them(points, voxel):
+    out = geo.voxel_downsample(points, voxel)
+    keys = geo._voxel_keys(points, voxel)
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    expected = np.stack(
+        [points[inverse.ravel() == i].astype(np.float64).mean(axis=0) for i in range(len(uniq))]
+    )
+    if len(uniq) == len(points):  # nothing to merge: the input, as it came
+        np.testing.assert_array_equal(out, points)
+    else:
+        np.testing.assert_allclose(out, expected.astype(np.float32), rtol=1e-6, atol=1e-6)
+    assert geo.voxel_count(points, voxel) == len(uniq) == len(geo.voxel_sample(points, voxel))
+
+
+@settings(max_examples=60, deadline=None)
 @given(points=clouds, cap=st.integers(1, 100))
 def test_cap_always_holds_and_stays_within_the_object(points, cap):
     out, spacing = geo.cap_points(points, cap, 0.05)
