@@ -62,9 +62,13 @@ class MapObject:
 
     @property
     def tree(self) -> cKDTree:
-        """KD-tree of the points, rebuilt only after they change."""
+        """KD-tree of the points, rebuilt only after they change.
+
+        Built with sliding-midpoint splits instead of medians: half the build time, the same
+        query time on these small clouds, and most trees serve one or two queries before
+        the object changes again."""
         if self._tree is None:
-            self._tree = cKDTree(self.points)
+            self._tree = cKDTree(self.points, balanced_tree=False)
         return self._tree
 
     def set_points(self, points: np.ndarray, resolution_m: float) -> None:
