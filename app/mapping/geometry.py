@@ -107,7 +107,7 @@ def voxel_downsample(points: np.ndarray, voxel_m: float) -> np.ndarray:
     if len(points) == 0:
         return EMPTY_POINTS
     keys = _voxel_keys(points, voxel_m)
-    order = np.argsort(keys, kind="stable")
+    order = np.argsort(keys)
     first = _run_starts(keys[order])
     if first.all():
         return points.astype(np.float32, copy=False)
@@ -133,17 +133,25 @@ def voxel_count(points: np.ndarray, voxel_m: float) -> int:
 
 
 def voxel_sample(points: np.ndarray, voxel_m: float) -> np.ndarray:
-    """One real point per occupied voxel: the one nearest the voxel's centre, float32 [M, 3].
+    """One real point per occupied voxel: the one nearest the voxel's centre, float32 [M, 3],
+    in voxel-key order.
 
     Unlike the mean, a sample stays on the surface where a coarse voxel straddles an edge;
     nearest-to-centre keeps every surface point within about half a voxel of a sample.
+    One quicksort of the keys, then the minimum per run of equal keys (a tenth of the cost
+    of sorting by key and distance together).
     """
     if len(points) == 0:
         return EMPTY_POINTS
     keys = _voxel_keys(points, voxel_m)
     offset = points / voxel_m - np.floor(points / voxel_m) - 0.5
-    order = np.lexsort((np.einsum("ij,ij->i", offset, offset), keys))
-    return points[order[_run_starts(keys[order])]].astype(np.float32, copy=False)
+    order = np.argsort(keys)
+    first = _run_starts(keys[order])
+    dist = np.einsum("ij,ij->i", offset, offset)[order]
+    run = np.cumsum(first) - 1
+    nearest = np.flatnonzero(dist == np.minimum.reduceat(dist, np.flatnonzero(first))[run])
+    nearest = nearest[_run_starts(run[nearest])]  # one per voxel where distances tie
+    return points[order[nearest]].astype(np.float32, copy=False)
 
 
 def cap_points(
