@@ -82,7 +82,7 @@ class Knobs:
     """Unconfirmed objects not seen for this many keyframes are pruned as transients."""
 
 
-_RANGES: dict[str, tuple[float, float]] = {
+KNOB_RANGES: dict[str, tuple[float, float]] = {  # inclusive bounds of numeric knobs
     "net_latency_switch_threshold_ms": (0, 60_000),
     "max_object_points_server": (10, 1_000_000),
     "max_object_points_client": (1, 1_000_000),
@@ -145,7 +145,7 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
         if number != int(number):
             raise KnobError(f"knob {name!r} must be an integer, got {value!r}")
         number = int(number)
-    lo, hi = _RANGES.get(name, (float("-inf"), float("inf")))
+    lo, hi = KNOB_RANGES.get(name, (float("-inf"), float("inf")))
     if not lo <= number <= hi:
         raise KnobError(f"knob {name!r} must be within [{lo:g}, {hi:g}], got {value!r}")
     return number

@@ -8,9 +8,11 @@ from pathlib import Path
 
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse, PlainTextResponse
+from starlette.routing import Match
 
 from app import __version__
 from app.semantics import TextEncoder, get_text_encoder
+from app.server.limits import BodyLimitMiddleware
 from app.server.metrics import make_metrics
 from app.server.routes import pages, rest, ws
 from app.server.sessions import SessionManager
@@ -52,14 +54,25 @@ def create_app(
         lifespan=lifespan,
     )
 
-    @app.middleware("http")
-    async def limit_body(request: Request, call_next):
-        length = request.headers.get("content-length")
-        if length is not None and (not length.isdigit() or int(length) > settings.max_body_bytes):
-            return JSONResponse(
-                {"detail": f"request body over {settings.max_body_bytes} bytes"}, 413
+    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+
+    @app.exception_handler(405)
+    async def method_not_allowed(request: Request, exc: Exception) -> JSONResponse:
+        """405 naming every method the path takes (Starlette's own lists only the first
+        route that matched the path, e.g. GET but not DELETE for a session)."""
+        allowed = [
+            method
+            for method in ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
+            if any(
+                route.matches({**request.scope, "method": method})[0] == Match.FULL
+                for route in app.router.routes
             )
-        return await call_next(request)
+        ]
+        return JSONResponse(
+            {"detail": f"{request.method} is not allowed here; allowed: {', '.join(allowed)}"},
+            405,
+            headers={"Allow": ", ".join(allowed)},
+        )
 
     @app.get("/healthz", summary="Liveness")
     def healthz() -> dict:

@@ -66,11 +66,22 @@ def test_session_lifecycle_and_knobs(live_server):
         assert c.get(f"/v1/sessions/{sid}").json()["mode"] == "baseline"
         r = c.patch(f"/v1/sessions/{sid}/knobs", json={"max_object_points_client": 50})
         assert r.status_code == 200 and r.json()["max_object_points_client"] == 50
-        assert c.patch(f"/v1/sessions/{sid}/knobs", json={"warp_speed": 9}).status_code == 422
-        assert (
-            c.patch(f"/v1/sessions/{sid}/knobs", json={"min_observations": -1}).status_code == 422
+        for body, named in (
+            ({"warp_speed": 9}, "unknown knob 'warp_speed'; known knobs: "),
+            ({"min_observations": -1}, "'min_observations' must be within"),
+            ({"min_observations": "three"}, "'min_observations' must be a number"),
+            ({"priority_class": 7}, "'priority_class' must be a list of strings"),
+        ):
+            r = c.patch(f"/v1/sessions/{sid}/knobs", json=body)
+            assert r.status_code == 422 and named in str(r.json()["detail"]), (body, r.text)
+        r = c.post("/v1/sessions", json={"knobs": {"nope": 1}})
+        assert r.status_code == 422 and "unknown knob 'nope'" in str(r.json()["detail"])
+        assert c.get(f"/v1/sessions/{sid}/knobs").json()["min_observations"] == 2  # unchanged
+        r = c.patch(
+            f"/v1/sessions/{sid}/knobs",
+            json={"min_observations": "4", "skip_mapping_set": "cup,mug"},
         )
-        assert c.post("/v1/sessions", json={"knobs": {"nope": 1}}).status_code == 422
+        assert r.json()["min_observations"] == 4 and r.json()["skip_mapping_set"] == ["cup", "mug"]
         assert c.delete(f"/v1/sessions/{sid}").status_code == 204
         assert c.get(f"/v1/sessions/{sid}").status_code == 404
 
@@ -226,6 +237,64 @@ def test_unknown_session_is_404_over_rest_and_refused_over_websockets(live_serve
                 pass
 
     asyncio.run(run())
+
+
+def _raw_request(url: str, head: bytes, chunks, chunk_size: int) -> tuple[bytes, int]:
+    """Send a request over a bare socket, streaming the body; returns (status line, bytes
+    of body sent before the server answered)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    with socket.create_connection((parts.hostname, parts.port), timeout=TIMEOUT_S) as sock:
+        sock.sendall(head)
+        sent = 0
+        for chunk in chunks:
+            try:
+                sock.sendall(chunk)
+            except OSError:  # the server answered and closed mid-body
+                break
+            sent += chunk_size
+        answer = sock.recv(4096)
+    return answer.split(b"\r\n", 1)[0], sent
+
+
+def test_request_bodies_over_the_limit_get_413_even_when_chunked(live_server):
+    server = live_server(max_body_bytes=64 * 1024)
+    with httpx.Client(base_url=server.url) as c:
+        too_big = b'{"name": "' + b"x" * (100 * 1024) + b'"}'
+        r = c.post("/v1/sessions", content=too_big, headers={"content-type": "application/json"})
+        assert r.status_code == 413 and "65536 bytes" in r.json()["detail"]
+
+    # Chunked: no Content-Length to check up front; 16 MiB offered in 256 kiB chunks.
+    size = 256 * 1024
+    chunk = b"%x\r\n" % size + b"x" * size + b"\r\n"
+    head = (
+        b"POST /v1/sessions HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        b"Transfer-Encoding: chunked\r\n\r\n"
+    )
+    status, sent = _raw_request(server.url, head, [chunk] * 64 + [b"0\r\n\r\n"], size)
+    assert status == b"HTTP/1.1 413 Request Entity Too Large", status
+
+    with httpx.Client(base_url=server.url) as c:  # still serving, and nothing was created
+        assert c.get("/healthz").status_code == 200
+        assert c.get("/v1/sessions").json() == []
+        assert create(c, name="small")["session_id"]
+
+
+def test_405_names_every_method_of_the_path_and_errors_are_documented(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+        r = c.request("OPTIONS", f"/v1/sessions/{sid}")
+        spec = c.get("/openapi.json").json()
+    assert r.status_code == 405
+    assert {m.strip() for m in r.headers["allow"].split(",")} >= {"GET", "DELETE"}
+    assert "GET" in r.json()["detail"] and "DELETE" in r.json()["detail"]
+    ops = spec["paths"]["/v1/sessions/{sid}/query"]["get"]["responses"]
+    assert {"401", "403", "404", "413", "422"} <= ops.keys()
+    assert ops["404"]["content"]["application/json"]["schema"]["$ref"].endswith("/ErrorOut")
+    assert {"400", "503"} <= spec["paths"]["/v1/sessions"]["post"]["responses"].keys()
 
 
 def test_a_flood_of_frames_gets_one_answer_each_and_keeps_the_newest(live_server):

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import time
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
+from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, Response
 from pydantic import BaseModel, Field
 
 from app.config import KnobError, knobs_to_dict
@@ -14,8 +14,41 @@ from app.mapping.publish import client_points
 from app.server.auth import authorize_session, bearer, require_api_key
 from app.server.sessions import Session, SessionManager
 
-router = APIRouter(prefix="/v1")
 MAX_QUERY_CHARS = 500
+
+
+class ErrorOut(BaseModel):
+    detail: str = Field(description="what is wrong, in words")
+
+
+class UnprocessableOut(BaseModel):
+    detail: str | list[dict[str, Any]] = Field(
+        description="a bad knob value, in words; or FastAPI's list of {loc, msg, type} for a "
+        "body or parameter of the wrong shape"
+    )
+
+
+def _errors(**codes: str) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI `responses` entries: status code -> its meaning, answered as ErrorOut (422:
+    UnprocessableOut)."""
+    return {
+        int(code[1:]): {
+            "model": UnprocessableOut if code == "_422" else ErrorOut,
+            "description": why,
+        }
+        for code, why in codes.items()
+    }
+
+
+router = APIRouter(
+    prefix="/v1",
+    responses=_errors(
+        _401="missing API key or session token (with an API key configured)",
+        _403="wrong API key or token, or (with an API key configured) no such session",
+        _413="request body over the server's max_body_bytes",
+    ),
+)
+SESSION_ERRORS = _errors(_404="no such session (server without an API key)")
 
 
 class Embedding(BaseModel):
@@ -37,6 +70,40 @@ def _knobs_model() -> type[BaseModel]:
         for f in dataclasses.fields(Knobs)
     }
     return create_model("Knobs", **fields)
+
+
+def _knob_changes_schema() -> dict[str, Any]:
+    """JSON schema of a knob-changes body: known knobs only, each of its type and range.
+
+    Validation itself stays in app.config.updated_knobs (one place, and it names the knob of
+    a bad value); it also takes numbers as strings and lists as comma-separated strings,
+    which is what the device's command-line flags send."""
+    import dataclasses
+
+    from app.config import KNOB_RANGES, Knobs, knob_docs
+
+    docs, defaults = knob_docs(), Knobs()
+    properties: dict[str, Any] = {}
+    for f in dataclasses.fields(Knobs):
+        default = getattr(defaults, f.name)
+        if isinstance(default, list):
+            prop: dict[str, Any] = {
+                "anyOf": [
+                    {"type": "array", "items": {"type": "string", "maxLength": 200}},
+                    {"type": "string", "description": "comma-separated"},
+                ]
+            }
+        else:
+            lo, hi = KNOB_RANGES[f.name]
+            kind = "integer" if isinstance(default, int) else "number"
+            prop = {"type": kind, "minimum": lo, "maximum": hi}
+            if default is None:
+                prop = {"anyOf": [prop, {"type": "null"}]}
+        properties[f.name] = {**prop, "description": docs.get(f.name, "")}
+    return {"type": "object", "properties": properties, "additionalProperties": False}
+
+
+KNOB_CHANGES_SCHEMA = _knob_changes_schema()
 
 
 KnobsOut = _knobs_model()
@@ -72,7 +139,9 @@ class CreateSession(BaseModel):
     name: str | None = Field(None, max_length=200, description="Human-readable name")
     mode: Literal["semanticxr", "baseline"] = Field("semanticxr", description="System organisation")
     knobs: dict[str, Any] = Field(
-        default_factory=dict, description="Knob overrides (see GET knobs)"
+        default_factory=dict,
+        description="Knob overrides (see GET knobs)",
+        json_schema_extra=KNOB_CHANGES_SCHEMA,
     )
 
 
@@ -152,6 +221,11 @@ def _object_out(obj: MapObject, session: Session, with_points: bool) -> dict:
     response_model=CreatedSession,
     dependencies=[Depends(require_api_key)],
     summary="Create a session",
+    responses=_errors(
+        _400="the body is not JSON",
+        _422="an unknown knob, or a knob value of the wrong type or out of range",
+        _503="the server holds its maximum of sessions",
+    ),
 )
 def create_session(body: CreateSession, request: Request) -> dict:
     try:
@@ -179,12 +253,22 @@ def list_sessions(request: Request) -> list[dict]:
     return [s.stats() for s in list(manager(request).sessions.values())]
 
 
-@router.get("/sessions/{sid}", response_model=SessionStats, summary="Session statistics")
+@router.get(
+    "/sessions/{sid}",
+    response_model=SessionStats,
+    summary="Session statistics",
+    responses=SESSION_ERRORS,
+)
 def get_session(sid: str, request: Request) -> dict:
     return session_for(request, sid).stats()
 
 
-@router.get("/sessions/{sid}/knobs", response_model=KnobsOut, summary="Knobs in force")
+@router.get(
+    "/sessions/{sid}/knobs",
+    response_model=KnobsOut,
+    summary="Knobs in force",
+    responses=SESSION_ERRORS,
+)
 def get_knobs(sid: str, request: Request) -> dict:
     return knobs_to_dict(session_for(request, sid).knobs)
 
@@ -193,9 +277,18 @@ def get_knobs(sid: str, request: Request) -> dict:
     "/sessions/{sid}/knobs",
     response_model=KnobsOut,
     summary="Change knobs at run time",
+    responses=SESSION_ERRORS
+    | _errors(
+        _400="the body is not JSON",
+        _422="an unknown knob, or a knob value of the wrong type or out of range",
+    ),
     description="Body: {knob: value, ...}. 422 names an unknown knob or a bad value.",
 )
-def patch_knobs(sid: str, changes: dict[str, Any], request: Request) -> dict:
+def patch_knobs(
+    sid: str,
+    request: Request,
+    changes: Annotated[dict[str, Any], Body(json_schema_extra=KNOB_CHANGES_SCHEMA)],
+) -> dict:
     session = session_for(request, sid)
     try:
         return knobs_to_dict(manager(request).set_knobs(session, changes))
@@ -208,6 +301,7 @@ def patch_knobs(sid: str, changes: dict[str, Any], request: Request) -> dict:
     response_model=list[ObjectOut],
     response_model_exclude_none=True,
     summary="Confirmed objects",
+    responses=SESSION_ERRORS,
 )
 def list_objects(
     sid: str, request: Request, points: bool = Query(False, description="include points")
@@ -221,6 +315,7 @@ def list_objects(
     response_model=QueryAnswer,
     response_model_exclude_none=True,
     summary="Natural-language query, best matches first",
+    responses=SESSION_ERRORS,
 )
 def query(
     sid: str,
@@ -252,7 +347,12 @@ def query(
     return {"text": text, "results": results, "latency_ms": latency_ms}
 
 
-@router.delete("/sessions/{sid}", status_code=204, summary="Delete a session and its map")
+@router.delete(
+    "/sessions/{sid}",
+    status_code=204,
+    summary="Delete a session and its map",
+    responses=SESSION_ERRORS,
+)
 def delete_session(sid: str, request: Request) -> Response:
     session_for(request, sid)
     manager(request).delete(sid)
