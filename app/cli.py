@@ -14,6 +14,40 @@ from pathlib import Path
 from typing import Any
 
 from app.config import MODES, KnobError, Knobs, knob_docs, updated_knobs
+from app.server.settings import SettingsError
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def server_url(text: str) -> str:
+    """argparse type: a server URL, http(s):// or ws(s)://host:port."""
+    from client_sim.streaming import http_base_url
+
+    try:
+        http_base_url(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def scene_name(text: str) -> str:
+    """argparse type: one of the synthetic scenes."""
+    from client_sim.world.scene import SCENE_NAMES
+
+    if text not in SCENE_NAMES:
+        raise argparse.ArgumentTypeError(
+            f"unknown scene {text!r}; valid names: {', '.join(SCENE_NAMES)}"
+        )
+    return text
 
 
 def add_knob_flags(parser: argparse.ArgumentParser) -> None:
@@ -140,12 +174,13 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument(
         "--scene",
         default="apartment",
+        type=scene_name,
         help="synthetic scene: living_room, kitchen, office, bedroom or apartment",
     )
     ev.add_argument("--seed", type=int, default=0, help="scene, trajectory and noise seed")
-    ev.add_argument("--frames", type=int, default=400, help="input frames of the walk")
-    ev.add_argument("--width", type=int, default=640, help="RGB width in pixels")
-    ev.add_argument("--height", type=int, default=480, help="RGB height in pixels")
+    ev.add_argument("--frames", type=positive_int, default=400, help="input frames of the walk")
+    ev.add_argument("--width", type=positive_int, default=640, help="RGB width in pixels")
+    ev.add_argument("--height", type=positive_int, default=480, help="RGB height in pixels")
     ev.add_argument(
         "--noise", default="standard", choices=("none", "standard"), help="detection noise"
     )
@@ -190,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except KnobError as exc:
+    except (KnobError, SettingsError) as exc:
         parser.error(str(exc))
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

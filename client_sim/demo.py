@@ -25,14 +25,20 @@ DEFAULT_QUERIES = (
 
 
 def add_demo_parser(subparsers: Any) -> None:
+    from app.cli import positive_int, scene_name
+
     demo = subparsers.add_parser(
         "demo",
         help="run server + emulated device + viewer on a synthetic apartment, with a network drop",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    demo.add_argument("--scene", default="apartment", help="synthetic scene (default apartment)")
-    demo.add_argument("--frames", type=int, default=300, help="frames of the walk to stream")
+    demo.add_argument(
+        "--scene", default="apartment", type=scene_name, help="synthetic scene (default apartment)"
+    )
+    demo.add_argument(
+        "--frames", type=positive_int, default=300, help="frames of the walk to stream"
+    )
     demo.add_argument("--port", type=int, default=8000, help="server port (0 = any free port)")
     demo.add_argument("--viewer-port", type=int, default=8080, help="viser viewer port")
     demo.add_argument("--no-viewer", action="store_true", help="do not start the 3D viewer")

@@ -43,7 +43,7 @@ SYNTHETIC_DEFAULT_FRAMES = 300
 
 def add_device_parser(subparsers: Any) -> None:
     """Add the `device` subcommand (with its knob flags) to `semanticxr`'s subparsers."""
-    from app.cli import add_knob_flags  # here, not at import: app.cli imports this module
+    from app.cli import add_knob_flags, server_url  # here: app.cli imports this module
 
     parser = subparsers.add_parser(
         "device",
@@ -52,7 +52,9 @@ def add_device_parser(subparsers: Any) -> None:
         "local copy of the map from its updates, and answer queries by server query (SQ) or "
         "local query (LQ) depending on the round-trip time.",
     )
-    parser.add_argument("--server", required=True, metavar="URL", help="e.g. http://host:8000")
+    parser.add_argument(
+        "--server", required=True, type=server_url, metavar="URL", help="e.g. http://host:8000"
+    )
     session = parser.add_argument_group("session (join one, or --create one)")
     session.add_argument("--session", metavar="SID", help="session id to join")
     session.add_argument("--token", help="the session's token (default: the API key)")

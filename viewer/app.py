@@ -576,13 +576,17 @@ class ViewerApp:
 
 def add_viewer_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the `viewer` subcommand to `semanticxr`'s subparsers."""
+    from app.cli import server_url
+
     parser = subparsers.add_parser(
         "viewer",
         help="3D viewer of a session's map (viser): objects, boxes, labels, queries",
         description="Follow a session's map updates and show them in the browser; ask "
         "natural-language queries and see the hits highlighted.",
     )
-    parser.add_argument("--server", required=True, metavar="URL", help="e.g. http://host:8000")
+    parser.add_argument(
+        "--server", required=True, type=server_url, metavar="URL", help="e.g. http://host:8000"
+    )
     parser.add_argument("--session", required=True, metavar="SID", help="session id to show")
     parser.add_argument(
         "--token",

@@ -35,13 +35,47 @@ class ServerSettings:
     log_level: str = "info"
     """uvicorn log level."""
 
+    def __post_init__(self) -> None:
+        """Raise SettingsError naming the setting whose value cannot work."""
+        if not 0 <= self.port <= 65535:
+            raise SettingsError(f"port must be within [0, 65535], got {self.port}")
+        for name in _POSITIVE:
+            if getattr(self, name) < 1:
+                raise SettingsError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.api_key is not None and not self.api_key.strip():
+            raise SettingsError("api_key must not be empty (leave it unset to run open)")
+
     @classmethod
     def from_env(cls, **overrides) -> ServerSettings:
-        """Defaults, then SEMANTICXR_<FIELD> environment variables, then non-None overrides."""
+        """Defaults, then SEMANTICXR_<FIELD> environment variables (an empty one counts as
+        unset, as compose files leave them), then non-None overrides."""
         values = {}
         for f in dataclasses.fields(cls):
-            env = os.environ.get(f"SEMANTICXR_{f.name.upper()}")
-            if env is not None:
-                values[f.name] = env if f.type in ("str", "str | None") else int(env)
+            variable = f"SEMANTICXR_{f.name.upper()}"
+            env = os.environ.get(variable)
+            if not env:
+                continue
+            if f.type in ("str", "str | None"):
+                values[f.name] = env
+            else:
+                try:
+                    values[f.name] = int(env)
+                except ValueError:
+                    raise SettingsError(f"{variable} must be an integer, got {env!r}") from None
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values)
+
+
+class SettingsError(ValueError):
+    """A server setting (flag or environment variable) with a value that cannot work."""
+
+
+_POSITIVE = (
+    "max_message_bytes",
+    "max_body_bytes",
+    "max_sessions",
+    "mapping_workers",
+    "max_subscribers",
+    "max_bad_frames",
+    "max_query_k",
+)

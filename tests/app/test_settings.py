@@ -1,0 +1,58 @@
+"""Server settings: environment variables, flags, and clear errors for values that cannot work."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.cli import main
+from app.server.settings import ServerSettings
+
+
+def test_environment_then_overrides(monkeypatch):
+    monkeypatch.setenv("SEMANTICXR_PORT", "9001")
+    monkeypatch.setenv("SEMANTICXR_API_KEY", "k")
+    monkeypatch.setenv("SEMANTICXR_DATA_DIR", "")  # empty: unset, as compose leaves it
+    settings = ServerSettings.from_env(max_sessions=3, port=None)
+    assert (settings.port, settings.api_key, settings.max_sessions) == (9001, "k", 3)
+    assert settings.data_dir == ServerSettings().data_dir
+    assert ServerSettings.from_env(port=9002).port == 9002
+
+
+@pytest.mark.parametrize(
+    ("env", "flags", "named"),
+    [
+        ({"SEMANTICXR_PORT": "abc"}, [], "SEMANTICXR_PORT must be an integer, got 'abc'"),
+        ({"SEMANTICXR_MAX_SESSIONS": "0"}, [], "max_sessions must be at least 1"),
+        ({}, ["--port", "70000"], "port must be within [0, 65535], got 70000"),
+        ({}, ["--mapping-workers", "0"], "mapping_workers must be at least 1, got 0"),
+        ({}, ["--max-message-bytes", "-1"], "max_message_bytes must be at least 1"),
+        ({}, ["--api-key", " "], "api_key must not be empty"),
+    ],
+)
+def test_serve_refuses_settings_that_cannot_work_and_names_them(
+    monkeypatch, capsys, tmp_path, env, flags, named
+):
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    with pytest.raises(SystemExit) as exit_info:  # before any server starts
+        main(["serve", "--data-dir", str(tmp_path), *flags])
+    assert exit_info.value.code == 2
+    assert named in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["eval", "--scene", "nowhere"], "unknown scene 'nowhere'; valid names: living_room"),
+        (["eval", "--frames", "-3"], "argument --frames: must be at least 1, got -3"),
+        (["eval", "--width", "wide"], "argument --width: must be an integer, got 'wide'"),
+        (["demo", "--frames", "0"], "argument --frames: must be at least 1, got 0"),
+        (["viewer", "--server", "notaurl", "--session", "x"], "must look like http://host:port"),
+        (["device", "--server", "ftp://h:1", "--create"], "must look like http://host:port"),
+    ],
+)
+def test_commands_refuse_bad_arguments_and_name_them(capsys, argv, named):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert named in capsys.readouterr().err
