@@ -44,6 +44,11 @@ MERGE_SEMANTIC = 0.8
 """...and their embeddings agree at least this much (ConceptGraphs' defaults)."""
 OUTLIER_EPS_M = 0.1
 """DBSCAN radius for outlier removal on changed objects."""
+MAX_WORLD_M = 10_000.0
+"""A camera farther than this from the map's origin (per axis) is refused: no XR map is that
+big, and it keeps lifted points finite whatever the pose bytes say."""
+MAX_INTRINSIC_PX = 1e6
+"""Focal lengths and principal points beyond this many pixels are refused (finite points)."""
 BASELINE_RESOLUTION_M = 0.01
 """The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
 a depth pixel at mapping range, so repeated views do not stack identical points."""
@@ -127,12 +132,19 @@ class MappingEngine:
     # ------------------------------------------------------------------ validation
     def validate_frame(self, frame: FrameInput) -> None:
         """Raise InputError naming the field if the frame cannot be mapped."""
-        validate_rigid_pose(np.asarray(frame.pose, np.float64))
+        pose = validate_rigid_pose(np.asarray(frame.pose, np.float64))
+        if np.abs(pose[:3, 3]).max() > MAX_WORLD_M:
+            raise InputError(
+                "pose",
+                f"translation {pose[:3, 3].tolist()} is over {MAX_WORLD_M:g} m from the origin",
+            )
         intr = frame.intrinsics
         if len(intr) != 4 or not all(isinstance(v, int | float) and math.isfinite(v) for v in intr):
             raise InputError("intrinsics", "must be 4 finite numbers [fx, fy, cx, cy]")
         if intr[0] <= 0 or intr[1] <= 0:
             raise InputError("intrinsics", "fx and fy must be positive")
+        if max(abs(v) for v in intr) > MAX_INTRINSIC_PX:
+            raise InputError("intrinsics", f"values must be within ±{MAX_INTRINSIC_PX:g} pixels")
         width, height = frame.rgb_size
         if width <= 0 or height <= 0:
             raise InputError("rgb", f"image size must be positive, got {width}x{height}")

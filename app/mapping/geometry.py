@@ -96,8 +96,17 @@ def lift_instances_batched(
 
 
 def _voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
-    """int64 [N] key of each point's voxel (21 bits per axis, ±26 km at 2.5 cm)."""
-    idx = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
+    """int64 [N] key of each point's voxel, ordered like the voxels' (x, y, z) indices.
+
+    21 bits per axis, counted from the points' own lowest voxel, so any cloud spanning up
+    to 2^21 voxels per axis (52 km at 2.5 cm) packs exactly; a wider one is ranked per axis
+    first (slower, same order)."""
+    idx = np.floor(points / voxel_m).astype(np.int64)
+    if len(idx) == 0:
+        return np.zeros(0, np.int64)
+    idx -= idx.min(axis=0)
+    if idx.max() >= 1 << 21:
+        idx = np.stack([np.unique(a, return_inverse=True)[1].ravel() for a in idx.T], axis=1)
     return (idx[:, 0] << 42) | (idx[:, 1] << 21) | idx[:, 2]
 
 

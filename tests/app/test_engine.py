@@ -158,6 +158,9 @@ BAD_FRAMES = {
     "detections": lambda f: setattr(f, "instance_ids", f.instance_ids[:-1]),
     "detections.instances": lambda f: f.instances.pop(),
     "intrinsics": lambda f: setattr(f, "intrinsics", (0.0, 277.0, 159.5, 119.5)),
+    # Finite but absurd: would lift to points beyond float32 (the map would hold inf).
+    "pose  ": lambda f: f.pose.__setitem__((0, 3), 3e38),
+    "intrinsics ": lambda f: setattr(f, "intrinsics", (277.0, 277.0, 1e300, 119.5)),
 }
 
 

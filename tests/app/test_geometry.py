@@ -131,6 +131,17 @@ def test_batched_overlap_equals_overlap_of_each_set(sets, target, radius):
 
 
 @settings(max_examples=60, deadline=None)
+@given(points=clouds, voxel=st.floats(0.001, 0.1), far=st.floats(1e3, 1e5))
+def test_voxel_keys_stay_exact_for_clouds_wider_than_21_bits_of_voxels(points, voxel, far):
+    spread = np.concatenate([points, points + np.float32(far)]).astype(np.float32)
+    keys = geo._voxel_keys(spread, voxel)
+    cells = np.floor(spread / voxel)
+    _, by_cell = np.unique(cells, axis=0, return_inverse=True)
+    _, by_key = np.unique(keys, return_inverse=True)
+    np.testing.assert_array_equal(by_cell.ravel(), by_key.ravel())  # same grouping, same order
+
+
+@settings(max_examples=60, deadline=None)
 @given(points=clouds, voxel=st.floats(0.01, 5.0))
 def test_voxel_sample_keeps_per_voxel_the_point_nearest_its_centre(points, voxel):
     out = geo.voxel_sample(points, voxel)
@@ -139,7 +150,7 @@ def test_voxel_sample_keeps_per_voxel_the_point_nearest_its_centre(points, voxel
     dist = np.einsum("ij,ij->i", offset, offset)
     assert len(out) == len(np.unique(keys))
     for point in out:
-        same_voxel = keys == geo._voxel_keys(point[None], voxel)[0]
+        same_voxel = np.all(np.floor(points / voxel) == np.floor(point / voxel), axis=1)
         chosen = np.flatnonzero(same_voxel & np.all(points == point, axis=1))[0]
         assert dist[chosen] == dist[same_voxel].min()
 
