@@ -111,9 +111,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     import logging
 
-    import uvicorn
+    from uvicorn import Server
 
     from app.server.app import create_app
+    from app.server.runner import uvicorn_config
     from app.server.settings import ServerSettings
 
     settings = ServerSettings.from_env(
@@ -129,14 +130,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         level=settings.log_level.upper(), format="%(levelname)s %(name)s: %(message)s"
     )
     print(f"SemanticXR on http://{settings.host}:{settings.port}  (data in {settings.data_dir})")
-    uvicorn.run(
-        create_app(settings),
-        host=settings.host,
-        port=settings.port,
-        log_level=settings.log_level,
-        ws_max_size=settings.max_message_bytes,
-        ws_per_message_deflate=False,  # payloads are JPEG/zstd already
-    )
+    Server(uvicorn_config(create_app(settings), settings)).run()
     return 0
 
 

@@ -12,7 +12,7 @@ from starlette.routing import Match
 
 from app import __version__
 from app.semantics import TextEncoder, get_text_encoder
-from app.server.limits import BodyLimitMiddleware
+from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware
 from app.server.metrics import make_metrics
 from app.server.routes import pages, rest, ws
 from app.server.sessions import SessionManager
@@ -55,6 +55,7 @@ def create_app(
     )
 
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(SocketLimitMiddleware, max_sockets=settings.max_connections)
 
     @app.exception_handler(405)
     async def method_not_allowed(request: Request, exc: Exception) -> JSONResponse:

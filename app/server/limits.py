@@ -1,9 +1,10 @@
-"""The HTTP request-body limit, enforced on the bytes that arrive.
+"""Limits on what the network may send: HTTP request bodies and open WebSockets.
 
-A Content-Length over the limit is refused before the body is read. A chunked body has no
-Content-Length, so the limit is also counted chunk by chunk as the application reads: as
-soon as the body passes the limit the client gets 413, the application sees the client
-disconnect, and nothing past the limit is buffered.
+The body limit is enforced on the bytes that arrive. A Content-Length over the limit is
+refused before the body is read. A chunked body has no Content-Length, so the limit is also
+counted chunk by chunk as the application reads: as soon as the body passes the limit the
+client gets 413, the application sees the client disconnect, and nothing past the limit is
+buffered.
 """
 
 from __future__ import annotations
@@ -69,3 +70,44 @@ class BodyLimitMiddleware:
             }
         )
         await send({"type": "http.response.body", "body": body})
+
+
+class SocketLimitMiddleware:
+    """Pure ASGI middleware: at most `max_sockets` WebSockets open at once; a handshake
+    beyond it is answered HTTP 503. (uvicorn's `limit_concurrency` answers 503 to HTTP
+    requests but lets WebSocket upgrades through.)"""
+
+    def __init__(self, app: ASGIApp, max_sockets: int):
+        self.app = app
+        self.max_sockets = max_sockets
+        self.open = 0
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "websocket":
+            await self.app(scope, receive, send)
+            return
+        if self.open >= self.max_sockets:
+            await self._refuse(scope, send)
+            return
+        self.open += 1
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.open -= 1
+
+    async def _refuse(self, scope: Scope, send: Send) -> None:
+        if "websocket.http.response" not in scope.get("extensions", {}):
+            await send({"type": "websocket.close", "code": 1013})  # the client sees 403
+            return
+        body = json.dumps({"detail": f"over {self.max_sockets} open connections"}).encode()
+        await send(
+            {
+                "type": "websocket.http.response.start",
+                "status": 503,
+                "headers": [
+                    (b"content-type", b"application/json"),
+                    (b"content-length", str(len(body)).encode()),
+                ],
+            }
+        )
+        await send({"type": "websocket.http.response.body", "body": body})

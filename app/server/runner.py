@@ -19,6 +19,19 @@ def free_port(host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
+def uvicorn_config(app, settings: ServerSettings, log_level: str | None = None) -> uvicorn.Config:
+    """The one uvicorn configuration of the service (`semanticxr serve` and in-process)."""
+    return uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_level=log_level or settings.log_level,
+        ws_max_size=settings.max_message_bytes,
+        ws_per_message_deflate=False,  # payloads are JPEG/zstd already
+        limit_concurrency=settings.max_connections,  # beyond: 503 (HTTP) or refused (socket)
+    )
+
+
 class ServerThread:
     """A real uvicorn serving the app; `url` once `start()` returns."""
 
@@ -27,15 +40,7 @@ class ServerThread:
             settings.port = free_port(settings.host)
         self.settings = settings
         self.app = create_app(settings, encoder=encoder)
-        config = uvicorn.Config(
-            self.app,
-            host=settings.host,
-            port=settings.port,
-            log_level="warning",
-            ws_max_size=settings.max_message_bytes,
-            ws_per_message_deflate=False,  # payloads are JPEG/zstd already
-        )
-        self.server = uvicorn.Server(config)
+        self.server = uvicorn.Server(uvicorn_config(self.app, settings, log_level="warning"))
         self.thread = threading.Thread(
             target=self.server.run, name="semanticxr-server", daemon=True
         )

@@ -28,6 +28,8 @@ class ServerSettings:
     """Threads that decode and map frames (sessions map one frame at a time each)."""
     max_subscribers: int = 32
     """Update subscribers per session."""
+    max_connections: int = 1000
+    """Open connections and requests in flight, all together; beyond, HTTP answers 503."""
     max_bad_frames: int = 50
     """Consecutive bad frames before a stream is closed as abusive (code 1008)."""
     max_query_k: int = 100
@@ -76,6 +78,7 @@ _POSITIVE = (
     "max_sessions",
     "mapping_workers",
     "max_subscribers",
+    "max_connections",
     "max_bad_frames",
     "max_query_k",
 )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 
 import httpx
 import msgpack
@@ -295,6 +296,31 @@ def test_405_names_every_method_of_the_path_and_errors_are_documented(live_serve
     assert {"401", "403", "404", "413", "422"} <= ops.keys()
     assert ops["404"]["content"]["application/json"]["schema"]["$ref"].endswith("/ErrorOut")
     assert {"400", "503"} <= spec["paths"]["/v1/sessions"]["post"]["responses"].keys()
+
+
+def test_connections_beyond_max_connections_get_503_until_one_closes(live_server):
+    server = live_server(max_connections=3)
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+
+    async def run():
+        url = f"{server.ws_url}/v1/sessions/{sid}/updates?since=0"
+        async with contextlib.AsyncExitStack() as stack:
+            for _ in range(3):
+                await stack.enter_async_context(websockets.connect(url))
+            async with httpx.AsyncClient(base_url=server.url) as c:
+                assert (await c.get("/healthz")).status_code == 503
+            with pytest.raises(websockets.InvalidStatus) as refused:
+                await stack.enter_async_context(websockets.connect(url))
+            assert refused.value.response.status_code == 503
+        async with httpx.AsyncClient(base_url=server.url) as c:  # all closed: served again
+            for _ in range(50):
+                if (await c.get("/healthz")).status_code == 200:
+                    break
+                await asyncio.sleep(0.1)
+            assert (await c.get("/healthz")).status_code == 200
+
+    asyncio.run(run())
 
 
 def test_a_flood_of_frames_gets_one_answer_each_and_keeps_the_newest(live_server):
