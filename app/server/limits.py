@@ -57,19 +57,7 @@ class BodyLimitMiddleware:
         await self.app(scope, counted_receive, guarded_send)
 
     async def _refuse(self, send: Send) -> None:
-        body = json.dumps({"detail": f"request body over {self.max_bytes} bytes"}).encode()
-        await send(
-            {
-                "type": "http.response.start",
-                "status": 413,
-                "headers": [
-                    (b"content-type", b"application/json"),
-                    (b"content-length", str(len(body)).encode()),
-                    (b"connection", b"close"),
-                ],
-            }
-        )
-        await send({"type": "http.response.body", "body": body})
+        await _send_json(send, "http.response", 413, f"request body over {self.max_bytes} bytes")
 
 
 class SocketLimitMiddleware:
@@ -99,15 +87,19 @@ class SocketLimitMiddleware:
         if "websocket.http.response" not in scope.get("extensions", {}):
             await send({"type": "websocket.close", "code": 1013})  # the client sees 403
             return
-        body = json.dumps({"detail": f"over {self.max_sockets} open connections"}).encode()
-        await send(
-            {
-                "type": "websocket.http.response.start",
-                "status": 503,
-                "headers": [
-                    (b"content-type", b"application/json"),
-                    (b"content-length", str(len(body)).encode()),
-                ],
-            }
+        await _send_json(
+            send, "websocket.http.response", 503, f"over {self.max_sockets} open connections"
         )
-        await send({"type": "websocket.http.response.body", "body": body})
+
+
+async def _send_json(send: Send, kind: str, status: int, detail: str) -> None:
+    """A whole JSON answer {"detail": ...}; kind: "http.response" or, to refuse a WebSocket
+    handshake, "websocket.http.response". The connection closes after it."""
+    body = json.dumps({"detail": detail}).encode()
+    headers = [
+        (b"content-type", b"application/json"),
+        (b"content-length", str(len(body)).encode()),
+        (b"connection", b"close"),
+    ]
+    await send({"type": f"{kind}.start", "status": status, "headers": headers})
+    await send({"type": f"{kind}.body", "body": body})
