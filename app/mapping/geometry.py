@@ -147,8 +147,8 @@ def voxel_sample(points: np.ndarray, voxel_m: float) -> np.ndarray:
 
     Unlike the mean, a sample stays on the surface where a coarse voxel straddles an edge;
     nearest-to-centre keeps every surface point within about half a voxel of a sample.
-    One quicksort of the keys, then the minimum per run of equal keys (a tenth of the cost
-    of sorting by key and distance together).
+    One quicksort of the keys, then the minimum distance per run of equal keys (about half
+    the cost of a two-key lexsort by key and distance).
     """
     if len(points) == 0:
         return EMPTY_POINTS
