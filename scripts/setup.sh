@@ -21,19 +21,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
 fi
 
 # open3d 0.20 links against libusb-1.0 from the system.
-if ! .venv/bin/python -c "import open3d" >/dev/null 2>&1; then
-  if .venv/bin/python -c "import open3d" 2>&1 | grep -q "libusb"; then
-    if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
-      echo "[setup] installing Debian's libusb-1.0-0 for open3d"
-      (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1) || \
-        (apt-get update -q >/dev/null && apt-get install -y -q libusb-1.0-0 >/dev/null)
-    else
-      echo "[setup] open3d needs libusb-1.0: run 'sudo apt-get install libusb-1.0-0'" >&2
-      exit 1
-    fi
-  fi
-  .venv/bin/python -c "import open3d" # fail loudly with the real error otherwise
-fi
+bash scripts/ensure_libusb.sh .venv/bin/python
 # Page tests drive a real headless Chromium from Debian (Playwright's own download cannot
 # work offline). Optional: the browser tests skip, saying why, where it cannot be installed.
 if [ "${SEMANTICXR_SKIP_BROWSER:-0}" != "1" ] && ! command -v chromium >/dev/null \
