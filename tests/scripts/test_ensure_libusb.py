@@ -12,7 +12,9 @@ from pathlib import Path
 import pytest
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "ensure_libusb.sh"
-LIBUSB_ERROR = "ImportError: libusb-1.0.so.0: cannot open shared object file: No such file or directory"
+LIBUSB_ERROR = (
+    "ImportError: libusb-1.0.so.0: cannot open shared object file: No such file or directory"
+)
 
 
 def _executable(path: Path, body: str) -> Path:
@@ -28,9 +30,7 @@ def _stand_ins(tmp_path: Path, error: str) -> tuple[Path, Path, Path]:
         tmp_path / "python",
         f'[ -f "{installed}" ] && exit 0\necho "{error}" >&2\nexit 1\n',
     )
-    apt_get = _executable(
-        tmp_path / "apt-get", f'echo "$@" >> "{calls}"\ntouch "{installed}"\n'
-    )
+    apt_get = _executable(tmp_path / "apt-get", f'echo "$@" >> "{calls}"\ntouch "{installed}"\n')
     return python, apt_get, calls
 
 
