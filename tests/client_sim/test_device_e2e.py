@@ -16,16 +16,8 @@ import msgpack
 import numpy as np
 import pytest
 import websockets
-from helpers_device import (
-    BATHROOM,
-    FAST_KNOBS,
-    KITCHEN,
-    Rect,
-    RectSource,
-    assert_local_map_equals,
-    server_state,
-    wait_until,
-)
+from analytic_world import BATHROOM, KITCHEN, Rect, RectSource
+from helpers_device import FAST_KNOBS, assert_local_map_equals, server_state, wait_until
 
 from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
 from app.config import Knobs, updated_knobs
