@@ -249,7 +249,7 @@ def _upsert(
         "id": oid,
         "version": version,
         "label": label,
-        "embedding": embedding or float16_vector_to_bytes(encoder.encode_one(label)),
+        "embedding": embedding or float16_vector_to_bytes(encoder.encode([label])[0]),
         "points": float16_points_to_bytes(points),
         "bbox": [*points.min(axis=0).tolist(), *points.max(axis=0).tolist()],
         "n_obs": 3,
