@@ -49,10 +49,6 @@ class TextEncoder(abc.ABC):
                 self._cache.popitem(last=False)
         return out
 
-    def encode_one(self, text: str) -> np.ndarray:
-        """float32 [d] unit vector."""
-        return self.encode([text])[0]
-
     def encode_query(self, text: str) -> np.ndarray:
         """float32 [d]; queries are free text and bypass the label cache."""
         return self._encode_uncached([text])[0]

@@ -208,17 +208,6 @@ def bbox_intersects_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray, margin_m: f
     return np.all(lo <= hi, axis=2)
 
 
-def bbox_iou(box_a: np.ndarray, box_b: np.ndarray) -> float:
-    """Volume IoU of two boxes [6]; 0 for disjoint or degenerate boxes."""
-    lo = np.maximum(box_a[:3], box_b[:3])
-    hi = np.minimum(box_a[3:], box_b[3:])
-    inter = float(np.prod(np.clip(hi - lo, 0, None)))
-    vol_a = float(np.prod(box_a[3:] - box_a[:3]))
-    vol_b = float(np.prod(box_b[3:] - box_b[:3]))
-    union = vol_a + vol_b - inter
-    return inter / union if union > 0 else 0.0
-
-
 def overlap_fraction(points: np.ndarray, tree: cKDTree, radius_m: float) -> float:
     """Fraction of `points` [N, 3] with a point of `tree` within radius_m (0 for no points)."""
     return float(overlap_fractions([points], tree, radius_m)[0])

@@ -5,7 +5,8 @@ from client_sim.world.categories import BACKGROUND_CLASSES, CATEGORIES, Category
 from client_sim.world.gt import GroundTruthCloud, gt_point_cloud
 from client_sim.world.noise import NOISE_PROFILES, DetectionModel, NoisyDetections
 from client_sim.world.render import Camera, Renderer, View, default_camera
-from client_sim.world.scene import SCENE_NAMES, Doorway, Room, Scene, SceneObject, make_scene
+from client_sim.world.rooms import make_scene
+from client_sim.world.scene import SCENE_NAMES, Doorway, Room, Scene, SceneObject
 from client_sim.world.trajectory import walk_trajectory
 
 __all__ = [

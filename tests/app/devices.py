@@ -7,7 +7,7 @@ import asyncio
 import msgpack
 import numpy as np
 import websockets
-from planes import INTRINSICS, Rect, render_rects
+from analytic_world import INTRINSICS, Rect, render_rects
 
 from client_sim.encoder import FrameEncoder
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import httpx
 import pytest
+from analytic_world import Rect
 from devices import frame_message, stream_in_step
-from planes import Rect
 
 from app.server.routes.pages import STATIC_DIR
 

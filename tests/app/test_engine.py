@@ -6,7 +6,7 @@ import copy
 
 import numpy as np
 import pytest
-from planes import Rect, render_rects
+from analytic_world import Rect, render_rects
 
 from app.config import Knobs
 from app.mapping import geometry as geo

@@ -18,8 +18,8 @@ import msgpack
 import numpy as np
 import pytest
 import websockets
+from analytic_world import Rect
 from devices import TIMEOUT_S, frame_message
-from planes import Rect
 
 from app.config import Knobs
 from app.mapping.engine import MAX_WORLD_M

@@ -9,8 +9,8 @@ import httpx
 import msgpack
 import pytest
 import websockets
+from analytic_world import Rect
 from devices import TIMEOUT_S, frame_message, send_and_collect, stream, stream_in_step
-from planes import Rect
 
 from app.codecs import float16_points_from_bytes
 

@@ -14,8 +14,8 @@ import httpx
 import msgpack
 import pytest
 import websockets
+from analytic_world import Rect
 from devices import TIMEOUT_S, frame_message, stream_in_step
-from planes import Rect
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 

@@ -16,16 +16,8 @@ import msgpack
 import numpy as np
 import pytest
 import websockets
-from helpers_device import (
-    BATHROOM,
-    FAST_KNOBS,
-    KITCHEN,
-    Rect,
-    RectSource,
-    assert_local_map_equals,
-    server_state,
-    wait_until,
-)
+from analytic_world import BATHROOM, KITCHEN, Rect, RectSource
+from helpers_device import FAST_KNOBS, assert_local_map_equals, server_state, wait_until
 
 from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
 from app.config import Knobs, updated_knobs
@@ -257,7 +249,7 @@ def _upsert(
         "id": oid,
         "version": version,
         "label": label,
-        "embedding": embedding or float16_vector_to_bytes(encoder.encode_one(label)),
+        "embedding": embedding or float16_vector_to_bytes(encoder.encode([label])[0]),
         "points": float16_points_to_bytes(points),
         "bbox": [*points.min(axis=0).tolist(), *points.max(axis=0).tolist()],
         "n_obs": 3,

@@ -20,6 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from analytic_world import BATHROOM, KITCHEN, RectSource
 
 from app.config import Knobs, updated_knobs
 from client_sim.sources.base import FrameSource
@@ -27,10 +28,10 @@ from client_sim.streaming import DeviceClient
 from viewer.app import ViewerApp
 from viewer.scene import HIT_BOXES_NODE, points_node
 
-# The device tests' analytic scenes (labelled rectangles with exact depth): tests/ has no
-# packages, so their folder is put on the path explicitly.
+# The device tests' helpers (session knobs, the server's state): tests/ has no packages, so
+# their folder is put on the path explicitly.
 sys.path.append(str(Path(__file__).resolve().parents[1] / "client_sim"))
-from helpers_device import BATHROOM, FAST_KNOBS, KITCHEN, RectSource, server_state  # noqa: E402
+from helpers_device import FAST_KNOBS, server_state  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
