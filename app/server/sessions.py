@@ -26,6 +26,7 @@ import numpy as np
 
 from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
+from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
@@ -33,7 +34,7 @@ from app.perception.base import FrameDetections, FrameInput
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
 from app.server.settings import ServerSettings
-from app.server.store import SessionRecord, Store
+from app.store import SessionRecord, Store
 
 Reply = Callable[[dict], Awaitable[None]]
 FLUSH_AFTER_S = 1.0
@@ -74,6 +75,8 @@ class Session:
     _flush_timer: asyncio.TimerHandle | None = None
     _closed: bool = False
     _fps_window: deque = field(default_factory=lambda: deque(maxlen=60))
+    _stored_floor: int = 0
+    """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
 
     @property
     def closed(self) -> bool:
@@ -188,16 +191,20 @@ class SessionManager:
         self._lock = threading.Lock()
 
     def restore(self) -> int:
-        """Load every persisted session with its confirmed objects; returns how many."""
+        """Load every persisted session with its confirmed objects; returns how many.
+
+        A stored log with more than max_tombstones (a smaller setting, or a database from
+        before tombstones were trimmed) is trimmed now, in memory and in the store."""
         for rec in self.store.list_sessions():
+            stored = self.store.load_delta_log(rec.session_id)
+            log = DeltaLog.from_state(stored.state(), self.settings.max_tombstones)
+            if log.floor > stored.floor:
+                self.store.trim_tombstones(rec.session_id, log.floor)
             engine = MappingEngine(self.encoder, updated_knobs(Knobs(), rec.knobs), mode=rec.mode)
             engine.restore(
-                self.store.load_objects(rec.session_id),
-                self.store.load_delta_log(rec.session_id),
-                rec.keyframes,
-                rec.next_object_id,
+                self.store.load_objects(rec.session_id), log, rec.keyframes, rec.next_object_id
             )
-            self.sessions[rec.session_id] = Session(rec, engine)
+            self.sessions[rec.session_id] = Session(rec, engine, _stored_floor=log.floor)
         return len(self.sessions)
 
     def close(self) -> None:
@@ -225,7 +232,9 @@ class SessionManager:
                 created_at=time.time(),
             )
             self.store.create_session(rec)
-            session = Session(rec, MappingEngine(self.encoder, knobs, mode=mode))
+            engine = MappingEngine(self.encoder, knobs, mode=mode)
+            engine.restore([], DeltaLog(max_tombstones=self.settings.max_tombstones), 0, 1)
+            session = Session(rec, engine)
             self.sessions[sid] = session
         return session, token
 
@@ -343,6 +352,11 @@ class SessionManager:
                 },
                 next_object_id=engine.next_object_id,
             )
+            if engine.log.floor > session._stored_floor:
+                # The log forgot its oldest removals: no subscriber can be sent them any
+                # more (it gets a full snapshot), so the store forgets them too.
+                self.store.trim_tombstones(session.id, engine.log.floor)
+                session._stored_floor = engine.log.floor
             return stats
 
 

@@ -6,6 +6,12 @@ from __future__ import annotations
 import dataclasses
 import os
 from dataclasses import dataclass
+from pathlib import Path
+
+from app.store import StoreURLError, check_store_url, sqlite_url
+
+STORE_FILE = "semanticxr.sqlite3"
+"""The SQLite file the default store keeps in data_dir (existing databases use this name)."""
 
 
 @dataclass
@@ -15,7 +21,11 @@ class ServerSettings:
     port: int = 8000
     """TCP port."""
     data_dir: str = "data"
-    """Folder of the SQLite database (sessions, knobs, confirmed objects, delta seq)."""
+    """Folder of the default store's SQLite file (sessions, knobs, confirmed objects, delta seq)."""
+    store: str | None = None
+    """Store URL: sqlite:///<relative path> or sqlite:////<absolute path>; default semanticxr.sqlite3 in data_dir."""
+    max_tombstones: int = 100_000
+    """Removed ids a session keeps for resuming subscribers (older resumes get a full snapshot)."""
     api_key: str | None = None
     """Key needed to create and list sessions; each session then has its own token. None runs open."""
     max_message_bytes: int = 8 << 20
@@ -46,6 +56,15 @@ class ServerSettings:
                 raise SettingsError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.api_key is not None and not self.api_key.strip():
             raise SettingsError("api_key must not be empty (leave it unset to run open)")
+        try:
+            check_store_url(self.store_url)
+        except StoreURLError as exc:
+            raise SettingsError(str(exc)) from None
+
+    @property
+    def store_url(self) -> str:
+        """The store to open: `store`, or the SQLite file in data_dir."""
+        return self.store or sqlite_url(Path(self.data_dir) / STORE_FILE)
 
     @classmethod
     def from_env(cls, **overrides) -> ServerSettings:
@@ -81,4 +100,5 @@ _POSITIVE = (
     "max_connections",
     "max_bad_frames",
     "max_query_k",
+    "max_tombstones",
 )
