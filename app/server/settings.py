@@ -8,6 +8,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from app.perception import BACKENDS, DEFAULT_BACKEND
 from app.store import StoreURLError, check_store_url, sqlite_url
 
 STORE_FILE = "semanticxr.sqlite3"
@@ -34,6 +35,8 @@ class ServerSettings:
     """Largest REST request body."""
     max_sessions: int = 64
     """Sessions the server holds at once."""
+    perception: str = DEFAULT_BACKEND
+    """Perception backends loaded at start, comma-separated; sessions use the first unless they choose."""
     mapping_workers: int = 2
     """Threads that decode and map frames (sessions map one frame at a time each)."""
     max_subscribers: int = 32
@@ -56,10 +59,21 @@ class ServerSettings:
                 raise SettingsError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.api_key is not None and not self.api_key.strip():
             raise SettingsError("api_key must not be empty (leave it unset to run open)")
+        unknown = [name for name in self.perception_backends if name not in BACKENDS]
+        if unknown or not self.perception_backends:
+            raise SettingsError(
+                f"perception: unknown backend {', '.join(map(repr, unknown)) or repr('')}; "
+                f"available: {', '.join(BACKENDS)}"
+            )
         try:
             check_store_url(self.store_url)
         except StoreURLError as exc:
             raise SettingsError(str(exc)) from None
+
+    @property
+    def perception_backends(self) -> list[str]:
+        """The backends `perception` names, in order (the first is the sessions' default)."""
+        return list(dict.fromkeys(n.strip() for n in self.perception.split(",") if n.strip()))
 
     @property
     def store_url(self) -> str:

@@ -46,6 +46,8 @@ class SessionRecord:
     bytes_out: int = 0
     next_object_id: int = 1
     """Id the session's next new object gets (ids are never reused, even after a restart)."""
+    perception: str = "detections"
+    """Name of the session's perception backend (app.perception.BACKENDS)."""
 
 
 class Store(abc.ABC):

@@ -42,9 +42,6 @@ from app.store.base import COUNTER_NAMES, SessionRecord, Store, StoreError, Stor
 
 __all__ = ["SCHEMA_VERSION", "SqliteStore"]
 
-SCHEMA_VERSION = 1
-"""Stored in `PRAGMA user_version`; bump it (and add a migration) on any schema change."""
-
 _FLOAT32_LE = np.dtype("<f4")
 
 _SCHEMA: tuple[str, ...] = (
@@ -97,8 +94,18 @@ _SCHEMA: tuple[str, ...] = (
     """,
 )
 
+_MIGRATIONS: tuple[tuple[str, ...], ...] = (
+    # 1 -> 2: the session's perception backend (sessions before it used `detections`).
+    ("ALTER TABLE sessions ADD COLUMN perception TEXT NOT NULL DEFAULT 'detections'",),
+)
+"""_MIGRATIONS[i] takes a store from schema version i + 1 to i + 2; a new store is created
+at version 1 (`_SCHEMA`) and migrated like any other, so there is one path to each version."""
+
+SCHEMA_VERSION = 1 + len(_MIGRATIONS)
+"""Stored in `PRAGMA user_version`; a schema change is a new entry in _MIGRATIONS."""
+
 _SESSION_COLUMNS = (
-    "session_id, name, mode, knobs, token_hash, created_at, "
+    "session_id, name, mode, perception, knobs, token_hash, created_at, "
     "frames, keyframes, bytes_in, bytes_out, next_object_id"
 )
 _OBJECT_COLUMNS = (
@@ -146,11 +153,18 @@ class SqliteStore(Store):
                 )
             if version == SCHEMA_VERSION:
                 return
-            if conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
-                raise StoreError(f"{self.path} is an SQLite database but not a SemanticXR store")
-            for statement in _SCHEMA:
-                conn.execute(statement)
-            # Set inside the same transaction: a crash leaves either no schema or all of it.
+            if version == 0:
+                if conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
+                    raise StoreError(
+                        f"{self.path} is an SQLite database but not a SemanticXR store"
+                    )
+                for statement in _SCHEMA:
+                    conn.execute(statement)
+                version = 1
+            for migration in _MIGRATIONS[version - 1 :]:
+                for statement in migration:
+                    conn.execute(statement)
+            # Set inside the same transaction: a crash leaves the old schema or all of the new.
             conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
     def close(self) -> None:
@@ -185,6 +199,7 @@ class SqliteStore(Store):
             rec.session_id,
             rec.name,
             rec.mode,
+            rec.perception,
             _to_json(rec.knobs),
             rec.token_hash,
             float(rec.created_at),
@@ -198,7 +213,7 @@ class SqliteStore(Store):
             with self._transaction() as conn:
                 conn.execute(
                     f"INSERT INTO sessions ({_SESSION_COLUMNS}, seq, delta_floor)"
-                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
+                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
                     row,
                 )
         except sqlite3.IntegrityError:
@@ -375,12 +390,13 @@ def _checked_counters(counters: dict[str, int]) -> dict[str, int]:
 
 
 def _session_from_row(row: tuple) -> SessionRecord:
-    sid, name, mode, knobs, token_hash, created_at, *counters, next_object_id = row
+    sid, name, mode, perception, knobs, token_hash, created_at, *counters, next_object_id = row
     frames, keyframes, bytes_in, bytes_out = counters
     return SessionRecord(
         session_id=sid,
         name=name,
         mode=mode,
+        perception=perception,
         knobs=json.loads(knobs),
         token_hash=token_hash,
         created_at=created_at,

@@ -37,6 +37,8 @@ def test_the_store_defaults_to_the_sqlite_file_in_the_data_dir(monkeypatch, tmp_
         ({"SEMANTICXR_STORE": "postgres://db/x"}, [], "unknown scheme 'postgres'"),
         ({"SEMANTICXR_STORE": "semanticxr.db"}, [], "store (--store, SEMANTICXR_STORE) must be"),
         ({"SEMANTICXR_MAX_TOMBSTONES": "0"}, [], "max_tombstones must be at least 1"),
+        ({"SEMANTICXR_PERCEPTION": "detections,owl"}, [], "perception: unknown backend 'owl'"),
+        ({"SEMANTICXR_PERCEPTION": " , "}, [], "perception: unknown backend ''"),
     ],
 )
 def test_serve_refuses_settings_that_cannot_work_and_names_them(

@@ -330,6 +330,24 @@ def test_the_database_is_created_in_wal_mode_with_its_parent_dirs(tmp_path):
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
 
+def test_a_version_1_store_opens_with_its_sessions_on_the_detections_backend(tmp_path):
+    path = tmp_path / "semanticxr.db"
+    with SqliteStore(path) as store:
+        seeded(store)
+        before = everything(store)
+    with sqlite3.connect(path) as db:  # what a server before the perception column wrote
+        db.execute("ALTER TABLE sessions DROP COLUMN perception")
+        db.execute("PRAGMA user_version = 1")
+    with SqliteStore(path) as store:
+        assert everything(store) == before
+        assert [s.perception for s in store.list_sessions()] == ["detections"]
+        store.create_session(record("s2", perception="models"))
+    with SqliteStore(path) as store:
+        assert [s.perception for s in store.list_sessions()] == ["detections", "models"]
+    with sqlite3.connect(path) as db:
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 2
+
+
 def test_a_newer_schema_version_is_refused_with_a_clear_error(tmp_path):
     path = tmp_path / "semanticxr.db"
     SqliteStore(path).close()
