@@ -55,11 +55,11 @@ class DeltaLog:
         return self.seq
 
     def _trim_tombstones(self) -> None:
-        by_age = sorted(self._removed_at.items(), key=lambda kv: kv[1])
-        drop = by_age[: len(by_age) - self._max_tombstones // 2]
-        for oid, _ in drop:
-            del self._removed_at[oid]
-        self._floor = max(self._floor, drop[-1][1])
+        """Keep about half of max_tombstones, the newest: raise the floor past the others
+        (every tombstone at or below the floor goes, as none can reach a subscriber)."""
+        by_age = sorted(self._removed_at.values())
+        self._floor = max(self._floor, by_age[len(by_age) - self._max_tombstones // 2 - 1])
+        self._removed_at = {oid: s for oid, s in self._removed_at.items() if s > self._floor}
 
     def live_ids(self) -> list[int]:
         return sorted(self._upserted_at)
@@ -83,9 +83,12 @@ class DeltaLog:
         }
 
     @classmethod
-    def from_state(cls, state: dict) -> DeltaLog:
-        log = cls(seq=int(state["seq"]))
+    def from_state(cls, state: dict, max_tombstones: int = 100_000) -> DeltaLog:
+        """The log of `state()`, trimmed at once if it holds more than max_tombstones."""
+        log = cls(seq=int(state["seq"]), max_tombstones=max_tombstones)
         log._floor = int(state["floor"])
         log._upserted_at = {int(k): int(v) for k, v in state["upserted_at"].items()}
         log._removed_at = {int(k): int(v) for k, v in state["removed_at"].items()}
+        if len(log._removed_at) > max_tombstones:
+            log._trim_tombstones()
         return log

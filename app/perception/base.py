@@ -72,12 +72,21 @@ class FrameDetections:
 
 
 class PerceptionBackend(abc.ABC):
-    """frame -> the frame's detections."""
+    """keyframe -> the keyframe's detections.
+
+    One instance serves every session of a server that chose it, so `detect` may run in
+    several worker threads at once. It runs on keyframes only, in the mapping worker, on a
+    frame the engine has already validated (`MappingEngine.validate_frame`).
+    """
 
     name: str = "abstract"
     needs_rgb: bool = True
     """Whether `detect` reads `FrameInput.rgb`; if not, frames skip decoding the pixels."""
 
     @abc.abstractmethod
-    def detect(self, frame: FrameInput) -> FrameDetections:
-        """Detect the objects of one frame; raises InputError on bad input."""
+    def detect(self, frame: FrameInput, sent: FrameDetections | None) -> FrameDetections:
+        """Detect the objects of one validated keyframe.
+
+        sent: the detections the device sent with the frame, validated and indexed (None
+              when it sent none); a backend may use them, refine them or ignore them.
+        """

@@ -1,7 +1,8 @@
 """The `detections` backend: the device sends its detections with the frame.
 
 Real devices can (ARKit / Quest scene understanding, an on-device detector); the device
-emulator renders ground truth through a noise model. The server only validates and indexes.
+emulator renders ground truth through a noise model. The engine validates and indexes them with every frame (`detections_from_instance_image`);
+this backend passes a keyframe's on to mapping.
 """
 
 from __future__ import annotations
@@ -89,13 +90,13 @@ def detections_from_instance_image(
 
 
 class DetectionsBackend(PerceptionBackend):
-    """Client-supplied detections (the embedded default)."""
+    """Client-supplied detections (the embedded default): the device's own, as validated."""
 
     name = "detections"
     needs_rgb = False
 
-    def detect(self, frame: FrameInput) -> FrameDetections:
-        width, height = frame.rgb_size
-        if frame.instance_ids is None:
+    def detect(self, frame: FrameInput, sent: FrameDetections | None) -> FrameDetections:
+        if sent is None:
+            width, height = frame.rgb_size
             return FrameDetections(np.zeros((height, width), np.uint16), [])
-        return detections_from_instance_image(frame.instance_ids, frame.instances, frame.rgb_size)
+        return sent

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 from contextlib import asynccontextmanager
-from pathlib import Path
 
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse, PlainTextResponse
@@ -17,7 +16,7 @@ from app.server.metrics import make_metrics
 from app.server.routes import pages, rest, ws
 from app.server.sessions import SessionManager
 from app.server.settings import ServerSettings
-from app.server.store import Store
+from app.store import open_store
 
 log = logging.getLogger("semanticxr")
 
@@ -30,9 +29,7 @@ def create_app(
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        data_dir = Path(settings.data_dir)
-        data_dir.mkdir(parents=True, exist_ok=True)
-        store = Store(data_dir / "semanticxr.sqlite3")
+        store = open_store(settings.store_url)
         manager = SessionManager(settings, store, encoder or get_text_encoder(), make_metrics())
         restored = manager.restore()
         app.state.settings, app.state.manager = settings, manager
@@ -40,7 +37,7 @@ def create_app(
             log.warning(
                 "no API key set: the server runs OPEN (anyone can create and read sessions)"
             )
-        log.info("data in %s; %d sessions restored", data_dir.resolve(), restored)
+        log.info("store %s; %d sessions restored", settings.store_url, restored)
         try:
             yield
         finally:

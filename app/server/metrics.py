@@ -66,7 +66,8 @@ def make_metrics() -> Metrics:
     m.describe(
         "semanticxr_mapping_latency_ms",
         "histogram",
-        "Decode + perception + mapping + delta per keyframe",
+        "Server time per mapped keyframe: decode + perception + mapping + delta "
+        "(committed to the delta log and the store), without queueing",
     )
     m.describe("semanticxr_query_latency_ms", "histogram", "Server query latency")
     m.describe("semanticxr_sessions", "gauge", "Sessions held")

@@ -26,14 +26,16 @@ import numpy as np
 
 from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
+from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
-from app.perception.base import FrameDetections, FrameInput
+from app.perception import DEFAULT_BACKEND, UnknownBackendError, make_backend
+from app.perception.base import FrameDetections, FrameInput, PerceptionBackend
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
 from app.server.settings import ServerSettings
-from app.server.store import SessionRecord, Store
+from app.store import SessionRecord, Store
 
 Reply = Callable[[dict], Awaitable[None]]
 FLUSH_AFTER_S = 1.0
@@ -50,9 +52,12 @@ def hash_token(token: str) -> str:
 @dataclass
 class _Pending:
     frame: FrameInput
-    detections: FrameDetections | None
+    sent: FrameDetections | None
+    """The detections the device sent, as validated (the backend's `sent`)."""
     reply: Reply
     received_t: float
+    decode_ms: float
+    """Time the frame took to decode and validate (part of its mapping latency)."""
 
 
 @dataclass
@@ -74,6 +79,8 @@ class Session:
     _flush_timer: asyncio.TimerHandle | None = None
     _closed: bool = False
     _fps_window: deque = field(default_factory=lambda: deque(maxlen=60))
+    _stored_floor: int = 0
+    """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
 
     @property
     def closed(self) -> bool:
@@ -93,6 +100,9 @@ class Session:
 
     # ------------------------------------------------------------------ reading
     def stats(self) -> dict:
+        """The session's figures. mapping_latency_ms: p50/p95 of the server time per mapped
+        keyframe (DESIGN.md "Mapping latency"): decode + perception + mapping + delta (its
+        commit to the delta log and the store), without the time it queued for a worker."""
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else None
         with self._map_lock:
             confirmed = sum(o.confirmed for o in self.engine.objects.values())
@@ -107,6 +117,7 @@ class Session:
             "session_id": self.id,
             "name": self.record.name,
             "mode": self.engine.mode,
+            "perception": self.record.perception,
             "created_at": self.record.created_at,
             "frames": self.record.frames,
             "keyframes": self.engine.keyframes,
@@ -186,18 +197,37 @@ class SessionManager:
         )
         self.sessions: dict[str, Session] = {}
         self._lock = threading.Lock()
+        self.backends: dict[str, PerceptionBackend] = {}
+        """Perception backends loaded (at start), by name: what sessions may choose."""
+        for name in [*settings.perception_backends, DEFAULT_BACKEND]:
+            self._load_backend(name)
+
+    def _load_backend(self, name: str) -> PerceptionBackend:
+        if name not in self.backends:
+            self.backends[name] = make_backend(name)
+        return self.backends[name]
+
+    def _engine(self, rec: SessionRecord, knobs: Knobs) -> MappingEngine:
+        return MappingEngine(
+            self.encoder, knobs, mode=rec.mode, backend=self._load_backend(rec.perception)
+        )
 
     def restore(self) -> int:
-        """Load every persisted session with its confirmed objects; returns how many."""
+        """Load every persisted session with its confirmed objects; returns how many.
+
+        A stored log with more than max_tombstones (a smaller setting, or a database from
+        before tombstones were trimmed) is trimmed now, in memory and in the store."""
         for rec in self.store.list_sessions():
-            engine = MappingEngine(self.encoder, updated_knobs(Knobs(), rec.knobs), mode=rec.mode)
+            stored = self.store.load_delta_log(rec.session_id)
+            log = DeltaLog.from_state(stored.state(), self.settings.max_tombstones)
+            if log.floor > stored.floor:
+                self.store.trim_tombstones(rec.session_id, log.floor)
+            # A backend only restored sessions use is loaded too (at start, like the others).
+            engine = self._engine(rec, updated_knobs(Knobs(), rec.knobs))
             engine.restore(
-                self.store.load_objects(rec.session_id),
-                self.store.load_delta_log(rec.session_id),
-                rec.keyframes,
-                rec.next_object_id,
+                self.store.load_objects(rec.session_id), log, rec.keyframes, rec.next_object_id
             )
-            self.sessions[rec.session_id] = Session(rec, engine)
+            self.sessions[rec.session_id] = Session(rec, engine, _stored_floor=log.floor)
         return len(self.sessions)
 
     def close(self) -> None:
@@ -206,9 +236,20 @@ class SessionManager:
         self.pool.shutdown(wait=True, cancel_futures=True)
 
     # ------------------------------------------------------------------ lifecycle
-    def create(self, name: str | None, mode: str, knob_changes: dict) -> tuple[Session, str]:
-        """A new session and its token (the only time the token is shown)."""
+    def create(
+        self, name: str | None, mode: str, knob_changes: dict, perception: str | None = None
+    ) -> tuple[Session, str]:
+        """A new session and its token (the only time the token is shown).
+
+        perception: one of the backends loaded at start (default: the first the server's
+        `perception` setting names); UnknownBackendError naming --perception otherwise."""
         knobs = updated_knobs(Knobs(), knob_changes or {})
+        perception = perception or self.settings.perception_backends[0]
+        if perception not in self.backends:
+            raise UnknownBackendError(
+                f"perception {perception!r} is not loaded on this server; choose one of "
+                f"{', '.join(self.backends)} (a server loads backends with --perception)"
+            )
         with self._lock:
             if len(self.sessions) >= self.settings.max_sessions:
                 raise OverflowError(
@@ -223,9 +264,12 @@ class SessionManager:
                 knobs=knobs_to_dict(knobs),
                 token_hash=hash_token(token),
                 created_at=time.time(),
+                perception=perception,
             )
             self.store.create_session(rec)
-            session = Session(rec, MappingEngine(self.encoder, knobs, mode=mode))
+            engine = self._engine(rec, knobs)
+            engine.restore([], DeltaLog(max_tombstones=self.settings.max_tombstones), 0, 1)
+            session = Session(rec, engine)
             self.sessions[sid] = session
         return session, token
 
@@ -264,12 +308,14 @@ class SessionManager:
         session: Session,
         frame: FrameInput,
         reply: Reply,
-        detections: FrameDetections | None = None,
+        sent: FrameDetections | None = None,
+        decode_ms: float = 0.0,
     ) -> None:
         """Map now, or wait as the newest keyframe (acknowledging any older one as dropped).
 
-        detections: the frame's, when validation already ran the perception backend."""
-        pending = _Pending(frame, detections, reply, time.perf_counter())
+        frame: validated (`MappingEngine.validate_frame`), which returned `sent`;
+        decode_ms: what decoding and validating it took."""
+        pending = _Pending(frame, sent, reply, time.perf_counter(), decode_ms)
         if session._mapping:
             older, session._pending = session._pending, pending
             if older is not None:
@@ -285,12 +331,8 @@ class SessionManager:
         try:
             while pending is not None and not session.closed:
                 try:
-                    stats = await loop.run_in_executor(
-                        self.pool,
-                        self._map_and_persist,
-                        session,
-                        pending.frame,
-                        pending.detections,
+                    stats, latency_ms = await loop.run_in_executor(
+                        self.pool, self._map_and_persist, session, pending
                     )
                 except InputError as exc:
                     await pending.reply(error(pending.frame.seq, "bad_frame", str(exc)))
@@ -300,10 +342,8 @@ class SessionManager:
                     )
                 else:
                     map_ms = (time.perf_counter() - pending.received_t) * 1e3
-                    session.latencies_ms.append(stats.timings_ms["total"])
-                    self.metrics.observe_ms(
-                        "semanticxr_mapping_latency_ms", stats.timings_ms["total"]
-                    )
+                    session.latencies_ms.append(latency_ms)
+                    self.metrics.observe_ms("semanticxr_mapping_latency_ms", latency_ms)
                     await pending.reply(
                         ack(
                             pending.frame.seq,
@@ -319,14 +359,17 @@ class SessionManager:
             session._mapping = False
 
     def _map_and_persist(
-        self, session: Session, frame: FrameInput, detections: FrameDetections | None
-    ) -> IntegrationStats:
-        """In a worker thread: integrate, then make the change durable before the ack."""
+        self, session: Session, pending: _Pending
+    ) -> tuple[IntegrationStats, float]:
+        """In a worker thread: perceive and map the keyframe, then make the change durable
+        before the ack. Returns the stats and the keyframe's mapping latency in ms (the one
+        place it is measured: decode + perception + mapping + delta, see `Session.stats`)."""
         with session._map_lock:
             if session.closed:
                 raise InputError("session", "the session was deleted")
-            engine = session.engine
-            stats = engine.integrate(frame, detections)
+            t_locked = time.perf_counter()  # waiting for a reader of the map is not mapping
+            engine, frame = session.engine, pending.frame
+            stats = engine.map_keyframe(frame, engine.perceive(frame, pending.sent))
             rec = session.record
             rec.keyframes = engine.keyframes
             rec.next_object_id = engine.next_object_id
@@ -343,7 +386,13 @@ class SessionManager:
                 },
                 next_object_id=engine.next_object_id,
             )
-            return stats
+            if engine.log.floor > session._stored_floor:
+                # The log forgot its oldest removals: no subscriber can be sent them any
+                # more (it gets a full snapshot), so the store forgets them too.
+                self.store.trim_tombstones(session.id, engine.log.floor)
+                session._stored_floor = engine.log.floor
+            latency_ms = pending.decode_ms + (time.perf_counter() - t_locked) * 1e3
+            return stats, latency_ms
 
 
 def ack(seq: int, keyframe: bool, map_ms: float = 0.0, dropped: bool = False, **extra) -> dict:

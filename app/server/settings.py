@@ -6,6 +6,13 @@ from __future__ import annotations
 import dataclasses
 import os
 from dataclasses import dataclass
+from pathlib import Path
+
+from app.perception import BACKENDS, DEFAULT_BACKEND
+from app.store import StoreURLError, check_store_url, sqlite_url
+
+STORE_FILE = "semanticxr.sqlite3"
+"""The SQLite file the default store keeps in data_dir (existing databases use this name)."""
 
 
 @dataclass
@@ -15,7 +22,11 @@ class ServerSettings:
     port: int = 8000
     """TCP port."""
     data_dir: str = "data"
-    """Folder of the SQLite database (sessions, knobs, confirmed objects, delta seq)."""
+    """Folder of the default store's SQLite file (sessions, knobs, confirmed objects, delta seq)."""
+    store: str | None = None
+    """Store URL: sqlite:///<relative path> or sqlite:////<absolute path>; default semanticxr.sqlite3 in data_dir."""
+    max_tombstones: int = 100_000
+    """Removed ids a session keeps for resuming subscribers (older resumes get a full snapshot)."""
     api_key: str | None = None
     """Key needed to create and list sessions; each session then has its own token. None runs open."""
     max_message_bytes: int = 8 << 20
@@ -24,6 +35,8 @@ class ServerSettings:
     """Largest REST request body."""
     max_sessions: int = 64
     """Sessions the server holds at once."""
+    perception: str = DEFAULT_BACKEND
+    """Perception backends loaded at start, comma-separated; sessions use the first unless they choose."""
     mapping_workers: int = 2
     """Threads that decode and map frames (sessions map one frame at a time each)."""
     max_subscribers: int = 32
@@ -46,6 +59,26 @@ class ServerSettings:
                 raise SettingsError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.api_key is not None and not self.api_key.strip():
             raise SettingsError("api_key must not be empty (leave it unset to run open)")
+        unknown = [name for name in self.perception_backends if name not in BACKENDS]
+        if unknown or not self.perception_backends:
+            raise SettingsError(
+                f"perception: unknown backend {', '.join(map(repr, unknown)) or repr('')}; "
+                f"available: {', '.join(BACKENDS)}"
+            )
+        try:
+            check_store_url(self.store_url)
+        except StoreURLError as exc:
+            raise SettingsError(str(exc)) from None
+
+    @property
+    def perception_backends(self) -> list[str]:
+        """The backends `perception` names, in order (the first is the sessions' default)."""
+        return list(dict.fromkeys(n.strip() for n in self.perception.split(",") if n.strip()))
+
+    @property
+    def store_url(self) -> str:
+        """The store to open: `store`, or the SQLite file in data_dir."""
+        return self.store or sqlite_url(Path(self.data_dir) / STORE_FILE)
 
     @classmethod
     def from_env(cls, **overrides) -> ServerSettings:
@@ -81,4 +114,5 @@ _POSITIVE = (
     "max_connections",
     "max_bad_frames",
     "max_query_k",
+    "max_tombstones",
 )

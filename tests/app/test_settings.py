@@ -18,6 +18,13 @@ def test_environment_then_overrides(monkeypatch):
     assert ServerSettings.from_env(port=9002).port == 9002
 
 
+def test_the_store_defaults_to_the_sqlite_file_in_the_data_dir(monkeypatch, tmp_path):
+    assert ServerSettings(data_dir="data").store_url == "sqlite:///data/semanticxr.sqlite3"
+    assert ServerSettings(data_dir="/srv/x/").store_url == "sqlite:////srv/x/semanticxr.sqlite3"
+    monkeypatch.setenv("SEMANTICXR_STORE", f"sqlite:///{tmp_path}/elsewhere.db")
+    assert ServerSettings.from_env().store_url == f"sqlite:///{tmp_path}/elsewhere.db"
+
+
 @pytest.mark.parametrize(
     ("env", "flags", "named"),
     [
@@ -27,6 +34,11 @@ def test_environment_then_overrides(monkeypatch):
         ({}, ["--mapping-workers", "0"], "mapping_workers must be at least 1, got 0"),
         ({}, ["--max-message-bytes", "-1"], "max_message_bytes must be at least 1"),
         ({}, ["--api-key", " "], "api_key must not be empty"),
+        ({"SEMANTICXR_STORE": "postgres://db/x"}, [], "unknown scheme 'postgres'"),
+        ({"SEMANTICXR_STORE": "semanticxr.db"}, [], "store (--store, SEMANTICXR_STORE) must be"),
+        ({"SEMANTICXR_MAX_TOMBSTONES": "0"}, [], "max_tombstones must be at least 1"),
+        ({"SEMANTICXR_PERCEPTION": "detections,owl"}, [], "perception: unknown backend 'owl'"),
+        ({"SEMANTICXR_PERCEPTION": " , "}, [], "perception: unknown backend ''"),
     ],
 )
 def test_serve_refuses_settings_that_cannot_work_and_names_them(

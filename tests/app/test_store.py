@@ -22,13 +22,17 @@ from hypothesis import strategies as st
 
 from app.mapping.deltas import DeltaLog
 from app.mapping.object import MapObject
-from app.server.store import (
-    SCHEMA_VERSION,
+from app.server.settings import ServerSettings
+from app.store import (
     SessionRecord,
     Store,
     StoreError,
+    StoreURLError,
     StoreVersionError,
+    open_store,
+    sqlite_url,
 )
+from app.store.sqlite import SCHEMA_VERSION, SqliteStore
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DIM = 16
@@ -87,7 +91,7 @@ def record(sid: str = "s1", **changes) -> SessionRecord:
 
 @pytest.fixture
 def store(tmp_path):
-    with Store(tmp_path / "data" / "semanticxr.db") as store:
+    with SqliteStore(tmp_path / "data" / "semanticxr.db") as store:
         yield store
 
 
@@ -284,7 +288,7 @@ def test_trimming_tombstones_raises_the_floor_past_the_dropped_ones(store):
         store.commit_keyframe("s1", seq, [make_object(10 + seq)], removed, {}, 20)
     assert store.load_delta_log("s1").state()["removed_at"] == {11: 2, 12: 3, 13: 4, 14: 5}
 
-    store.trim_tombstones("s1", keep=2)
+    store.trim_tombstones("s1", floor=3)
 
     log = store.load_delta_log("s1")
     assert log.floor == 3 and log.state()["removed_at"] == {13: 4, 14: 5}
@@ -294,20 +298,23 @@ def test_trimming_tombstones_raises_the_floor_past_the_dropped_ones(store):
         [13, 14],
         [15],
     )
-    store.trim_tombstones("s1", keep=5)  # nothing to drop: the floor stays
-    assert store.load_delta_log("s1").floor == 3
+    store.trim_tombstones("s1", floor=2)  # below the stored floor: nothing changes
+    assert store.load_delta_log("s1").state() == log.state()
+    with pytest.raises(ValueError, match="beyond the stored seq"):
+        store.trim_tombstones("s1", floor=6)
+    assert store.load_delta_log("s1").state() == log.state()
 
 
 def test_reopening_keeps_everything_and_the_same_deltas(tmp_path):
     path = tmp_path / "semanticxr.db"
-    with Store(path) as store:
+    with SqliteStore(path) as store:
         seeded(store, "s1")
         seeded(store, "s2")
         store.commit_keyframe("s2", 3, [make_object(2, version=7)], [1], {"bytes_in": 5}, 4)
         before = everything(store)
         log_before = store.load_delta_log("s2")
 
-    with Store(path) as store:
+    with SqliteStore(path) as store:
         assert everything(store) == before
         log_after = store.load_delta_log("s2")
     for since in [None, *range(-1, log_before.seq + 2)]:
@@ -317,19 +324,37 @@ def test_reopening_keeps_everything_and_the_same_deltas(tmp_path):
 # ---------------------------------------------------------------------- the file
 def test_the_database_is_created_in_wal_mode_with_its_parent_dirs(tmp_path):
     path = tmp_path / "a" / "b" / "semanticxr.db"
-    Store(path).close()
+    SqliteStore(path).close()
     with sqlite3.connect(path) as db:
         assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
 
+def test_a_version_1_store_opens_with_its_sessions_on_the_detections_backend(tmp_path):
+    path = tmp_path / "semanticxr.db"
+    with SqliteStore(path) as store:
+        seeded(store)
+        before = everything(store)
+    with sqlite3.connect(path) as db:  # what a server before the perception column wrote
+        db.execute("ALTER TABLE sessions DROP COLUMN perception")
+        db.execute("PRAGMA user_version = 1")
+    with SqliteStore(path) as store:
+        assert everything(store) == before
+        assert [s.perception for s in store.list_sessions()] == ["detections"]
+        store.create_session(record("s2", perception="models"))
+    with SqliteStore(path) as store:
+        assert [s.perception for s in store.list_sessions()] == ["detections", "models"]
+    with sqlite3.connect(path) as db:
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 2
+
+
 def test_a_newer_schema_version_is_refused_with_a_clear_error(tmp_path):
     path = tmp_path / "semanticxr.db"
-    Store(path).close()
+    SqliteStore(path).close()
     with sqlite3.connect(path) as db:
         db.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
     with pytest.raises(StoreVersionError, match="newer than this SemanticXR"):
-        Store(path)
+        SqliteStore(path)
 
 
 def test_an_unrelated_sqlite_database_is_refused(tmp_path):
@@ -337,11 +362,56 @@ def test_an_unrelated_sqlite_database_is_refused(tmp_path):
     with sqlite3.connect(path) as db:
         db.execute("CREATE TABLE notes (text TEXT)")
     with pytest.raises(StoreError, match="not a SemanticXR store"):
-        Store(path)
+        SqliteStore(path)
+
+
+# ---------------------------------------------------------------------- the URL
+@pytest.mark.parametrize("absolute", [False, True])
+def test_open_store_opens_sqlite_urls_with_relative_and_absolute_paths(
+    tmp_path, monkeypatch, absolute
+):
+    monkeypatch.chdir(tmp_path)
+    path = (tmp_path if absolute else Path(".")) / "d" / "x.sqlite3"
+    url = sqlite_url(path)
+    assert url == ("sqlite:////" if absolute else "sqlite:///") + str(path).lstrip("/")
+    with open_store(url) as store:
+        assert isinstance(store, SqliteStore)
+        store.create_session(record("s1"))
+    with SqliteStore(tmp_path / "d" / "x.sqlite3") as store:
+        assert store.list_sessions() == [record("s1")]
+
+
+@pytest.mark.parametrize(
+    ("url", "named"),
+    [
+        ("postgres://db/semanticxr", "unknown scheme 'postgres'"),
+        ("data/semanticxr.sqlite3", "must be a URL such as sqlite:///"),
+        ("sqlite://data.db", "sqlite:///<relative path>"),
+        ("sqlite:///", "sqlite:///<relative path>"),
+        ("sqlite:///data/", "names a folder"),
+    ],
+)
+def test_a_url_the_server_cannot_open_is_refused_naming_the_setting(tmp_path, url, named):
+    with pytest.raises(StoreURLError, match="--store") as err:
+        open_store(url)
+    assert named in str(err.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_default_store_is_the_file_earlier_servers_wrote(tmp_path):
+    """Existing data dirs (and Docker volumes) open unchanged."""
+    data_dir = tmp_path / "data"
+    with SqliteStore(data_dir / "semanticxr.sqlite3") as store:
+        seeded(store)
+        before = everything(store)
+    url = ServerSettings(data_dir=str(data_dir)).store_url
+    assert url == f"sqlite:///{data_dir}/semanticxr.sqlite3"
+    with open_store(url) as store:
+        assert everything(store) == before
 
 
 def test_a_closed_store_says_so(tmp_path):
-    store = Store(tmp_path / "semanticxr.db")
+    store = SqliteStore(tmp_path / "semanticxr.db")
     store.close()
     store.close()
     with pytest.raises(StoreError, match="closed"):
@@ -401,9 +471,10 @@ CRASH_CHILD = (
     + """
 import sys
 
-from app.server.store import SessionRecord, Store
+from app.store import SessionRecord
+from app.store.sqlite import SqliteStore
 
-store = Store(sys.argv[1])
+store = SqliteStore(sys.argv[1])
 store.create_session(SessionRecord("crash", "crash", "semanticxr", {}, "hash", 0.0))
 for k in range(1, 1_000_000):
     upserted, removed = keyframe_changes(k)
@@ -454,7 +525,7 @@ def test_every_acknowledged_keyframe_survives_kill_9(tmp_path):
 
     workload: dict = {}
     exec(CRASH_WORKLOAD, workload)
-    with Store(path) as store:
+    with SqliteStore(path) as store:
         log = store.load_delta_log("crash")
         objects = store.load_objects("crash")
         (session,) = store.list_sessions()
@@ -485,22 +556,26 @@ commits = st.lists(
 
 
 @settings(max_examples=60, deadline=None)
-@given(history=commits)
-def test_the_stored_delta_log_equals_an_in_memory_one_fed_the_same_commits(history):
-    model = DeltaLog()
+@given(history=commits, max_tombstones=st.sampled_from([3, 100_000]))
+def test_the_stored_delta_log_equals_an_in_memory_one_fed_the_same_commits(history, max_tombstones):
+    """Fed the same commits, and trimmed whenever the in-memory log raises its floor (as the
+    server does), the store reloads to the same log."""
+    model = DeltaLog(max_tombstones=max_tombstones)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "semanticxr.db"
-        with Store(path) as store:
+        with SqliteStore(path) as store:
             store.create_session(record("s1"))
             for n, (upserted, removed) in enumerate(history, 1):
                 seq = model.commit(upserted, removed)
                 objects = [make_object(i, version=seq, n_points=3) for i in sorted(upserted)]
                 store.commit_keyframe("s1", seq, objects, sorted(removed), {"keyframes": n}, 11)
-        with Store(path) as store:  # what a restarted server would load
+                store.trim_tombstones("s1", model.floor)
+        with SqliteStore(path) as store:  # what a restarted server would load
             log = store.load_delta_log("s1")
             objects = store.load_objects("s1")
 
     assert (log.seq, log.floor) == (model.seq, model.floor)
+    assert log.state() == model.state()
     for since in [None, *range(-1, model.seq + 2)]:
         assert log.since(since) == model.since(since), since
     assert [o.id for o in objects] == model.live_ids()

@@ -11,6 +11,7 @@ from pydantic import BaseModel, Field
 from app.config import KnobError, knobs_to_dict
 from app.mapping.object import MapObject
 from app.mapping.publish import client_points
+from app.perception import UnknownBackendError
 from app.server.auth import authorize_session, bearer, require_api_key
 from app.server.sessions import Session, SessionManager
 
@@ -118,6 +119,7 @@ class SessionStats(BaseModel):
     session_id: str
     name: str
     mode: str
+    perception: str = Field(description="Perception backend mapping the session's keyframes")
     created_at: float
     frames: int = Field(description="Valid frames received")
     keyframes: int = Field(description="Keyframes mapped")
@@ -128,7 +130,9 @@ class SessionStats(BaseModel):
         description="Upstream payload bytes by kind (rgb, depth, detections)"
     )
     bytes_out: dict[str, int] = Field(description="Downstream update bytes")
-    mapping_latency_ms: LatencySummary
+    mapping_latency_ms: LatencySummary = Field(
+        description="Server time per mapped keyframe: decode + perception + mapping + delta"
+    )
     update_seq: int = Field(description="Sequence number of the newest map change")
     subscribers: int
     embedding: Embedding
@@ -142,6 +146,12 @@ class CreateSession(BaseModel):
         default_factory=dict,
         description="Knob overrides (see GET knobs)",
         json_schema_extra=KNOB_CHANGES_SCHEMA,
+    )
+    perception: str | None = Field(
+        None,
+        max_length=100,
+        description="Perception backend: detections or one the server loaded with "
+        "--perception (default: the first of those)",
     )
 
 
@@ -223,14 +233,15 @@ def _object_out(obj: MapObject, session: Session, with_points: bool) -> dict:
     summary="Create a session",
     responses=_errors(
         _400="the body is not JSON",
-        _422="an unknown knob, or a knob value of the wrong type or out of range",
+        _422="an unknown knob, a knob value of the wrong type or out of range, or a "
+        "perception backend the server did not load",
         _503="the server holds its maximum of sessions",
     ),
 )
 def create_session(body: CreateSession, request: Request) -> dict:
     try:
-        session, token = manager(request).create(body.name, body.mode, body.knobs)
-    except KnobError as exc:
+        session, token = manager(request).create(body.name, body.mode, body.knobs, body.perception)
+    except (KnobError, UnknownBackendError) as exc:
         raise HTTPException(422, str(exc)) from None
     except OverflowError as exc:
         raise HTTPException(503, str(exc)) from None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
 
 import msgpack
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
@@ -38,13 +39,19 @@ def _payload_bytes(message: dict) -> dict[str, int]:
     return sizes
 
 
-def _decode_and_validate(message: dict, session: Session) -> tuple[FrameInput, FrameDetections]:
-    """In a worker thread: everything the engine would refuse is refused here, for every
-    frame. Returns the frame and its detections (mapped as they are if it is a keyframe)."""
+def _decode_and_validate(
+    message: dict, session: Session
+) -> tuple[FrameInput, FrameDetections | None, float]:
+    """In a worker thread, once per frame: decode and validate it, so everything the engine
+    would refuse is refused here, keyframe or not. Perception runs later, on keyframes only.
+
+    Returns the frame, the detections the device sent (validated; None if none) and the
+    milliseconds this took (part of a keyframe's mapping latency)."""
+    t0 = time.perf_counter()
     engine = session.engine
     frame = decode_frame(message, rgb_pixels=engine.backend.needs_rgb)
-    engine.validate_frame(frame)
-    return frame, engine.backend.detect(frame)
+    sent = engine.validate_frame(frame)
+    return frame, sent, (time.perf_counter() - t0) * 1e3
 
 
 @router.websocket("/sessions/{sid}/stream")
@@ -99,7 +106,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
                     seq = message.get("seq") if isinstance(message, dict) else None
                     seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
                     try:
-                        frame, detections = await manager.decode(
+                        frame, sent, decode_ms = await manager.decode(
                             lambda m=message: _decode_and_validate(m, session)
                         )
                     except InputError as exc:
@@ -110,7 +117,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
                         bad_in_a_row = 0
                         manager.metrics.inc("semanticxr_frames_total", outcome="ok")
                         if manager.count_frame(session, _payload_bytes(message)):
-                            await manager.submit_keyframe(session, frame, reply, detections)
+                            await manager.submit_keyframe(session, frame, reply, sent, decode_ms)
                         else:
                             await reply(ack(frame.seq, keyframe=False))
             if bad_in_a_row >= settings.max_bad_frames:

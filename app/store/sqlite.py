@@ -1,7 +1,7 @@
-"""Persistence of sessions and their confirmed maps in one SQLite file (WAL mode).
+"""`SqliteStore`: sessions and their confirmed maps in one SQLite file (WAL mode).
 
 What is stored is exactly what the server has acknowledged: the server calls
-`Store.commit_keyframe` before it acks a keyframe, and that call returns only once one
+`commit_keyframe` before it acks a keyframe, and that call returns only once one
 transaction holding the keyframe's object changes, tombstones, counters and update seq has
 committed. After a restart `load_objects` and `load_delta_log` give back the confirmed map and
 the delta log, so the update seq continues and a subscriber resuming with `since` loses
@@ -12,7 +12,7 @@ OS page cache at least) when COMMIT returns, so it survives a crash of the proce
 OOM kill); it can be lost to a power failure or kernel crash, which would roll the store back
 to an earlier consistent state (never a torn one). That trade buys commits without an fsync
 each; run on storage with a battery-backed cache or switch to `synchronous=FULL` if power loss
-must be covered (a one-line change in `Store.__init__`).
+must be covered (a one-line change in `SqliteStore.__init__`).
 
 Arrays are stored as raw little-endian float32 bytes whose shape the schema records (never
 pickle): points [n_points, 3], embedding_sum [embedding_dim]. Knobs and label counts are JSON.
@@ -31,7 +31,6 @@ import threading
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,12 +38,9 @@ import numpy as np
 
 from app.mapping.deltas import DeltaLog
 from app.mapping.object import MapObject
+from app.store.base import COUNTER_NAMES, SessionRecord, Store, StoreError, StoreVersionError
 
-SCHEMA_VERSION = 1
-"""Stored in `PRAGMA user_version`; bump it (and add a migration) on any schema change."""
-
-COUNTER_NAMES: tuple[str, ...] = ("frames", "keyframes", "bytes_in", "bytes_out")
-"""Per-session counters the store keeps (absolute values, set by the server)."""
+__all__ = ["SCHEMA_VERSION", "SqliteStore"]
 
 _FLOAT32_LE = np.dtype("<f4")
 
@@ -98,8 +94,18 @@ _SCHEMA: tuple[str, ...] = (
     """,
 )
 
+_MIGRATIONS: tuple[tuple[str, ...], ...] = (
+    # 1 -> 2: the session's perception backend (sessions before it used `detections`).
+    ("ALTER TABLE sessions ADD COLUMN perception TEXT NOT NULL DEFAULT 'detections'",),
+)
+"""_MIGRATIONS[i] takes a store from schema version i + 1 to i + 2; a new store is created
+at version 1 (`_SCHEMA`) and migrated like any other, so there is one path to each version."""
+
+SCHEMA_VERSION = 1 + len(_MIGRATIONS)
+"""Stored in `PRAGMA user_version`; a schema change is a new entry in _MIGRATIONS."""
+
 _SESSION_COLUMNS = (
-    "session_id, name, mode, knobs, token_hash, created_at, "
+    "session_id, name, mode, perception, knobs, token_hash, created_at, "
     "frames, keyframes, bytes_in, bytes_out, next_object_id"
 )
 _OBJECT_COLUMNS = (
@@ -108,40 +114,8 @@ _OBJECT_COLUMNS = (
 )
 
 
-class StoreError(RuntimeError):
-    """The store cannot be used: not a SemanticXR database, closed, or corrupt."""
-
-
-class StoreVersionError(StoreError):
-    """The database was written by a newer SemanticXR (unknown schema version)."""
-
-
-@dataclass
-class SessionRecord:
-    """One session as persisted. Counters are absolute values, not increments."""
-
-    session_id: str
-    name: str
-    mode: str
-    knobs: dict
-    """Knob name -> value (JSON-serialisable)."""
-    token_hash: str
-    created_at: float
-    """Unix time, seconds."""
-    frames: int = 0
-    keyframes: int = 0
-    bytes_in: int = 0
-    bytes_out: int = 0
-    next_object_id: int = 1
-    """Id the session's next new object gets (ids are never reused, even after a restart)."""
-
-
-class Store:
-    """Sessions and their confirmed objects in one SQLite file. Thread-safe.
-
-    Unknown session ids raise KeyError, except in `delete_session` (idempotent) and
-    `create_session` (ValueError on a duplicate).
-    """
+class SqliteStore(Store):
+    """The `Store` in one SQLite file (`sqlite:///<path>`). Thread-safe."""
 
     def __init__(self, path: str | os.PathLike):
         """Open or create the database at `path` (its parent directories are created)."""
@@ -179,11 +153,18 @@ class Store:
                 )
             if version == SCHEMA_VERSION:
                 return
-            if conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
-                raise StoreError(f"{self.path} is an SQLite database but not a SemanticXR store")
-            for statement in _SCHEMA:
-                conn.execute(statement)
-            # Set inside the same transaction: a crash leaves either no schema or all of it.
+            if version == 0:
+                if conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
+                    raise StoreError(
+                        f"{self.path} is an SQLite database but not a SemanticXR store"
+                    )
+                for statement in _SCHEMA:
+                    conn.execute(statement)
+                version = 1
+            for migration in _MIGRATIONS[version - 1 :]:
+                for statement in migration:
+                    conn.execute(statement)
+            # Set inside the same transaction: a crash leaves the old schema or all of the new.
             conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
     def close(self) -> None:
@@ -192,12 +173,6 @@ class Store:
             if self._conn is not None:
                 self._conn.close()
                 self._conn = None
-
-    def __enter__(self) -> Store:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     @contextmanager
     def _transaction(self, write: bool = True) -> Iterator[sqlite3.Connection]:
@@ -224,6 +199,7 @@ class Store:
             rec.session_id,
             rec.name,
             rec.mode,
+            rec.perception,
             _to_json(rec.knobs),
             rec.token_hash,
             float(rec.created_at),
@@ -237,7 +213,7 @@ class Store:
             with self._transaction() as conn:
                 conn.execute(
                     f"INSERT INTO sessions ({_SESSION_COLUMNS}, seq, delta_floor)"
-                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
+                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
                     row,
                 )
         except sqlite3.IntegrityError:
@@ -369,31 +345,22 @@ class Store:
             {"seq": seq, "floor": floor, "upserted_at": dict(upserted), "removed_at": dict(removed)}
         )
 
-    def trim_tombstones(self, session_id: str, keep: int) -> None:
-        """Keep only the `keep` newest tombstones; raise the floor past the dropped ones.
-
-        A subscriber resuming from before the new floor then gets a full snapshot, as with
-        the in-memory `DeltaLog` trimming. The store never trims on its own: call this at
-        start-up or housekeeping time to bound the table.
-        """
-        if keep < 0:
-            raise ValueError(f"keep must be >= 0, got {keep}")
+    def trim_tombstones(self, session_id: str, floor: int) -> None:
+        """Forget the removals at or before `floor`; raise the stored floor to it."""
+        floor = int(floor)
         with self._transaction() as conn:
-            _session_row(conn, session_id, "1")
-            dropped = conn.execute(
-                "SELECT object_id, seq FROM tombstones WHERE session_id = ?"
-                " ORDER BY seq DESC, object_id DESC LIMIT -1 OFFSET ?",
-                (session_id, keep),
-            ).fetchall()
-            if not dropped:
+            seq, stored_floor = _session_row(conn, session_id, "seq, delta_floor")
+            if floor > seq:
+                raise ValueError(
+                    f"session {session_id!r}: floor {floor} is beyond the stored seq {seq}"
+                )
+            if floor <= stored_floor:
                 return
-            conn.executemany(
-                "DELETE FROM tombstones WHERE session_id = ? AND object_id = ?",
-                [(session_id, oid) for oid, _ in dropped],
+            conn.execute(
+                "DELETE FROM tombstones WHERE session_id = ? AND seq <= ?", (session_id, floor)
             )
             conn.execute(
-                "UPDATE sessions SET delta_floor = max(delta_floor, ?) WHERE session_id = ?",
-                (max(s for _, s in dropped), session_id),
+                "UPDATE sessions SET delta_floor = ? WHERE session_id = ?", (floor, session_id)
             )
 
 
@@ -423,12 +390,13 @@ def _checked_counters(counters: dict[str, int]) -> dict[str, int]:
 
 
 def _session_from_row(row: tuple) -> SessionRecord:
-    sid, name, mode, knobs, token_hash, created_at, *counters, next_object_id = row
+    sid, name, mode, perception, knobs, token_hash, created_at, *counters, next_object_id = row
     frames, keyframes, bytes_in, bytes_out = counters
     return SessionRecord(
         session_id=sid,
         name=name,
         mode=mode,
+        perception=perception,
         knobs=json.loads(knobs),
         token_hash=token_hash,
         created_at=created_at,

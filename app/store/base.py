@@ -1,0 +1,133 @@
+"""The store interface: what the server needs from persistence, whatever keeps the bytes.
+
+The contract every implementation keeps: `commit_keyframe` returns only once the keyframe's
+changes are durable (the server acks after it), in one all-or-nothing step; after a restart
+`load_objects` and `load_delta_log` give back exactly the confirmed map and delta log last
+committed, so the update seq continues and a subscriber resuming with `since` loses nothing.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # annotations only: settings check store URLs without loading the mapping
+    from app.mapping.deltas import DeltaLog
+    from app.mapping.object import MapObject
+
+COUNTER_NAMES: tuple[str, ...] = ("frames", "keyframes", "bytes_in", "bytes_out")
+"""Per-session counters a store keeps (absolute values, set by the server)."""
+
+
+class StoreError(RuntimeError):
+    """The store cannot be used: not a SemanticXR store, closed, corrupt, or a bad URL."""
+
+
+class StoreVersionError(StoreError):
+    """The store was written by a newer SemanticXR (unknown schema version)."""
+
+
+@dataclass
+class SessionRecord:
+    """One session as persisted. Counters are absolute values, not increments."""
+
+    session_id: str
+    name: str
+    mode: str
+    knobs: dict
+    """Knob name -> value (JSON-serialisable)."""
+    token_hash: str
+    created_at: float
+    """Unix time, seconds."""
+    frames: int = 0
+    keyframes: int = 0
+    bytes_in: int = 0
+    bytes_out: int = 0
+    next_object_id: int = 1
+    """Id the session's next new object gets (ids are never reused, even after a restart)."""
+    perception: str = "detections"
+    """Name of the session's perception backend (app.perception.BACKENDS)."""
+
+
+class Store(abc.ABC):
+    """Sessions and their confirmed maps. Implementations are thread-safe.
+
+    Unknown session ids raise KeyError, except in `delete_session` (idempotent) and
+    `create_session` (ValueError on a duplicate).
+    """
+
+    # ------------------------------------------------------------------ sessions
+    @abc.abstractmethod
+    def create_session(self, rec: SessionRecord) -> None:
+        """Persist a new session; ValueError if its id exists."""
+
+    @abc.abstractmethod
+    def update_session(
+        self,
+        session_id: str,
+        *,
+        name: str | None = None,
+        knobs: dict | None = None,
+        counters: dict[str, int] | None = None,
+    ) -> None:
+        """Change the given fields; counters are absolute values named as in COUNTER_NAMES."""
+
+    @abc.abstractmethod
+    def delete_session(self, session_id: str) -> None:
+        """Remove the session with its objects and tombstones (no-op if unknown)."""
+
+    @abc.abstractmethod
+    def list_sessions(self) -> list[SessionRecord]:
+        """Every session, oldest first."""
+
+    # ------------------------------------------------------------------ the map
+    @abc.abstractmethod
+    def commit_keyframe(
+        self,
+        session_id: str,
+        seq: int,
+        upserts: list[MapObject],
+        removed: list[int],
+        counters: dict[str, int],
+        next_object_id: int,
+    ) -> None:
+        """Persist one keyframe's changes at once; returns once they survive a crash.
+
+        upserts: confirmed objects changed at `seq` (the delta log's seq after the commit),
+                 stored with their current fields; removed: ids removed at `seq` (tombstoned).
+        An id in both ends up removed, as in `DeltaLog.commit`. A keyframe that changed
+        nothing passes the unchanged seq and empty lists (to persist the counters).
+        Raises ValueError (and changes nothing) on a seq older than the stored one, changes
+        without a newer seq, an unconfirmed object, an id not below `next_object_id`, or
+        arrays that are not float32 points [N, 3] / embedding [d]; KeyError on an unknown
+        session.
+        """
+
+    @abc.abstractmethod
+    def load_objects(self, session_id: str) -> list[MapObject]:
+        """The session's confirmed objects in id order, exactly as last committed."""
+
+    @abc.abstractmethod
+    def load_delta_log(self, session_id: str) -> DeltaLog:
+        """The session's delta log: each object's change seq, the tombstones, seq and floor."""
+
+    @abc.abstractmethod
+    def trim_tombstones(self, session_id: str, floor: int) -> None:
+        """Forget the removals at or before seq `floor` and raise the stored floor to it.
+
+        Mirrors `DeltaLog.floor`: a subscriber resuming from before the floor gets a full
+        snapshot, so those tombstones can no longer reach anyone. A floor at or below the
+        stored one changes nothing; ValueError on a floor beyond the stored seq.
+        """
+
+    # ------------------------------------------------------------------ lifecycle
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the store (idempotent); nothing committed depends on it being called."""
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

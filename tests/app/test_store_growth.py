@@ -1,0 +1,120 @@
+"""The store stops growing when the map does: tombstones are trimmed by the server itself."""
+
+from __future__ import annotations
+
+import asyncio
+import sqlite3
+
+import httpx
+import msgpack
+import pytest
+import websockets
+from devices import TIMEOUT_S, frame_message
+from planes import Rect
+
+pytestmark = pytest.mark.timeout(120)
+
+MAX_TOMBSTONES = 50
+# Twenty boxes in view. Association never matches (no score reaches 2: the labels alternate
+# between two spellings), so every keyframe makes a new object per box, confirmed at once;
+# the clean-up every second keyframe merges each back into the box's first object (the
+# spellings agree enough to merge). The map stays twenty objects while twenty confirmed
+# objects are removed, and tombstoned, every two keyframes.
+KNOBS = {
+    "keyframe_interval": 1,
+    "min_observations": 1,
+    "cleanup_interval": 2,
+    "association_threshold": 2.0,
+    "min_mapping_bbox_area": 100,
+    "local_map_update_frequency": 1,
+}
+LABELS = ("chair", "chair.")
+BOXES = [(x, y) for x in (-0.8, -0.4, 0.0, 0.4, 0.8) for y in (-0.6, -0.2, 0.2, 0.6)]
+
+
+def _frame(seq: int) -> dict:
+    label = LABELS[seq % 2]
+    rects = [
+        Rect(i + 1, label, x - 0.1, y - 0.1, x + 0.1, y + 0.1, 2.0)
+        for i, (x, y) in enumerate(BOXES)
+    ]
+    return frame_message(rects, seq)
+
+
+async def _stream(url: str, seqs: range) -> None:
+    async with websockets.connect(url, max_size=None) as ws:
+        for seq in seqs:
+            await ws.send(msgpack.packb(_frame(seq)))
+            reply = msgpack.unpackb(await asyncio.wait_for(ws.recv(), TIMEOUT_S))
+            assert reply["type"] == "ack" and reply["keyframe"], reply
+
+
+def _measure(db_path) -> dict:
+    """The database as a reader sees it, after moving the WAL into the main file."""
+    with sqlite3.connect(db_path) as db:
+        db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        page_size = db.execute("PRAGMA page_size").fetchone()[0]
+        return {
+            "bytes": db.execute("PRAGMA page_count").fetchone()[0] * page_size,
+            "file_bytes": db_path.stat().st_size,
+            "tombstones": db.execute("SELECT count(*) FROM tombstones").fetchone()[0],
+            "objects": db.execute("SELECT count(*) FROM objects").fetchone()[0],
+            "seq_floor_next_id": db.execute(
+                "SELECT seq, delta_floor, next_object_id FROM sessions"
+            ).fetchone(),
+        }
+
+
+def test_the_database_stops_growing_when_the_map_does(live_server, tmp_path):
+    server = live_server(max_tombstones=MAX_TOMBSTONES)
+    db_path = tmp_path / "data" / "semanticxr.sqlite3"
+    created = httpx.post(f"{server.url}/v1/sessions", json={"knobs": KNOBS}, timeout=10).json()
+    url = f"{server.ws_url}/v1/sessions/{created['session_id']}/stream"
+
+    n = 40
+    asyncio.run(_stream(url, range(0, n)))
+    after_n = _measure(db_path)
+    asyncio.run(_stream(url, range(n, 2 * n)))
+    after_2n = _measure(db_path)
+
+    # The workload removed far more objects than the store keeps tombstones for...
+    seq, floor, next_id = after_2n["seq_floor_next_id"]
+    assert next_id == len(BOXES) * 2 * n + 1 and seq == 2 * n
+    assert floor > after_n["seq_floor_next_id"][1] > 0
+    # ...while the map stayed twenty objects, and the store stayed the same size.
+    assert after_n["objects"] <= 2 * len(BOXES) and after_2n["objects"] <= 2 * len(BOXES)
+    assert after_2n["tombstones"] <= MAX_TOMBSTONES
+    assert after_2n["bytes"] <= after_n["bytes"]
+    assert after_2n["file_bytes"] <= after_n["file_bytes"]
+
+    stats = httpx.get(f"{server.url}/v1/sessions/{created['session_id']}", timeout=10).json()
+    assert stats["objects"] == len(BOXES)
+
+    # A subscriber resuming from before the kept history gets the whole map.
+    async def resume(since: int) -> dict:
+        updates = f"{server.ws_url}/v1/sessions/{created['session_id']}/updates?since={since}"
+        async with websockets.connect(updates, max_size=None) as ws:
+            return msgpack.unpackb(await asyncio.wait_for(ws.recv(), TIMEOUT_S))
+
+    old = asyncio.run(resume(floor - 1))
+    assert old["full"] and len(old["upserts"]) == len(BOXES)
+    recent = asyncio.run(resume(floor))
+    assert not recent["full"]
+
+
+def test_a_restart_trims_a_store_that_kept_more_tombstones_than_the_setting(live_server, tmp_path):
+    """Databases written before trimming (or with a larger setting) shrink at start-up."""
+    db_path = tmp_path / "data" / "semanticxr.sqlite3"
+    first = live_server()
+    created = httpx.post(f"{first.url}/v1/sessions", json={"knobs": KNOBS}, timeout=10).json()
+    asyncio.run(_stream(f"{first.ws_url}/v1/sessions/{created['session_id']}/stream", range(12)))
+    first.stop()
+    before = _measure(db_path)
+    assert before["tombstones"] > MAX_TOMBSTONES and before["seq_floor_next_id"][1] == 0
+
+    again = live_server(max_tombstones=MAX_TOMBSTONES)
+    after = _measure(db_path)
+    assert after["tombstones"] <= MAX_TOMBSTONES // 2
+    assert after["seq_floor_next_id"][1] > 0
+    stats = httpx.get(f"{again.url}/v1/sessions/{created['session_id']}", timeout=10).json()
+    assert (stats["objects"], stats["update_seq"]) == (len(BOXES), 12)
