@@ -7,8 +7,8 @@ import threading
 
 import httpx
 import pytest
+from analytic_world import Rect
 from devices import frame_message, stream_in_step
-from planes import Rect
 
 from app.perception import BACKENDS
 from app.perception.detections import DetectionsBackend

@@ -9,8 +9,8 @@ import httpx
 import msgpack
 import pytest
 import websockets
+from analytic_world import Rect
 from devices import TIMEOUT_S, frame_message
-from planes import Rect
 
 pytestmark = pytest.mark.timeout(120)
 
