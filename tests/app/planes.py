@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.perception.base import FrameInput
+from app.protocol import FrameInput
 
 WIDTH, HEIGHT = 320, 240
 INTRINSICS = (277.0, 277.0, 159.5, 119.5)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from app.errors import InputError
-from app.protocol import decode_frame
+from app.protocol import parse_frame
 from client_sim.encoder import FrameEncoder
 
 W, H = 80, 60
@@ -37,7 +37,7 @@ def encoded(ratio=5, with_detections=True) -> dict:
 
 
 def test_an_encoded_frame_decodes_to_the_same_geometry_and_detections():
-    frame = decode_frame(encoded())
+    frame = parse_frame(encoded())
     assert frame.seq == 7 and frame.rgb_size == (W, H) and frame.depth_m.shape == (H // 5, W // 5)
     assert frame.depth_m.dtype == np.float32 and frame.depth_m.min() > 0.49
     np.testing.assert_allclose(frame.pose[:3, 3], [1.0, 2.0, 0.5])
@@ -46,7 +46,7 @@ def test_an_encoded_frame_decodes_to_the_same_geometry_and_detections():
 
 
 def test_without_rgb_pixels_everything_but_the_pixels_is_the_same():
-    full, lean = decode_frame(encoded()), decode_frame(encoded(), rgb_pixels=False)
+    full, lean = parse_frame(encoded()), parse_frame(encoded(), rgb_pixels=False)
     assert full.rgb is not None and full.rgb.shape == (H, W, 3) and lean.rgb is None
     assert lean.rgb_size == full.rgb_size == (W, H)
     np.testing.assert_array_equal(lean.depth_m, full.depth_m)
@@ -54,11 +54,11 @@ def test_without_rgb_pixels_everything_but_the_pixels_is_the_same():
     bad = encoded()
     bad["rgb"]["data"] = bad["rgb"]["data"][: len(bad["rgb"]["data"]) // 2]
     with pytest.raises(InputError, match="^rgb: "):
-        decode_frame(bad, rgb_pixels=False)
+        parse_frame(bad, rgb_pixels=False)
 
 
 def test_detections_are_optional():
-    frame = decode_frame(encoded(with_detections=False))
+    frame = parse_frame(encoded(with_detections=False))
     assert frame.instance_ids is None and frame.instances == []
 
 
@@ -102,10 +102,10 @@ def test_a_bad_frame_raises_an_error_naming_the_field(field, mutate):
     message = encoded()
     mutate(message)
     with pytest.raises(InputError) as err:
-        decode_frame(message)
+        parse_frame(message)
     assert err.value.field.startswith(field), str(err.value)
 
 
 def test_a_message_that_is_not_a_map_is_refused():
     with pytest.raises(InputError, match="message"):
-        decode_frame([1, 2, 3])
+        parse_frame([1, 2, 3])
