@@ -1,0 +1,6 @@
+"""Protocol tests share tests/app's helpers (the analytic world in planes.py)."""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
