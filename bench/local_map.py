@@ -26,12 +26,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from app.protocol import DEFAULT_EMBEDDING_DIM, UpsertEntry, pack_delta
 from bench.common import check, machine, save_plot, write_outputs
 
 if TYPE_CHECKING:
     from app.semantics import TextEncoder
 
-DIM = 384
+DIM = DEFAULT_EMBEDDING_DIM
 POINTS_PER_OBJECT = 200
 BASELINE_POINTS_PER_OBJECT = 2000  # the server cap: the baseline ships objects uncapped
 DELTA_OBJECTS = 1000
@@ -47,30 +48,29 @@ QUERIES = [
 ]
 
 
-def object_upserts(ids: range, rng: np.random.Generator, version: int = 1) -> list[dict]:
-    """Wire `upserts[]` entries for `ids`: random unit embeddings, 200 points in a 1 m box."""
-    from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
-
+def object_upserts(ids: range, rng: np.random.Generator, version: int = 1) -> list[UpsertEntry]:
+    """`upserts[]` entries for `ids`: random unit embeddings, 200 points in a 1 m box."""
     embeddings = rng.standard_normal((len(ids), DIM)).astype(np.float32)
     embeddings /= np.linalg.norm(embeddings, axis=1, keepdims=True)
     corners = rng.uniform(-50, 50, (len(ids), 3))
     points = corners[:, None, :] + rng.uniform(0, 1, (len(ids), POINTS_PER_OBJECT, 3))
     return [
-        {
-            "id": oid,
-            "version": version,
-            "label": f"object {oid % 300}",
-            "embedding": float16_vector_to_bytes(embeddings[i]),
-            "points": float16_points_to_bytes(points[i]),
-            "bbox": [*points[i].min(axis=0).tolist(), *points[i].max(axis=0).tolist()],
-            "n_obs": 3,
-        }
+        UpsertEntry(
+            id=oid,
+            version=version,
+            label=f"object {oid % 300}",
+            embedding=embeddings[i],
+            points=points[i],
+            bbox=(*points[i].min(axis=0).tolist(), *points[i].max(axis=0).tolist()),
+            n_obs=3,
+        )
         for i, oid in enumerate(ids)
     ]
 
 
-def delta(seq: int, upserts: list[dict]) -> dict:
-    return {"type": "delta", "seq": seq, "full": False, "upserts": upserts, "removed": []}
+def delta(seq: int, upserts: list[UpsertEntry]) -> dict:
+    """The wire `delta` (as msgpack would unpack it) of `upserts`."""
+    return pack_delta(seq, upserts)
 
 
 def timed_ms(run: Callable[[], object], reps: int) -> dict:

@@ -27,11 +27,15 @@ if TYPE_CHECKING:
 
 from app.codecs import (
     DEPTH_CODECS,
+    MAX_ZSTD_LEVEL,
     encode_jpeg,
     encode_uint16_image,
     pose_to_bytes,
     validate_rigid_pose,
 )
+from app.codecs import PNG_LEVEL as DEFAULT_PNG_LEVEL
+from app.codecs import ZSTD_LEVEL as DEFAULT_ZSTD_LEVEL
+from app.protocol import Uint16Image, pack_frame
 
 DEPTH_DOWNSAMPLING_METHODS: tuple[str, ...] = ("nearest", "min")
 """'nearest': the block's centre pixel; 'min': the block's nearest valid depth."""
@@ -52,13 +56,8 @@ DEFAULT_DEPTH_SCALE_M = 0.01
 bits of finer units are mostly that noise, which no lossless codec can compress."""
 DEFAULT_DETECTIONS_CODEC = "zstd"
 """zstd beats PNG on instance-id images (large flat regions)."""
-DEFAULT_ZSTD_LEVEL = 12
-"""zstd level of the device's uint16 images; 12 shrinks instance images by a third against
-level 3 for ~1 ms per 640x480 frame (levels from 15 on cost several times more)."""
-MAX_ZSTD_LEVEL = 22
-DEFAULT_PNG_LEVEL = 4
-"""zlib level of PNG depth: on ÷5 depth in 1 cm units, 2% bigger than pillow's 6 at less than
-half its CPU time (1.0 vs 2.5 ms per frame)."""
+# The zstd and PNG levels of uint16 images are the codecs' defaults (app.codecs.ZSTD_LEVEL,
+# PNG_LEVEL), imported above as DEFAULT_ZSTD_LEVEL and DEFAULT_PNG_LEVEL.
 
 
 def _is_int(value: object) -> bool:
@@ -267,25 +266,26 @@ class FrameEncoder:
         depth_data = encode_uint16_image_at_level(depth_units, self.depth_codec, self.zstd_level)
         pose_data = pose_to_bytes(validate_rigid_pose(pose))
 
-        message: dict = {
-            "type": "frame",
-            "seq": int(seq),
-            "t": float(t),
-            "pose": pose_data,
-            "intrinsics": [float(value) for value in intrinsics],
-            "rgb": {"codec": "jpeg", "data": rgb_jpeg},
-            "depth": {
-                "codec": self.depth_codec,
-                "w": int(depth_units.shape[1]),
-                "h": int(depth_units.shape[0]),
-                "scale": self.depth_scale_m,
-                "data": depth_data,
-            },
-        }
-        detections_bytes = 0
+        detections, detections_bytes = None, 0
         if instance_ids is not None:
-            message["detections"] = self._encode_detections(instance_ids, instances or [], rgb)
-            detections_bytes = len(message["detections"]["data"])
+            detections = self._encode_detections(instance_ids, rgb)
+            detections_bytes = len(detections.data)
+        message = pack_frame(
+            seq=seq,
+            t=t,
+            pose=pose_data,
+            intrinsics=intrinsics,
+            rgb_jpeg=rgb_jpeg,
+            depth=Uint16Image(
+                self.depth_codec,
+                int(depth_units.shape[1]),
+                int(depth_units.shape[0]),
+                depth_data,
+            ),
+            depth_scale_m=self.depth_scale_m,
+            detections=detections,
+            instances=instances or [],
+        )
 
         bytes_by_kind = {
             "rgb": len(rgb_jpeg),
@@ -296,10 +296,8 @@ class FrameEncoder:
         }
         return EncodedFrame(message=message, bytes_by_kind=bytes_by_kind)
 
-    def _encode_detections(
-        self, instance_ids: np.ndarray, instances: list[dict], rgb: np.ndarray
-    ) -> dict:
-        """The "detections" part: the instance-id image (at RGB size) and its instances."""
+    def _encode_detections(self, instance_ids: np.ndarray, rgb: np.ndarray) -> Uint16Image:
+        """The instance-id image of the "detections" part, at RGB size."""
         instance_ids = np.asarray(instance_ids)
         if instance_ids.shape != rgb.shape[:2] or instance_ids.dtype.kind not in "iu":
             raise ValueError(
@@ -308,17 +306,12 @@ class FrameEncoder:
             )
         if instance_ids.size and (instance_ids.min() < 0 or instance_ids.max() > MAX_UINT16):
             raise ValueError("instance ids must lie in 0..65535 (0 = no instance)")
-        wire_instances = [
-            {"id": int(inst["id"]), "label": str(inst["label"]), "score": float(inst["score"])}
-            for inst in instances
-        ]
         height_px, width_px = instance_ids.shape
-        return {
-            "codec": self.detections_codec,
-            "w": int(width_px),
-            "h": int(height_px),
-            "data": encode_uint16_image_at_level(
+        return Uint16Image(
+            self.detections_codec,
+            int(width_px),
+            int(height_px),
+            encode_uint16_image_at_level(
                 instance_ids.astype(np.uint16), self.detections_codec, self.zstd_level
             ),
-            "instances": wire_instances,
-        }
+        )

@@ -19,7 +19,7 @@ from app.config import MODES, Knobs, Mode
 from app.mapping.engine import MappingEngine
 from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
 from app.mapping.publish import update_message
-from app.protocol import decode_frame
+from app.protocol import parse_frame
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder
 from client_sim.sources.synthetic import SyntheticSource
@@ -131,7 +131,7 @@ def map_keyframes(
         for name, engine in engines.items():
             run = runs[name]
             t0 = time.perf_counter()
-            frame = decode_frame(messages[name][i], engine.backend.needs_rgb)
+            frame = parse_frame(messages[name][i], engine.backend.needs_rgb)
             t1 = time.perf_counter()
             stats = engine.integrate(frame)
             t2 = time.perf_counter()

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from app.codecs import CodecError, float16_points_from_bytes, float16_vector_from_bytes
+from app.protocol import DEFAULT_EMBEDDING_DIM, DeltaError, parse_delta
 
 log = logging.getLogger(__name__)
 
@@ -54,17 +54,8 @@ _GROWTH = 8
 _SWAP_REMOVE_MAX = 32
 """Removing more rows than this at once compacts the arrays in one pass instead."""
 
-_INT64_MAX = 2**63 - 1
-_FLOAT32_MAX = float(np.finfo(np.float32).max)
-_UPSERT_KEYS = ("id", "version", "label", "embedding", "points", "bbox", "n_obs")
-
 _UNSET: Any = object()
 """Default of `set_policy(distance_threshold_m=...)`: unchanged (None means "no threshold")."""
-
-
-class DeltaError(ValueError):
-    """a malformed or out-of-order delta; the map is unchanged and the caller should resync
-    (ask for a full snapshot)."""
 
 
 @dataclass
@@ -95,38 +86,8 @@ class _ParsedDelta:
     removed: list[int]
 
 
-def _require_int(value: Any, field: str) -> int:
-    """`value` as an int in [0, 2^63) (fits the int64 columns); bools and floats refused."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise DeltaError(f"{field}: expected an integer, got {type(value).__name__}")
-    if not 0 <= int(value) <= _INT64_MAX:
-        raise DeltaError(f"{field}: {int(value)} is out of range 0..2^63-1")
-    return int(value)
-
-
 def _is_finite_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _require_list(value: Any, field: str) -> list | tuple:
-    if not isinstance(value, list | tuple):
-        raise DeltaError(f"{field}: expected a list, got {type(value).__name__}")
-    return value
-
-
-def _parse_bbox(value: Any, field: str) -> np.ndarray:
-    """float32 [6] of a finite, ordered [x0, y0, z0, x1, y1, z1]."""
-    value = _require_list(value, field)
-    if len(value) != 6 or not all(
-        isinstance(v, int | float | np.number) and not isinstance(v, bool) for v in value
-    ):
-        raise DeltaError(f"{field}: expected 6 numbers [x0, y0, z0, x1, y1, z1], got {value!r}")
-    box = np.array(value, dtype=np.float64)
-    if not np.all(np.isfinite(box)) or np.max(np.abs(box)) > _FLOAT32_MAX:
-        raise DeltaError(f"{field}: not finite (NaN, inf or beyond float32)")
-    if np.any(box[:3] > box[3:]):
-        raise DeltaError(f"{field}: minimum corner exceeds maximum corner in {value!r}")
-    return box.astype(np.float32)
 
 
 def _cap_points(points: np.ndarray, max_points: int, oid: int, version: int) -> np.ndarray:
@@ -170,7 +131,7 @@ class LocalMap:
 
     def __init__(
         self,
-        dim: int = 384,
+        dim: int = DEFAULT_EMBEDDING_DIM,
         max_points_per_object: int = 200,
         budget_mb: float = 500.0,
         priority_classes: Sequence[str] = (),
@@ -328,26 +289,12 @@ class LocalMap:
 
     def _parse(self, message: Any) -> _ParsedDelta:
         """The delta as columns, or DeltaError naming the first wrong field; no side effects."""
-        if not isinstance(message, dict):
-            raise DeltaError(f"message: expected a map, got {type(message).__name__}")
-        if message.get("type") != "delta":
-            raise DeltaError(f"type: expected 'delta', got {message.get('type')!r}")
-        for key in ("seq", "full", "upserts", "removed"):
-            if key not in message:
-                raise DeltaError(f"{key}: missing")
-        seq = _require_int(message["seq"], "seq")
-        full = message["full"]
-        if not isinstance(full, bool):
-            raise DeltaError(f"full: expected a boolean, got {type(full).__name__}")
-        if not full and seq < self.seq:
-            raise DeltaError(f"seq: {seq} is older than the applied seq {self.seq} (out of order)")
-        upserts = _require_list(message["upserts"], "upserts")
-        removed = [
-            _require_int(oid, f"removed[{i}]")
-            for i, oid in enumerate(_require_list(message["removed"], "removed"))
-        ]
-
-        m = len(upserts)
+        delta = parse_delta(message, self.dim)
+        if not delta.full and delta.seq < self.seq:
+            raise DeltaError(
+                "seq", f"{delta.seq} is older than the applied seq {self.seq} (out of order)"
+            )
+        m = len(delta.upserts)
         ids = np.empty(m, np.int64)
         versions = np.empty(m, np.int64)
         n_obs = np.empty(m, np.int64)
@@ -356,42 +303,20 @@ class LocalMap:
         bboxes = np.empty((m, 6), np.float32)
         centroids = np.empty((m, 3), np.float32)
         points_list: list[np.ndarray] = []
-        for i, upsert in enumerate(upserts):
-            field = f"upserts[{i}]"
-            if not isinstance(upsert, dict):
-                raise DeltaError(f"{field}: expected a map, got {type(upsert).__name__}")
-            missing = [key for key in _UPSERT_KEYS if key not in upsert]
-            if missing:
-                raise DeltaError(f"{field}: missing {', '.join(missing)}")
-            ids[i] = _require_int(upsert["id"], f"{field}.id")
-            versions[i] = _require_int(upsert["version"], f"{field}.version")
-            n_obs[i] = _require_int(upsert["n_obs"], f"{field}.n_obs")
-            label = upsert["label"]
-            if not isinstance(label, str):
-                raise DeltaError(f"{field}.label: expected a string, got {type(label).__name__}")
-            labels.append(sys.intern(label))  # thousands of objects share a few hundred labels
-            bboxes[i] = _parse_bbox(upsert["bbox"], f"{field}.bbox")
-            try:
-                embeddings[i] = float16_vector_from_bytes(
-                    upsert["embedding"], self.dim, f"{field}.embedding"
-                )
-                points = float16_points_from_bytes(upsert["points"], f"{field}.points")
-            except CodecError as exc:
-                raise DeltaError(str(exc)) from exc
+        for i, upsert in enumerate(delta.upserts):
+            ids[i], versions[i], n_obs[i] = upsert.id, upsert.version, upsert.n_obs
+            labels.append(sys.intern(upsert.label))  # thousands of objects share a few labels
+            bboxes[i] = upsert.bbox
+            embeddings[i] = upsert.embedding
+            points = upsert.points
             if len(points):
                 centroids[i] = points.astype(np.float32).mean(axis=0)
             else:
                 centroids[i] = (bboxes[i, :3] + bboxes[i, 3:]) / 2
-            points_list.append(_cap_points(points, self._max_points, int(ids[i]), int(versions[i])))
-
-        if len(np.unique(ids)) != m:
-            raise DeltaError("upserts: an id appears more than once")
-        both = set(ids.tolist()) & set(removed)
-        if both:
-            raise DeltaError(f"removed: ids {sorted(both)[:5]} are also upserted")
+            points_list.append(_cap_points(points, self._max_points, upsert.id, upsert.version))
         return _ParsedDelta(
-            seq=seq,
-            full=full,
+            seq=delta.seq,
+            full=delta.full,
             ids=ids,
             versions=versions,
             labels=labels,
@@ -400,7 +325,7 @@ class LocalMap:
             bboxes=bboxes,
             centroids=centroids,
             n_obs=n_obs,
-            removed=removed,
+            removed=delta.removed,
         )
 
     def _upsert(self, delta: _ParsedDelta) -> None:

@@ -41,7 +41,7 @@ from websockets.asyncio.client import ClientConnection
 from websockets.exceptions import WebSocketException
 
 from app.config import Knobs
-from app.protocol import unpack_update
+from app.protocol import ErrorReply, InputError, unpack_reply, unpack_update
 from client_sim.encoder import EncodedFrame, FrameEncoder
 from client_sim.local_map import DeltaError, LocalMap
 from client_sim.sources.base import FrameSource
@@ -624,39 +624,32 @@ class _StreamLink:
         """Count one ack or error; feed the RTT from acks."""
         received_s = time.perf_counter()
         try:
-            reply = msgpack.unpackb(raw, raw=False) if isinstance(raw, bytes) else None
-        except Exception:
-            reply = None
-        kind = reply.get("type") if isinstance(reply, dict) else None
-        if kind not in ("ack", "error"):
+            reply = unpack_reply(raw)
+        except InputError:
             self.stats.errors += 1
             self.client._problem("malformed reply on the stream socket")
             return
-        seq = reply.get("seq")
+        seq = reply.seq
         if seq is None and self.in_flight:
             # Every frame gets exactly one reply; an error without a seq answers the oldest.
             sent_s = self.in_flight.pop(next(iter(self.in_flight)))
         else:
-            sent_s = self.in_flight.pop(seq, None) if isinstance(seq, int) else None
-        if kind == "error":
+            sent_s = self.in_flight.pop(seq, None) if seq is not None else None
+        if isinstance(reply, ErrorReply):
             self.stats.errors += 1
-            self.client._problem(
-                f"server error for frame {seq}: {reply.get('code')}: {reply.get('message')}"
-            )
+            self.client._problem(f"server error for frame {seq}: {reply.code}: {reply.message}")
             return
         self.stats.acks += 1
-        if reply.get("dropped"):
+        if reply.dropped:
             self.stats.superseded += 1
-        elif reply.get("keyframe"):
+        elif reply.keyframe:
             self.stats.keyframes_acked += 1
-        update_seq = reply.get("update_seq")
-        if isinstance(update_seq, int):
-            self.stats.server_seq = max(self.stats.server_seq, update_seq)
-        if sent_s is not None and not reply.get("dropped"):
+        if reply.update_seq is not None:
+            self.stats.server_seq = max(self.stats.server_seq, reply.update_seq)
+        if sent_s is not None and not reply.dropped:
             # A keyframe's ack waits for its mapping: take that server time out of the sample.
             # (A superseded keyframe waited in a queue for an unknown time: no sample.)
-            map_ms = reply.get("map_ms", 0.0) if reply.get("keyframe") else 0.0
-            map_ms = map_ms if isinstance(map_ms, int | float) else 0.0
+            map_ms = reply.map_ms if reply.keyframe else 0.0
             self.client._observe_rtt((received_s - sent_s) * 1e3 - map_ms)
 
     async def wait_for_slot(self, wait_for_link: bool) -> bool:

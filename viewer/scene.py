@@ -25,15 +25,14 @@ labels are hidden, so the hits stand out.
 from __future__ import annotations
 
 import colorsys
-import math
 import zlib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
-from app.codecs import CodecError, float16_points_from_bytes
+from app.protocol import DeltaError, parse_delta
 
 Rgb = tuple[int, int, int]
 
@@ -70,10 +69,6 @@ def label_node(object_id: int) -> str:
 def hit_label_node(object_id: int) -> str:
     """Scene name of a highlighted hit's label (with its score)."""
     return f"{HITS_GROUP}/labels/{object_id}"
-
-
-class DeltaError(ValueError):
-    """A malformed or out-of-order delta; nothing was applied."""
 
 
 class SceneSink(Protocol):
@@ -180,73 +175,6 @@ def _segment_colors(colors: list[Rgb]) -> np.ndarray:
     return np.broadcast_to(per_box, (per_box.shape[0], 12, 2, 3)).reshape(-1, 2, 3).copy()
 
 
-# --- parsing --------------------------------------------------------------------------------
-
-
-def _int(value: Any, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise DeltaError(f"{where}: expected an integer, got {type(value).__name__}")
-    return value
-
-
-def _bbox(value: Any, where: str) -> tuple[float, float, float, float, float, float]:
-    if not isinstance(value, list | tuple) or len(value) != 6:
-        raise DeltaError(f"{where}: expected 6 numbers")
-    numbers = []
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise DeltaError(f"{where}: expected 6 finite numbers")
-        numbers.append(float(v))
-    return tuple(numbers)  # type: ignore[return-value]
-
-
-def parse_delta(message: Any) -> tuple[int, bool, list[ViewObject], list[int]]:
-    """(seq, full, upserts, removed) of a v1 `delta`, or DeltaError naming the first wrong
-    field. The embedding is not needed to draw and is not decoded."""
-    if not isinstance(message, dict) or message.get("type") != "delta":
-        raise DeltaError("message: expected a map with type 'delta'")
-    for key in ("seq", "full", "upserts", "removed"):
-        if key not in message:
-            raise DeltaError(f"{key}: missing")
-    seq = _int(message["seq"], "seq")
-    full = message["full"]
-    if not isinstance(full, bool):
-        raise DeltaError("full: expected a boolean")
-    if not isinstance(message["upserts"], list) or not isinstance(message["removed"], list):
-        raise DeltaError("upserts and removed must be lists")
-    upserts: list[ViewObject] = []
-    for i, up in enumerate(message["upserts"]):
-        where = f"upserts[{i}]"
-        if not isinstance(up, dict):
-            raise DeltaError(f"{where}: expected a map")
-        missing = [k for k in ("id", "version", "label", "points", "bbox", "n_obs") if k not in up]
-        if missing:
-            raise DeltaError(f"{where}: missing {', '.join(missing)}")
-        if not isinstance(up["label"], str):
-            raise DeltaError(f"{where}.label: expected a string")
-        try:
-            points = float16_points_from_bytes(up["points"], f"{where}.points")
-        except CodecError as exc:
-            raise DeltaError(str(exc)) from exc
-        upserts.append(
-            ViewObject(
-                id=_int(up["id"], f"{where}.id"),
-                version=_int(up["version"], f"{where}.version"),
-                label=up["label"],
-                bbox=_bbox(up["bbox"], f"{where}.bbox"),
-                points=points,
-                n_obs=_int(up["n_obs"], f"{where}.n_obs"),
-            )
-        )
-    removed = [_int(oid, f"removed[{i}]") for i, oid in enumerate(message["removed"])]
-    ids = [o.id for o in upserts]
-    if len(set(ids)) != len(ids):
-        raise DeltaError("upserts: an id appears more than once")
-    if set(ids) & set(removed):
-        raise DeltaError("removed: an id is also upserted")
-    return seq, full, upserts, removed
-
-
 # --- the model ------------------------------------------------------------------------------
 
 
@@ -318,9 +246,15 @@ class SceneModel:
         DeltaError and changes nothing. Upserts at a version the viewer already holds (or
         older) cause no node operation, so a resync snapshot only redraws what changed.
         """
-        seq, full, upserts, removed = parse_delta(message)
+        delta = parse_delta(message)  # the embedding is decoded (validated), not drawn
+        seq, full, removed = delta.seq, delta.full, delta.removed
         if not full and seq < self.seq:
-            raise DeltaError(f"seq: {seq} is older than the applied seq {self.seq} (out of order)")
+            raise DeltaError(
+                "seq", f"{seq} is older than the applied seq {self.seq} (out of order)"
+            )
+        upserts = [
+            ViewObject(u.id, u.version, u.label, u.bbox, u.points, u.n_obs) for u in delta.upserts
+        ]
         summary = DeltaSummary(seq=seq, full=full)
         if full:
             fresh = {o.id for o in upserts}

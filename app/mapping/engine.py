@@ -32,11 +32,11 @@ from app.perception import DEFAULT_BACKEND, make_backend
 from app.perception.base import (
     Detection,
     FrameDetections,
-    FrameInput,
     InputError,
     PerceptionBackend,
 )
 from app.perception.detections import detections_from_instance_image
+from app.protocol import MAX_INTRINSIC_PX, FrameInput
 from app.semantics import TextEncoder
 
 MERGE_OVERLAP = 0.7
@@ -48,8 +48,6 @@ OUTLIER_EPS_M = 0.1
 MAX_WORLD_M = 10_000.0
 """A camera farther than this from the map's origin (per axis) is refused: no XR map is that
 big, and it keeps lifted points finite whatever the pose bytes say."""
-MAX_INTRINSIC_PX = 1e6
-"""Focal lengths and principal points beyond this many pixels are refused (finite points)."""
 BASELINE_RESOLUTION_M = 0.01
 """The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
 a depth pixel at mapping range, so repeated views do not stack identical points."""

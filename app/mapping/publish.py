@@ -2,18 +2,22 @@
 
 One function owns each representation: `client_points` is the only place that turns an
 object's server geometry into what crosses the network, and `delta_message` the only place
-that builds a v1 `delta`.
+that builds a v1 `delta` (with the protocol's `DeltaMessage`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from app.codecs import float16_points_to_bytes, float16_vector_to_bytes, pose_to_bytes
+from app.config import Knobs
 from app.mapping.deltas import Delta
 from app.mapping.engine import MappingEngine
 from app.mapping.geometry import cap_points
 from app.mapping.object import MapObject
+from app.protocol import DeltaMessage, UpsertEntry
+
+MIN_CAP_RESOLUTION_M = Knobs().voxel_size_m
+"""Capping never thins an object finer than the default voxel size."""
 
 
 def client_points(obj: MapObject, max_points: int | None) -> np.ndarray:
@@ -28,34 +32,36 @@ def client_points(obj: MapObject, max_points: int | None) -> np.ndarray:
     if max_points is None or len(obj.points) <= max_points:
         points = obj.points
     else:
-        points, _ = cap_points(obj.points, max_points, max(obj.resolution_m, 0.025))
+        points, _ = cap_points(obj.points, max_points, max(obj.resolution_m, MIN_CAP_RESOLUTION_M))
     obj._client_cache = (key, points)
     return points
 
 
-def object_upsert(obj: MapObject, max_points: int | None) -> dict:
-    """The `upserts[]` entry of one object (embedding and points as float16 bytes)."""
-    points = client_points(obj, max_points)
-    return {
-        "id": obj.id,
-        "version": obj.version,
-        "label": obj.label,
-        "embedding": float16_vector_to_bytes(obj.embedding),
-        "points": float16_points_to_bytes(points),
-        "bbox": [float(v) for v in obj.bbox],
-        "n_obs": obj.n_obs,
-    }
+def object_upsert(obj: MapObject, max_points: int | None) -> UpsertEntry:
+    """The `upserts[]` entry of one object."""
+    return UpsertEntry(
+        id=obj.id,
+        version=obj.version,
+        label=obj.label,
+        embedding=obj.embedding,
+        points=client_points(obj, max_points),
+        bbox=tuple(float(v) for v in obj.bbox),  # type: ignore[arg-type]
+        n_obs=obj.n_obs,
+    )
 
 
 def delta_message(delta: Delta, objects: dict[int, MapObject], max_points: int | None) -> dict:
     """A v1 `delta` message for `delta`; ids no longer in `objects` are skipped."""
-    return {
-        "type": "delta",
-        "seq": delta.seq,
-        "full": delta.full,
-        "upserts": [object_upsert(objects[i], max_points) for i in delta.upserts if i in objects],
-        "removed": list(delta.removed),
-    }
+    return _delta(delta, objects, max_points).pack()
+
+
+def _delta(delta: Delta, objects: dict[int, MapObject], max_points: int | None) -> DeltaMessage:
+    return DeltaMessage(
+        seq=delta.seq,
+        full=delta.full,
+        upserts=[object_upsert(objects[i], max_points) for i in delta.upserts if i in objects],
+        removed=list(delta.removed),
+    )
 
 
 def update_message(engine: MappingEngine, since: int | None) -> dict:
@@ -63,15 +69,13 @@ def update_message(engine: MappingEngine, since: int | None) -> dict:
 
     semanticxr: the objects changed since `since`, coalesced, at client resolution.
     baseline: the whole confirmed map at full resolution, every time (DESIGN.md's table).
-    Extension of v1 (an optional field): "device_pose", the newest mapped keyframe's
-    camera-to-world pose in the frame's own encoding (16 float32 LE, row-major), so viewers
-    can show where the device is.
+    With the v1 extension "device_pose": the newest mapped keyframe's pose, so viewers can
+    show where the device is.
     """
     if engine.mode == "baseline":
-        message = delta_message(engine.delta_since(None), engine.objects, None)
+        message = _delta(engine.delta_since(None), engine.objects, None)
     else:
         max_points = engine.knobs.max_object_points_client
-        message = delta_message(engine.delta_since(since), engine.objects, max_points)
-    if engine.last_pose is not None:
-        message["device_pose"] = pose_to_bytes(engine.last_pose)
-    return message
+        message = _delta(engine.delta_since(since), engine.objects, max_points)
+    message.device_pose = engine.last_pose
+    return message.pack()

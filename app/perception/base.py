@@ -1,39 +1,17 @@
-"""The decoded frame the engine consumes, one frame's detections, and the backend interface."""
+"""One frame's detections and the backend interface (the decoded frame, `FrameInput`, is
+the protocol's: `app.protocol.frame`)."""
 
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from app.errors import InputError
+from app.protocol.frame import FrameInput
 
 __all__ = ["Detection", "FrameDetections", "FrameInput", "InputError", "PerceptionBackend"]
-
-
-@dataclass
-class FrameInput:
-    """One decoded RGB-D frame, as the mapping engine sees it.
-
-    depth_m:      float32 [h, w] metres, possibly downsampled from the RGB size; 0 = invalid
-    pose:         float64 [4, 4] camera-to-world (OpenCV camera: x right, y down, z forward)
-    intrinsics:   (fx, fy, cx, cy) of the RGB image, in RGB pixels
-    rgb_size:     (W, H) of the RGB image (the resolution masks and intrinsics refer to)
-    rgb:          uint8 [H, W, 3], or None where a backend does not need it
-    instance_ids: uint16 [H, W] instance image sent by the device (0 = none), optional
-    instances:    [{"id": int, "label": str, "score": float}] for the ids in instance_ids
-    """
-
-    seq: int
-    t: float
-    pose: np.ndarray
-    intrinsics: tuple[float, float, float, float]
-    rgb_size: tuple[int, int]
-    depth_m: np.ndarray
-    rgb: np.ndarray | None = None
-    instance_ids: np.ndarray | None = None
-    instances: list[dict] = field(default_factory=list)
 
 
 @dataclass

@@ -15,13 +15,12 @@ from scipy import ndimage
 from app.perception.base import (
     Detection,
     FrameDetections,
-    FrameInput,
     InputError,
     PerceptionBackend,
 )
-
-MAX_INSTANCES = 1024
-MAX_LABEL_CHARS = 200
+from app.protocol import FrameInput
+from app.protocol.limits import MAX_INSTANCES_PER_FRAME as MAX_INSTANCES
+from app.protocol.limits import MAX_LABEL_CHARS
 
 
 def detections_from_instance_image(

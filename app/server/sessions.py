@@ -31,7 +31,8 @@ from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
 from app.perception import DEFAULT_BACKEND, UnknownBackendError, make_backend
-from app.perception.base import FrameDetections, FrameInput, PerceptionBackend
+from app.perception.base import FrameDetections, PerceptionBackend
+from app.protocol import Ack, ErrorReply, FrameInput
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
 from app.server.settings import ServerSettings
@@ -321,7 +322,7 @@ class SessionManager:
             if older is not None:
                 session.dropped += 1
                 self.metrics.inc("semanticxr_dropped_frames_total")
-                await older.reply(ack(older.frame.seq, keyframe=False, dropped=True))
+                await older.reply(Ack(older.frame.seq, keyframe=False, dropped=True).pack())
             return
         session._mapping = True
         asyncio.create_task(self._map_loop(session, pending))
@@ -335,23 +336,23 @@ class SessionManager:
                         self.pool, self._map_and_persist, session, pending
                     )
                 except InputError as exc:
-                    await pending.reply(error(pending.frame.seq, "bad_frame", str(exc)))
+                    await pending.reply(ErrorReply(pending.frame.seq, "bad_frame", str(exc)).pack())
                 except Exception as exc:  # never lose the ack: report and go on
                     await pending.reply(
-                        error(pending.frame.seq, "internal", f"mapping failed: {exc}")
+                        ErrorReply(pending.frame.seq, "internal", f"mapping failed: {exc}").pack()
                     )
                 else:
                     map_ms = (time.perf_counter() - pending.received_t) * 1e3
                     session.latencies_ms.append(latency_ms)
                     self.metrics.observe_ms("semanticxr_mapping_latency_ms", latency_ms)
                     await pending.reply(
-                        ack(
+                        Ack(
                             pending.frame.seq,
                             keyframe=True,
                             map_ms=map_ms,
                             update_seq=stats.seq,
                             objects=stats.confirmed,
-                        )
+                        ).pack()
                     )
                     session.after_keyframe(stats.keyframe)
                 pending, session._pending = session._pending, None
@@ -393,22 +394,3 @@ class SessionManager:
                 session._stored_floor = engine.log.floor
             latency_ms = pending.decode_ms + (time.perf_counter() - t_locked) * 1e3
             return stats, latency_ms
-
-
-def ack(seq: int, keyframe: bool, map_ms: float = 0.0, dropped: bool = False, **extra) -> dict:
-    """A v1 `ack`; `dropped` (an extension) says a keyframe was superseded before mapping."""
-    message = {
-        "type": "ack",
-        "seq": seq,
-        "server_t": time.time(),
-        "keyframe": keyframe,
-        "map_ms": float(map_ms),
-    }
-    if dropped:
-        message["dropped"] = True
-    message.update(extra)
-    return message
-
-
-def error(seq: int | None, code: str, message: str) -> dict:
-    return {"type": "error", "seq": seq, "code": code, "message": message}

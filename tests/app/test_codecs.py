@@ -14,10 +14,7 @@ from PIL import Image
 
 from app.codecs import (
     DEPTH_CODECS,
-    ENVELOPE_DTYPES,
     CodecError,
-    array_envelope,
-    array_from_envelope,
     decode_jpeg,
     decode_uint16_image,
     encode_jpeg,
@@ -337,74 +334,6 @@ def test_pose_with_a_bad_last_row_is_refused() -> None:
 def test_pose_of_the_wrong_shape_is_refused() -> None:
     with pytest.raises(CodecError, match="pose: expected shape"):
         validate_rigid_pose(np.eye(3))
-
-
-# --- array envelopes ------------------------------------------------------------------------
-
-
-@FEW
-@given(
-    arr=hnp.arrays(
-        st.sampled_from(ENVELOPE_DTYPES).map(np.dtype),
-        hnp.array_shapes(min_dims=0, max_dims=3, min_side=0, max_side=6),
-    )
-)
-def test_array_envelope_round_trips_every_allowed_dtype(arr: np.ndarray) -> None:
-    env = array_envelope(arr)
-    assert env["dtype"] == arr.dtype.name
-    assert env["shape"] == list(arr.shape)
-    decoded = array_from_envelope(env, "arr")
-    assert decoded.dtype == arr.dtype
-    np.testing.assert_array_equal(decoded, arr)
-
-
-def test_big_endian_arrays_travel_as_little_endian() -> None:
-    arr = np.array([1, 2], dtype=">u4")
-    env = array_envelope(arr)
-    assert env["data"] == b"\x01\x00\x00\x00\x02\x00\x00\x00"
-    np.testing.assert_array_equal(array_from_envelope(env, "arr"), [1, 2])
-
-
-def test_object_dtype_cannot_be_put_in_an_envelope() -> None:
-    with pytest.raises(CodecError, match="labels.dtype: dtype 'object'"):
-        array_envelope(np.array([{"a": 1}], dtype=object), field="labels")
-
-
-def test_envelope_declaring_object_dtype_is_refused() -> None:
-    env = {"dtype": "object", "shape": [1], "data": b"\x00" * 8}
-    with pytest.raises(CodecError, match="embedding.dtype: dtype 'object' is not allowed"):
-        array_from_envelope(env, "embedding")
-
-
-@pytest.mark.parametrize(
-    "env, message",
-    [
-        ({"dtype": "uint8", "shape": [2]}, r"points: envelope keys .*missing \['data'\]"),
-        ({"dtype": "uint8", "shape": [2], "data": b"ab", "pickle": 1}, "unexpected"),
-        ({"dtype": "<f4", "shape": [1], "data": b"\x00" * 4}, "points.dtype"),
-        ({"dtype": "uint8", "shape": [2, -1], "data": b""}, "points.shape"),
-        ({"dtype": "uint8", "shape": "2", "data": b"ab"}, "points.shape"),
-        ({"dtype": "uint8", "shape": [2.0], "data": b"ab"}, "points.shape"),
-        ({"dtype": "uint16", "shape": [3], "data": b"\x00" * 5}, "points.data: 5 bytes"),
-        ({"dtype": "uint8", "shape": [2], "data": "ab"}, "points.data: expected binary"),
-        ({"dtype": "float64", "shape": [1 << 30, 1 << 30], "data": b""}, "over the limit"),
-        ([1, 2], "points: expected an envelope map"),
-    ],
-)
-def test_malformed_envelopes_are_refused_naming_the_field(env: object, message: str) -> None:
-    with pytest.raises(CodecError, match=message):
-        array_from_envelope(env, "points")  # type: ignore[arg-type]
-
-
-def test_envelope_over_the_byte_limit_is_refused() -> None:
-    env = array_envelope(np.zeros(1000, np.float64))
-    with pytest.raises(CodecError, match="over the limit of 4000"):
-        array_from_envelope(env, "arr", max_bytes=4000)
-
-
-def test_bool_envelope_normalises_any_non_zero_byte_to_true() -> None:
-    env = {"dtype": "bool", "shape": [3], "data": b"\x00\x02\x01"}
-    np.testing.assert_array_equal(array_from_envelope(env, "mask"), [False, True, True])
 
 
 # --- float16 payloads -----------------------------------------------------------------------

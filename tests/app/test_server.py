@@ -13,6 +13,7 @@ from analytic_world import Rect
 from devices import TIMEOUT_S, frame_message, send_and_collect, stream, stream_in_step
 
 from app.codecs import float16_points_from_bytes
+from app.protocol import PROTOCOL_VERSION
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -102,6 +103,18 @@ def test_a_device_streams_and_a_query_finds_the_fridge(live_server):
         ).json()
         assert answer["results"][0]["label"] == "refrigerator" and answer["results"][0]["points"]
         assert answer["latency_ms"] >= 0
+
+
+def test_session_creation_announces_the_protocol_and_queries_respect_max_query_k(live_server):
+    server = live_server(max_query_k=3)
+    with httpx.Client(base_url=server.url) as c:
+        created = create(c)
+        assert created["protocol"] == PROTOCOL_VERSION
+        query = f"/v1/sessions/{created['session_id']}/query"
+        assert c.get(query, params={"text": "fridge", "k": 3}).status_code == 200
+        too_many = c.get(query, params={"text": "fridge", "k": 4})
+        assert too_many.status_code == 422
+        assert too_many.json()["detail"] == "k: 4 is over this server's limit of 3"
 
 
 def test_a_subscriber_ends_up_holding_the_servers_confirmed_map(live_server):

@@ -1,7 +1,7 @@
 """Upstream-size options of the device encoder: depth step, JPEG Huffman tables, zstd level.
 
 Each option changes only bytes on the wire, within protocol v1: the server decodes every
-setting with the same `decode_frame`.
+setting with the same `parse_frame`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.codecs import DEPTH_CODECS, decode_jpeg
-from app.protocol import decode_frame
+from app.protocol import parse_frame
 from client_sim.encoder import FrameEncoder, downsample_depth
 
 FEW = settings(max_examples=20, deadline=None)
@@ -54,7 +54,7 @@ def over_the_wire(encoder: FrameEncoder, depth_m: np.ndarray, with_detections: b
         }
     encoded = encoder.encode(0, 0.0, textured_rgb(), depth_m, np.eye(4), INTRINSICS, **kwargs)
     message = msgpack.unpackb(msgpack.packb(encoded.message, use_bin_type=True), raw=False)
-    return encoded, decode_frame(message)
+    return encoded, parse_frame(message)
 
 
 @FEW

@@ -13,10 +13,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
+from app.codecs import float16_vector_to_bytes
 from app.mapping.deltas import Delta
 from app.mapping.object import MapObject
 from app.mapping.publish import delta_message
+from app.protocol import UpsertEntry, pack_delta
 from client_sim.local_map import BYTES_PER_MB, DeltaError, LocalMap
 
 DIM = 32  # small embeddings keep the tests fast; the map is dimension-agnostic
@@ -36,33 +37,28 @@ def upsert(
     center_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
     n_points: int = 20,
     embedding: np.ndarray | None = None,
-) -> dict:
-    """A wire `upserts[]` entry: n_points points in a 0.4 m cube around center_m."""
+) -> UpsertEntry:
+    """An `upserts[]` entry: n_points points (float16, as sent) in a 0.4 m cube around
+    center_m."""
     rng = np.random.default_rng(oid * 1000 + version)
     points = np.asarray(center_m) + rng.uniform(-0.2, 0.2, (n_points, 3))
     bbox = [*points.min(axis=0), *points.max(axis=0)] if n_points else [*center_m, *center_m]
-    return {
-        "id": oid,
-        "version": version,
-        "label": label,
-        "embedding": float16_vector_to_bytes(unit_vector(oid) if embedding is None else embedding),
-        "points": float16_points_to_bytes(points.reshape(-1, 3)),
-        "bbox": [float(v) for v in bbox],
-        "n_obs": 3,
-    }
+    return UpsertEntry(
+        id=oid,
+        version=version,
+        label=label,
+        embedding=unit_vector(oid) if embedding is None else embedding,
+        points=points.reshape(-1, 3).astype(np.float16),
+        bbox=tuple(float(v) for v in bbox),
+        n_obs=3,
+    )
 
 
 def delta(
-    seq: int, upserts: Sequence[dict] = (), removed: Sequence[int] = (), full: bool = False
+    seq: int, upserts: Sequence[UpsertEntry] = (), removed: Sequence[int] = (), full: bool = False
 ) -> dict:
     """A v1 `delta` message as msgpack would unpack it."""
-    return {
-        "type": "delta",
-        "seq": seq,
-        "full": full,
-        "upserts": list(upserts),
-        "removed": list(removed),
-    }
+    return pack_delta(seq, upserts, removed, full)
 
 
 def local_map(**kwargs) -> LocalMap:
@@ -329,7 +325,7 @@ def test_a_text_query_finds_the_object_with_that_label(encoder):
 
 def test_points_over_the_cap_are_subsampled_from_the_received_ones_deterministically():
     sent = upsert(1, n_points=500)
-    sent_points = {tuple(p) for p in np.frombuffer(sent["points"], "<f2").reshape(-1, 3).tolist()}
+    sent_points = {tuple(p) for p in sent.points.tolist()}
     first, second = local_map(max_points_per_object=64), local_map(max_points_per_object=64)
     first.apply_delta(delta(1, [sent]))
     second.apply_delta(delta(1, [sent]))
@@ -345,7 +341,7 @@ def test_points_under_the_cap_are_kept_exactly():
     m = local_map(max_points_per_object=64)
     m.apply_delta(delta(1, [sent]))
 
-    expected = np.frombuffer(sent["points"], "<f2").reshape(-1, 3).astype(np.float32)
+    expected = sent.points.astype(np.float32)
     np.testing.assert_array_equal(m.get(1)["points"], expected)
 
 
@@ -365,7 +361,7 @@ def test_the_centroid_is_the_mean_of_the_received_points():
     m = local_map(max_points_per_object=10)
     m.apply_delta(delta(1, [sent]))
 
-    received = np.frombuffer(sent["points"], "<f2").reshape(-1, 3).astype(np.float64)
+    received = sent.points.astype(np.float64)
     assert m.get(1)["centroid"] == pytest.approx(received.mean(axis=0), abs=1e-4)
 
 

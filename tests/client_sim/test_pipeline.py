@@ -87,7 +87,7 @@ def test_a_variant_named_like_a_mode_is_refused_before_any_work(encoder):
 def test_a_query_for_a_category_returns_an_object_of_that_category(living_room, encoder):
     engine = MappingEngine(encoder, Knobs(min_mapping_bbox_area=100))
     for frame in living_room.frames(every=3):
-        from app.perception.base import FrameInput
+        from app.protocol import FrameInput
 
         engine.integrate(
             FrameInput(

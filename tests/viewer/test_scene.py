@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
+from app.protocol import UpsertEntry, pack_delta
 from viewer.scene import (
     BOXES_NODE,
     HIT_BOX_RGB,
@@ -79,25 +79,19 @@ def upsert(oid: int, version: int, label: str = "chair", offset: float = 0.0, n:
     rng = np.random.default_rng([oid, version])
     points = rng.uniform(0, 0.5, (n, 3)) + [oid + offset, 0, 0]
     lo, hi = points.min(axis=0), points.max(axis=0)
-    return {
-        "id": oid,
-        "version": version,
-        "label": label,
-        "embedding": float16_vector_to_bytes(np.ones(DIM) / np.sqrt(DIM)),
-        "points": float16_points_to_bytes(points),
-        "bbox": [*lo.tolist(), *hi.tolist()],
-        "n_obs": version,
-    }
+    return UpsertEntry(
+        id=oid,
+        version=version,
+        label=label,
+        embedding=np.ones(DIM) / np.sqrt(DIM),
+        points=points,
+        bbox=(*lo.tolist(), *hi.tolist()),
+        n_obs=version,
+    )
 
 
 def delta(seq: int, upserts=(), removed=(), full: bool = False) -> dict:
-    return {
-        "type": "delta",
-        "seq": seq,
-        "full": full,
-        "upserts": list(upserts),
-        "removed": list(removed),
-    }
+    return pack_delta(seq, upserts, removed, full)
 
 
 @pytest.fixture
@@ -149,7 +143,7 @@ def test_an_update_replaces_only_the_nodes_of_the_object_that_changed(scene):
 def test_an_update_that_keeps_the_box_and_label_resends_only_the_points(scene):
     model, sink = scene
     changed = upsert(2, 2, "table")
-    changed["bbox"] = upsert(2, 1, "table")["bbox"]  # same box, new points inside it
+    changed.bbox = upsert(2, 1, "table").bbox  # same box, new points inside it
     model.apply_delta(delta(2, [changed]))
     assert sink.take() == [("add_point_cloud", points_node(2))]
 
@@ -221,10 +215,10 @@ def test_a_malformed_or_out_of_order_delta_changes_nothing(scene):
     model, sink = scene
     model.apply_delta(delta(5, [upsert(1, 2)]))
     sink.take()
-    bad_points = upsert(2, 5)
-    bad_points["points"] = b"\x00" * 7
+    bad_points = delta(6, [upsert(3, 5), upsert(2, 5)])  # 3 is valid, but not applied
+    bad_points["upserts"][1]["points"] = b"\x00" * 7
     with pytest.raises(DeltaError, match="points"):
-        model.apply_delta(delta(6, [upsert(3, 5), bad_points]))  # 3 is valid, but not applied
+        model.apply_delta(bad_points)
     with pytest.raises(DeltaError, match="out of order"):
         model.apply_delta(delta(4, [upsert(3, 6)]))
     with pytest.raises(DeltaError, match="more than once"):

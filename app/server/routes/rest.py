@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, Response
 from pydantic import BaseModel, Field
 
+from app import protocol
 from app.config import KnobError, knobs_to_dict
 from app.mapping.object import MapObject
 from app.mapping.publish import client_points
@@ -160,6 +161,9 @@ class CreatedSession(BaseModel):
     token: str = Field(description="Bearer token for everything under this session; shown once")
     embedding: Embedding
     knobs: KnobsOut
+    protocol: int = Field(
+        protocol.PROTOCOL_VERSION, description="Wire protocol version of the server"
+    )
 
 
 class SessionSummary(BaseModel):
@@ -208,21 +212,17 @@ def session_for(request: Request, sid: str) -> Session:
     return authorize_session(manager(request), sid, bearer(request.headers, request.query_params))
 
 
-def _points(obj: MapObject, session: Session) -> list[list[float]]:
-    pts = client_points(obj, session.knobs.max_object_points_client)
-    return pts.round(4).tolist()
-
-
-def _object_out(obj: MapObject, session: Session, with_points: bool) -> dict:
-    return {
-        "id": obj.id,
-        "version": obj.version,
-        "label": obj.label,
-        "bbox": [round(float(v), 4) for v in obj.bbox],
-        "centroid": [round(float(v), 4) for v in obj.centroid],
-        "n_obs": obj.n_obs,
-        "points": _points(obj, session) if with_points else None,
-    }
+def _object_record(obj: MapObject, session: Session, with_points: bool) -> protocol.ObjectRecord:
+    points = client_points(obj, session.knobs.max_object_points_client) if with_points else None
+    return protocol.ObjectRecord(
+        id=obj.id,
+        version=obj.version,
+        label=obj.label,
+        bbox=obj.bbox,
+        centroid=obj.centroid,
+        n_obs=obj.n_obs,
+        points=points,
+    )
 
 
 @router.post(
@@ -246,12 +246,12 @@ def create_session(body: CreateSession, request: Request) -> dict:
     except OverflowError as exc:
         raise HTTPException(503, str(exc)) from None
     encoder = session.engine.encoder
-    return {
-        "session_id": session.id,
-        "token": token,
-        "embedding": {"model": encoder.model_id, "dim": encoder.dim},
-        "knobs": knobs_to_dict(session.knobs),
-    }
+    return protocol.SessionCreated(
+        session_id=session.id,
+        token=token,
+        embedding=protocol.EmbeddingInfo(encoder.model_id, encoder.dim),
+        knobs=knobs_to_dict(session.knobs),
+    ).to_json()
 
 
 @router.get(
@@ -261,7 +261,8 @@ def create_session(body: CreateSession, request: Request) -> dict:
     summary="List sessions",
 )
 def list_sessions(request: Request) -> list[dict]:
-    return [s.stats() for s in list(manager(request).sessions.values())]
+    sessions = list(manager(request).sessions.values())
+    return [protocol.SessionSummary.from_stats(s.stats()).to_json() for s in sessions]
 
 
 @router.get(
@@ -271,7 +272,7 @@ def list_sessions(request: Request) -> list[dict]:
     responses=SESSION_ERRORS,
 )
 def get_session(sid: str, request: Request) -> dict:
-    return session_for(request, sid).stats()
+    return protocol.SessionStats.from_stats(session_for(request, sid).stats()).to_json()
 
 
 @router.get(
@@ -318,7 +319,7 @@ def list_objects(
     sid: str, request: Request, points: bool = Query(False, description="include points")
 ) -> list[dict]:
     session = session_for(request, sid)
-    return [_object_out(o, session, points) for o in session.objects()]
+    return [_object_record(o, session, points).to_json() for o in session.objects()]
 
 
 @router.get(
@@ -334,28 +335,31 @@ def query(
     text: str = Query(
         ..., min_length=1, max_length=MAX_QUERY_CHARS, description="what to look for"
     ),
-    k: int = Query(5, ge=1, le=100, description="how many results"),
+    k: int = Query(5, ge=1, description="how many results (at most the server's max_query_k)"),
     points: bool = Query(True, description="include each result's points"),
 ) -> dict:
     session = session_for(request, sid)
+    max_k = manager(request).settings.max_query_k
+    if k > max_k:
+        raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
     t0 = time.perf_counter()
     hits = session.query(text, k)
     results = []
     for hit in hits:
-        out = _object_out(hit.object, session, points)
+        record = _object_record(hit.object, session, points)
         results.append(
-            {
-                "id": out["id"],
-                "label": out["label"],
-                "score": round(hit.score, 5),
-                "bbox": out["bbox"],
-                "centroid": out["centroid"],
-                "points": out["points"],
-            }
+            protocol.QueryHitRecord(
+                id=record.id,
+                label=record.label,
+                score=hit.score,
+                bbox=record.bbox,
+                centroid=record.centroid,
+                points=record.points,
+            )
         )
     latency_ms = (time.perf_counter() - t0) * 1e3
     manager(request).metrics.observe_ms("semanticxr_query_latency_ms", latency_ms)
-    return {"text": text, "results": results, "latency_ms": latency_ms}
+    return protocol.QueryResult(text=text, results=results, latency_ms=latency_ms).to_json()
 
 
 @router.delete(

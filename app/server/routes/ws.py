@@ -10,10 +10,10 @@ import msgpack
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 
 from app.errors import InputError
-from app.perception.base import FrameDetections, FrameInput
-from app.protocol import decode_frame
+from app.perception.base import FrameDetections
+from app.protocol import Ack, ErrorReply, FrameInput, parse_frame, unpack_frame_message
 from app.server.auth import authorize_session, bearer
-from app.server.sessions import Session, SessionManager, ack, error
+from app.server.sessions import Session, SessionManager
 
 router = APIRouter(prefix="/v1")
 SEND_TIMEOUT_S = 30.0
@@ -49,7 +49,7 @@ def _decode_and_validate(
     milliseconds this took (part of a keyframe's mapping latency)."""
     t0 = time.perf_counter()
     engine = session.engine
-    frame = decode_frame(message, rgb_pixels=engine.backend.needs_rgb)
+    frame = parse_frame(message, rgb_pixels=engine.backend.needs_rgb)
     sent = engine.validate_frame(frame)
     return frame, sent, (time.perf_counter() - t0) * 1e3
 
@@ -80,27 +80,27 @@ async def stream(ws: WebSocket, sid: str) -> None:
             if data is None:
                 manager.metrics.inc("semanticxr_frames_total", outcome="bad")
                 await reply(
-                    error(None, "bad_message", "frames must be binary msgpack messages, got text")
+                    ErrorReply(
+                        None, "bad_message", "frames must be binary msgpack messages, got text"
+                    ).pack()
                 )
                 bad_in_a_row += 1
             elif len(data) > settings.max_message_bytes:
                 await reply(
-                    error(
+                    ErrorReply(
                         None,
                         "too_big",
                         f"message of {len(data)} bytes exceeds {settings.max_message_bytes}",
-                    )
+                    ).pack()
                 )
                 await ws.close(code=CLOSE_TOO_BIG, reason="message too big")
                 return
             else:
                 try:
-                    message = msgpack.unpackb(data, raw=False, strict_map_key=False)
-                except Exception as exc:
+                    message = unpack_frame_message(data)
+                except InputError as exc:
                     message = None
-                    await reply(
-                        error(None, "bad_message", f"message: not msgpack ({type(exc).__name__})")
-                    )
+                    await reply(ErrorReply(None, "bad_message", str(exc)).pack())
                     bad_in_a_row += 1
                 if message is not None:
                     seq = message.get("seq") if isinstance(message, dict) else None
@@ -111,7 +111,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
                         )
                     except InputError as exc:
                         manager.metrics.inc("semanticxr_frames_total", outcome="bad")
-                        await reply(error(seq, "bad_frame", str(exc)))
+                        await reply(ErrorReply(seq, "bad_frame", str(exc)).pack())
                         bad_in_a_row += 1
                     else:
                         bad_in_a_row = 0
@@ -119,7 +119,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
                         if manager.count_frame(session, _payload_bytes(message)):
                             await manager.submit_keyframe(session, frame, reply, sent, decode_ms)
                         else:
-                            await reply(ack(frame.seq, keyframe=False))
+                            await reply(Ack(frame.seq, keyframe=False).pack())
             if bad_in_a_row >= settings.max_bad_frames:
                 await ws.close(code=CLOSE_POLICY, reason=f"{bad_in_a_row} bad messages in a row")
                 return

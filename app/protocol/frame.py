@@ -1,23 +1,117 @@
-"""Wire protocol v1 (DESIGN.md "Wire protocol v1"): build, parse and validate messages.
+"""The v1 `frame` (device -> server on the stream socket): pack, unpack, parse, validate.
 
-msgpack maps in binary WebSocket messages; binary fields are raw bytes. This module is the
-one place that knows the field names; the server, the device and the viewer import it.
+The device packs the parts it has already encoded (`pack_frame`); the server unpacks the
+socket's bytes within the frame limits (`unpack_frame_message`) and parses the message into
+the `FrameInput` the engine consumes (`parse_frame`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
-import msgpack
 import numpy as np
 
 from app import codecs
-from app.perception.base import FrameInput, InputError
+from app.errors import InputError
+from app.protocol.limits import (
+    FRAME_LIMITS,
+    MAX_IMAGE_SIDE_PX,
+    MAX_INTRINSIC_PX,
+    unpack_limited,
+)
 
-PROTOCOL_VERSION = 1
-MAX_IMAGE_SIDE_PX = 8192
-MAX_INTRINSIC = 1e6
+
+@dataclass
+class FrameInput:
+    """One decoded RGB-D frame, as the mapping engine sees it.
+
+    depth_m:      float32 [h, w] metres, possibly downsampled from the RGB size; 0 = invalid
+    pose:         float64 [4, 4] camera-to-world (OpenCV camera: x right, y down, z forward)
+    intrinsics:   (fx, fy, cx, cy) of the RGB image, in RGB pixels
+    rgb_size:     (W, H) of the RGB image (the resolution masks and intrinsics refer to)
+    rgb:          uint8 [H, W, 3], or None where a backend does not need it
+    instance_ids: uint16 [H, W] instance image sent by the device (0 = none), optional
+    instances:    [{"id": int, "label": str, "score": float}] for the ids in instance_ids
+    """
+
+    seq: int
+    t: float
+    pose: np.ndarray
+    intrinsics: tuple[float, float, float, float]
+    rgb_size: tuple[int, int]
+    depth_m: np.ndarray
+    rgb: np.ndarray | None = None
+    instance_ids: np.ndarray | None = None
+    instances: list[dict] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Uint16Image:
+    """An encoded uint16 image part of a frame (depth or detection instance ids)."""
+
+    codec: str
+    """One of `app.codecs.DEPTH_CODECS`."""
+    w: int
+    h: int
+    data: bytes
+
+
+def pack_frame(
+    seq: int,
+    t: float,
+    pose: bytes,
+    intrinsics: Sequence[float],
+    rgb_jpeg: bytes,
+    depth: Uint16Image,
+    depth_scale_m: float,
+    detections: Uint16Image | None = None,
+    instances: Sequence[dict] = (),
+) -> dict:
+    """A v1 `frame` message, ready for `msgpack.packb`, from its already-encoded parts.
+
+    pose: 64 bytes (`codecs.pose_to_bytes`); intrinsics (fx, fy, cx, cy) of the RGB image;
+    depth: the (downsampled) depth image in units of `depth_scale_m` metres; detections: the
+    instance-id image at RGB size, with `instances` [{"id", "label", "score"}] describing it.
+    """
+    if instances and detections is None:
+        raise ValueError("instances given without a detections image")
+    message: dict = {
+        "type": "frame",
+        "seq": int(seq),
+        "t": float(t),
+        "pose": pose,
+        "intrinsics": [float(value) for value in intrinsics],
+        "rgb": {"codec": "jpeg", "data": rgb_jpeg},
+        "depth": {
+            "codec": depth.codec,
+            "w": int(depth.w),
+            "h": int(depth.h),
+            "scale": float(depth_scale_m),
+            "data": depth.data,
+        },
+    }
+    if detections is not None:
+        message["detections"] = {
+            "codec": detections.codec,
+            "w": int(detections.w),
+            "h": int(detections.h),
+            "data": detections.data,
+            "instances": [
+                {"id": int(inst["id"]), "label": str(inst["label"]), "score": float(inst["score"])}
+                for inst in instances
+            ],
+        }
+    return message
+
+
+def unpack_frame_message(raw: bytes) -> Any:
+    """A message from the stream socket (device -> server), unpacked within `FRAME_LIMITS`;
+    InputError("message", ...) if it is not msgpack or is over a limit. The message itself
+    is validated by `parse_frame`."""
+    return unpack_limited(raw, FRAME_LIMITS)
 
 
 def _require(message: dict, key: str, kind: type | tuple[type, ...], where: str = "") -> Any:
@@ -53,7 +147,7 @@ def _image_size(message: dict, where: str) -> tuple[int, int]:
     return w, h
 
 
-def decode_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
+def parse_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
     """A v1 `frame` message (already unpacked from msgpack) -> FrameInput.
 
     Validates every field and raises InputError naming the first bad one; does not check
@@ -79,7 +173,7 @@ def decode_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
     ):
         raise InputError("intrinsics", "must be 4 finite numbers [fx, fy, cx, cy]")
     fx, fy, cx, cy = (float(v) for v in intrinsics)
-    if not (0 < fx < MAX_INTRINSIC and 0 < fy < MAX_INTRINSIC):
+    if not (0 < fx < MAX_INTRINSIC_PX and 0 < fy < MAX_INTRINSIC_PX):
         raise InputError("intrinsics", "fx and fy must be positive")
 
     rgb_msg = _require(message, "rgb", dict)
@@ -135,17 +229,3 @@ def decode_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
         instance_ids=instance_ids,
         instances=instances,
     )
-
-
-def unpack_update(raw: bytes | str) -> dict | str:
-    """A message from the updates socket, unpacked; or what is wrong with it (a string).
-
-    Only the framing is checked here (binary msgpack); the delta itself is validated by
-    whoever applies it.
-    """
-    if not isinstance(raw, bytes):
-        return "a text message; updates are binary msgpack"
-    try:
-        return msgpack.unpackb(raw, raw=False)
-    except Exception as exc:  # msgpack raises many types for garbage
-        return f"not msgpack ({type(exc).__name__})"

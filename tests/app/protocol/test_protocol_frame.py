@@ -1,12 +1,17 @@
-"""Decoding v1 frame messages: what the device encodes, the server reads back exactly."""
+"""v1 frame messages: what the device packs and encodes, the server parses back exactly."""
 
 from __future__ import annotations
 
+import msgpack
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
+from app.codecs import DEPTH_CODECS, encode_jpeg, encode_uint16_image, pose_to_bytes
 from app.errors import InputError
-from app.protocol import decode_frame
+from app.protocol import Uint16Image, pack_frame, parse_frame
 from client_sim.encoder import FrameEncoder
 
 W, H = 80, 60
@@ -37,7 +42,7 @@ def encoded(ratio=5, with_detections=True) -> dict:
 
 
 def test_an_encoded_frame_decodes_to_the_same_geometry_and_detections():
-    frame = decode_frame(encoded())
+    frame = parse_frame(encoded())
     assert frame.seq == 7 and frame.rgb_size == (W, H) and frame.depth_m.shape == (H // 5, W // 5)
     assert frame.depth_m.dtype == np.float32 and frame.depth_m.min() > 0.49
     np.testing.assert_allclose(frame.pose[:3, 3], [1.0, 2.0, 0.5])
@@ -46,7 +51,7 @@ def test_an_encoded_frame_decodes_to_the_same_geometry_and_detections():
 
 
 def test_without_rgb_pixels_everything_but_the_pixels_is_the_same():
-    full, lean = decode_frame(encoded()), decode_frame(encoded(), rgb_pixels=False)
+    full, lean = parse_frame(encoded()), parse_frame(encoded(), rgb_pixels=False)
     assert full.rgb is not None and full.rgb.shape == (H, W, 3) and lean.rgb is None
     assert lean.rgb_size == full.rgb_size == (W, H)
     np.testing.assert_array_equal(lean.depth_m, full.depth_m)
@@ -54,11 +59,11 @@ def test_without_rgb_pixels_everything_but_the_pixels_is_the_same():
     bad = encoded()
     bad["rgb"]["data"] = bad["rgb"]["data"][: len(bad["rgb"]["data"]) // 2]
     with pytest.raises(InputError, match="^rgb: "):
-        decode_frame(bad, rgb_pixels=False)
+        parse_frame(bad, rgb_pixels=False)
 
 
 def test_detections_are_optional():
-    frame = decode_frame(encoded(with_detections=False))
+    frame = parse_frame(encoded(with_detections=False))
     assert frame.instance_ids is None and frame.instances == []
 
 
@@ -102,10 +107,74 @@ def test_a_bad_frame_raises_an_error_naming_the_field(field, mutate):
     message = encoded()
     mutate(message)
     with pytest.raises(InputError) as err:
-        decode_frame(message)
+        parse_frame(message)
     assert err.value.field.startswith(field), str(err.value)
 
 
 def test_a_message_that_is_not_a_map_is_refused():
     with pytest.raises(InputError, match="message"):
-        decode_frame([1, 2, 3])
+        parse_frame([1, 2, 3])
+
+
+# --- pack_frame -> msgpack -> parse_frame ---------------------------------------------------
+
+uint16_images = hnp.arrays(
+    np.uint16, st.tuples(st.integers(1, 12), st.integers(1, 12)), elements=st.integers(0, 65535)
+)
+instances = st.lists(
+    st.fixed_dictionaries(
+        {
+            "id": st.integers(1, 65535),
+            "label": st.text(max_size=20),
+            "score": st.floats(0, 1, allow_nan=False),
+        }
+    ),
+    max_size=4,
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seq=st.integers(0, 2**63 - 1),
+    t=st.floats(-1e6, 1e6),
+    translation=st.lists(st.floats(-100, 100, width=32), min_size=3, max_size=3),
+    intrinsics=st.lists(st.floats(1, 1e4, width=32), min_size=4, max_size=4),
+    depth=uint16_images,
+    scale=st.floats(1e-4, 1.0),
+    codec=st.sampled_from(DEPTH_CODECS),
+    with_detections=st.booleans(),
+    frame_instances=instances,
+)
+def test_a_packed_frame_survives_msgpack_and_parses_to_the_same_frame(
+    seq, t, translation, intrinsics, depth, scale, codec, with_detections, frame_instances
+):
+    rgb = np.full((depth.shape[0] * 2, depth.shape[1] * 2, 3), 128, np.uint8)
+    pose = np.eye(4)
+    pose[:3, 3] = translation
+    ids = np.zeros(rgb.shape[:2], np.uint16)
+    ids[:1, :1] = 7
+    message = pack_frame(
+        seq=seq,
+        t=t,
+        pose=pose_to_bytes(pose),
+        intrinsics=intrinsics,
+        rgb_jpeg=encode_jpeg(rgb),
+        depth=Uint16Image(codec, depth.shape[1], depth.shape[0], encode_uint16_image(depth, codec)),
+        depth_scale_m=scale,
+        detections=Uint16Image("zstd", ids.shape[1], ids.shape[0], encode_uint16_image(ids, "zstd"))
+        if with_detections
+        else None,
+        instances=frame_instances if with_detections else (),
+    )
+
+    frame = parse_frame(msgpack.unpackb(msgpack.packb(message, use_bin_type=True), raw=False))
+
+    assert (frame.seq, frame.t, frame.intrinsics) == (seq, t, tuple(intrinsics))
+    np.testing.assert_array_equal(frame.pose, pose.astype(np.float32))
+    assert frame.rgb_size == (rgb.shape[1], rgb.shape[0]) and frame.rgb.shape == rgb.shape
+    np.testing.assert_array_equal(frame.depth_m, depth.astype(np.float32) * np.float32(scale))
+    if with_detections:
+        np.testing.assert_array_equal(frame.instance_ids, ids)
+        assert frame.instances == frame_instances
+    else:
+        assert frame.instance_ids is None and frame.instances == []

@@ -1,0 +1,91 @@
+"""Wire protocol v1 (DESIGN.md "Wire protocol v1"): the one place that knows its field names.
+
+Every message has one typed definition here, its pack and its parse side by side; the
+server, the device, the viewer, the benches and the tests all use them, and nothing else
+builds or parses a message. msgpack maps travel in binary WebSocket messages (binary fields
+are raw bytes), JSON over HTTP.
+
+    frame.py     device -> server, stream socket: `pack_frame`, `unpack_frame_message`,
+                 `parse_frame` -> `FrameInput`
+    replies.py   server -> device, stream socket: `Ack`, `ErrorReply`, `parse_reply`
+    delta.py     server -> subscribers, updates socket: `UpsertEntry`, `DeltaMessage`,
+                 `pack_delta`, `unpack_update`, `parse_delta` (raises `DeltaError`)
+    rest.py      REST answers: session records, `ObjectRecord`, `QueryResult`
+    limits.py    `PROTOCOL_VERSION` and every limit, the bounded msgpack unpacking
+
+This package imports only the codecs and the error type below it: never perception,
+mapping or the server.
+"""
+
+from app.errors import InputError
+from app.protocol.delta import (
+    DeltaError,
+    DeltaMessage,
+    UpsertEntry,
+    pack_delta,
+    parse_delta,
+    unpack_update,
+)
+from app.protocol.frame import (
+    FrameInput,
+    Uint16Image,
+    pack_frame,
+    parse_frame,
+    unpack_frame_message,
+)
+from app.protocol.limits import (
+    DEFAULT_EMBEDDING_DIM,
+    MAX_IMAGE_SIDE_PX,
+    MAX_INSTANCES_PER_FRAME,
+    MAX_INTRINSIC_PX,
+    MAX_LABEL_CHARS,
+    MAX_REMOVED_PER_DELTA,
+    MAX_UPSERTS_PER_DELTA,
+    PROTOCOL_VERSION,
+)
+from app.protocol.replies import Ack, ErrorReply, parse_reply, unpack_reply
+from app.protocol.rest import (
+    EmbeddingInfo,
+    ObjectRecord,
+    QueryHitRecord,
+    QueryResult,
+    SessionCreated,
+    SessionStats,
+    SessionSummary,
+    parse_query_result,
+)
+
+__all__ = [
+    "DEFAULT_EMBEDDING_DIM",
+    "MAX_IMAGE_SIDE_PX",
+    "MAX_INSTANCES_PER_FRAME",
+    "MAX_INTRINSIC_PX",
+    "MAX_LABEL_CHARS",
+    "MAX_REMOVED_PER_DELTA",
+    "MAX_UPSERTS_PER_DELTA",
+    "PROTOCOL_VERSION",
+    "Ack",
+    "DeltaError",
+    "DeltaMessage",
+    "EmbeddingInfo",
+    "ErrorReply",
+    "FrameInput",
+    "InputError",
+    "ObjectRecord",
+    "QueryHitRecord",
+    "QueryResult",
+    "SessionCreated",
+    "SessionStats",
+    "SessionSummary",
+    "Uint16Image",
+    "UpsertEntry",
+    "pack_delta",
+    "pack_frame",
+    "parse_delta",
+    "parse_frame",
+    "parse_query_result",
+    "parse_reply",
+    "unpack_frame_message",
+    "unpack_reply",
+    "unpack_update",
+]

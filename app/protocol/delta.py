@@ -1,0 +1,260 @@
+"""The v1 `delta` (server -> subscribers on the updates socket): pack, unpack, parse.
+
+The server builds deltas with `DeltaMessage.pack` (or `pack_delta`); the device's local map
+and the viewer parse them with `parse_delta`, which validates everything and raises one
+`DeltaError` naming the first wrong field. Whether a delta is in order (its seq against the
+one last applied) is the subscriber's state, so the subscriber checks it.
+
+Extension of v1 (an optional field): "device_pose", the newest mapped keyframe's
+camera-to-world pose in the frame's own encoding (16 float32 LE, row-major).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from app.codecs import (
+    CodecError,
+    float16_points_from_bytes,
+    float16_points_to_bytes,
+    float16_vector_from_bytes,
+    float16_vector_to_bytes,
+    pose_from_bytes,
+    pose_to_bytes,
+)
+from app.errors import InputError
+from app.protocol.limits import (
+    MAX_REMOVED_PER_DELTA,
+    MAX_UPSERTS_PER_DELTA,
+    UPDATE_LIMITS,
+    unpack_limited,
+)
+
+_INT64_MAX = 2**63 - 1
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+UPSERT_KEYS = ("id", "version", "label", "embedding", "points", "bbox", "n_obs")
+"""The keys of every `upserts[]` entry."""
+
+
+class DeltaError(InputError):
+    """A malformed delta (or, raised by a subscriber, an out-of-order one); nothing was
+    applied, and the subscriber should resync (ask for a full snapshot)."""
+
+
+@dataclass(eq=False)
+class UpsertEntry:
+    """One `upserts[]` entry: an object created or changed, at client resolution."""
+
+    id: int
+    version: int
+    label: str
+    embedding: np.ndarray
+    """float16 [dim] unit vector as on the wire (any float [dim] packs, rounded to float16)."""
+    points: np.ndarray
+    """float16 [N, 3] metres as on the wire (any float [N, 3] packs, rounded to float16)."""
+    bbox: tuple[float, float, float, float, float, float]
+    """[x0, y0, z0, x1, y1, z1] metres, minimum corner first."""
+    n_obs: int
+
+    def pack(self) -> dict:
+        """The wire `upserts[]` entry (embedding and points as little-endian float16 bytes)."""
+        return {
+            "id": self.id,
+            "version": self.version,
+            "label": self.label,
+            "embedding": float16_vector_to_bytes(self.embedding),
+            "points": float16_points_to_bytes(self.points),
+            "bbox": [float(v) for v in self.bbox],
+            "n_obs": self.n_obs,
+        }
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, UpsertEntry):
+            return NotImplemented
+        return (
+            (self.id, self.version, self.label, self.n_obs)
+            == (other.id, other.version, other.label, other.n_obs)
+            and tuple(self.bbox) == tuple(other.bbox)
+            and np.array_equal(self.embedding, other.embedding)
+            and np.array_equal(self.points, other.points)
+        )
+
+
+@dataclass(eq=False)
+class DeltaMessage:
+    """A v1 `delta`: the objects created or changed and the ids removed after some seq."""
+
+    seq: int
+    full: bool
+    """A snapshot: it replaces whatever the subscriber holds."""
+    upserts: list[UpsertEntry] = field(default_factory=list)
+    removed: list[int] = field(default_factory=list)
+    device_pose: np.ndarray | None = None
+    """Extension: float [4, 4] camera-to-world of the newest mapped keyframe, if any."""
+
+    def pack(self) -> dict:
+        """The v1 `delta` message, ready for `msgpack.packb`."""
+        message: dict = {
+            "type": "delta",
+            "seq": self.seq,
+            "full": self.full,
+            "upserts": [upsert.pack() for upsert in self.upserts],
+            "removed": list(self.removed),
+        }
+        if self.device_pose is not None:
+            message["device_pose"] = pose_to_bytes(self.device_pose)
+        return message
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, DeltaMessage):
+            return NotImplemented
+        if (self.device_pose is None) != (other.device_pose is None):
+            return False
+        return (
+            (self.seq, self.full, list(self.removed))
+            == (other.seq, other.full, list(other.removed))
+            and list(self.upserts) == list(other.upserts)
+            and (self.device_pose is None or np.array_equal(self.device_pose, other.device_pose))
+        )
+
+
+def pack_delta(
+    seq: int,
+    upserts: Sequence[UpsertEntry] = (),
+    removed: Sequence[int] = (),
+    full: bool = False,
+    device_pose: np.ndarray | None = None,
+) -> dict:
+    """The v1 `delta` message of these parts (see `DeltaMessage`)."""
+    return DeltaMessage(seq, full, list(upserts), list(removed), device_pose).pack()
+
+
+def unpack_update(raw: bytes | str) -> dict | str:
+    """A message from the updates socket, unpacked within `UPDATE_LIMITS`; or what is wrong
+    with it (a string). The delta itself is validated by `parse_delta`."""
+    if not isinstance(raw, bytes):
+        return "a text message; updates are binary msgpack"
+    try:
+        return unpack_limited(raw, UPDATE_LIMITS)
+    except InputError as exc:
+        return str(exc)
+
+
+# --- parsing --------------------------------------------------------------------------------
+
+
+def _int(value: Any, field: str) -> int:
+    """`value` as an int in [0, 2^63) (ids, versions, seqs); bools and floats refused."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise DeltaError(field, f"expected an integer, got {type(value).__name__}")
+    if not 0 <= int(value) <= _INT64_MAX:
+        raise DeltaError(field, f"{int(value)} is out of range 0..2^63-1")
+    return int(value)
+
+
+def _list(value: Any, field: str, most: int) -> list | tuple:
+    if not isinstance(value, list | tuple):
+        raise DeltaError(field, f"expected a list, got {type(value).__name__}")
+    if len(value) > most:
+        raise DeltaError(field, f"{len(value)} entries, at most {most} per delta")
+    return value
+
+
+def _bbox(value: Any, field: str) -> tuple[float, float, float, float, float, float]:
+    """A finite, ordered [x0, y0, z0, x1, y1, z1] (within float32, as subscribers store it)."""
+    if not isinstance(value, list | tuple):
+        raise DeltaError(field, f"expected a list, got {type(value).__name__}")
+    if len(value) != 6 or not all(
+        isinstance(v, int | float | np.number) and not isinstance(v, bool) for v in value
+    ):
+        raise DeltaError(field, f"expected 6 numbers [x0, y0, z0, x1, y1, z1], got {value!r}")
+    box = tuple(float(v) for v in value)
+    if not all(math.isfinite(v) and abs(v) <= _FLOAT32_MAX for v in box):
+        raise DeltaError(field, "not finite (NaN, inf or beyond float32)")
+    if any(box[axis] > box[axis + 3] for axis in range(3)):
+        raise DeltaError(field, f"minimum corner exceeds maximum corner in {value!r}")
+    return box  # type: ignore[return-value]
+
+
+def _embedding(value: Any, dim: int | None, field: str) -> np.ndarray:
+    """float16 [dim]; with `dim` None, the dimension is whatever the bytes hold (>= 1)."""
+    if dim is None:
+        if not isinstance(value, bytes):
+            raise DeltaError(field, f"expected binary data, got {type(value).__name__}")
+        if len(value) < 2 or len(value) % 2:
+            raise DeltaError(field, f"{len(value)} bytes is not a whole number of float16")
+        dim = len(value) // 2
+    return float16_vector_from_bytes(value, dim, field)
+
+
+def _upsert(value: Any, dim: int | None, field: str) -> UpsertEntry:
+    if not isinstance(value, dict):
+        raise DeltaError(field, f"expected a map, got {type(value).__name__}")
+    missing = [key for key in UPSERT_KEYS if key not in value]
+    if missing:
+        raise DeltaError(field, f"missing {', '.join(missing)}")
+    label = value["label"]
+    if not isinstance(label, str):
+        raise DeltaError(f"{field}.label", f"expected a string, got {type(label).__name__}")
+    oid = _int(value["id"], f"{field}.id")
+    version = _int(value["version"], f"{field}.version")
+    n_obs = _int(value["n_obs"], f"{field}.n_obs")
+    bbox = _bbox(value["bbox"], f"{field}.bbox")
+    try:
+        embedding = _embedding(value["embedding"], dim, f"{field}.embedding")
+        points = float16_points_from_bytes(value["points"], f"{field}.points")
+    except CodecError as exc:
+        raise DeltaError(exc.field, exc.message) from exc
+    return UpsertEntry(oid, version, label, embedding, points, bbox, n_obs)
+
+
+def parse_delta(message: Any, dim: int | None = None) -> DeltaMessage:
+    """The `DeltaMessage` of an unpacked v1 `delta`, or DeltaError naming the first wrong
+    field; no side effects.
+
+    dim: the embedding dimension the session announced; None accepts any, but one for all
+    upserts (the first one's). Embeddings and points stay float16 (wire precision).
+    """
+    if not isinstance(message, dict):
+        raise DeltaError("message", f"expected a map, got {type(message).__name__}")
+    if message.get("type") != "delta":
+        raise DeltaError("type", f"expected 'delta', got {message.get('type')!r}")
+    for key in ("seq", "full", "upserts", "removed"):
+        if key not in message:
+            raise DeltaError(key, "missing")
+    seq = _int(message["seq"], "seq")
+    full = message["full"]
+    if not isinstance(full, bool):
+        raise DeltaError("full", f"expected a boolean, got {type(full).__name__}")
+    raw_upserts = _list(message["upserts"], "upserts", MAX_UPSERTS_PER_DELTA)
+    removed = [
+        _int(oid, f"removed[{i}]")
+        for i, oid in enumerate(_list(message["removed"], "removed", MAX_REMOVED_PER_DELTA))
+    ]
+    upserts = []
+    for i, raw in enumerate(raw_upserts):
+        upsert = _upsert(raw, dim, f"upserts[{i}]")
+        dim = len(upsert.embedding)  # every later upsert must match the first
+        upserts.append(upsert)
+
+    ids = [upsert.id for upsert in upserts]
+    if len(set(ids)) != len(ids):
+        raise DeltaError("upserts", "an id appears more than once")
+    both = set(ids) & set(removed)
+    if both:
+        raise DeltaError("removed", f"ids {sorted(both)[:5]} are also upserted")
+
+    device_pose = None
+    if message.get("device_pose") is not None:
+        try:
+            device_pose = pose_from_bytes(message["device_pose"], "device_pose")
+        except CodecError as exc:
+            raise DeltaError(exc.field, exc.message) from exc
+        if not np.all(np.isfinite(device_pose)):
+            raise DeltaError("device_pose", "not finite (NaN or inf)")
+    return DeltaMessage(seq, full, upserts, removed, device_pose)
