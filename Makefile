@@ -18,6 +18,7 @@ test: setup
 
 lint: setup
 	.venv/bin/ruff check . && .venv/bin/ruff format --check .
+	.venv/bin/lint-imports --no-cache
 
 bench: setup
 	$(PY) -m bench.mapping --out out

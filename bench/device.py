@@ -28,8 +28,8 @@ import time
 
 import numpy as np
 
+from app.server.runner import ServerProcess
 from bench.common import check, machine, save_plot, write_outputs
-from bench.server import Server
 from client_sim.sources.base import FrameSource, SourceFrame
 
 STREAM_FPS = 5.0
@@ -210,9 +210,9 @@ def real_frames(path: str, count: int) -> list[SourceFrame] | None:
 
 
 def semanticxr_f_miou(scene: str, frames: int, ratio: int, **encoder_options) -> float:
-    """F-mIoU of the semanticxr organisation (client_sim.evaluation.run_eval) with the
+    """F-mIoU of the semanticxr organisation (app.cli.evaluation.run_eval) with the
     device encoder at `ratio` and `encoder_options` (unset ones: FrameEncoder defaults)."""
-    import client_sim.evaluation as evaluation
+    import app.cli.evaluation as evaluation
     from app.config import Knobs
     from app.semantics import get_text_encoder
 
@@ -247,11 +247,12 @@ def quality_by_depth_step(scene: str, frames: int) -> tuple[float, dict[int, flo
     return reference, by_step
 
 
-async def device_cpu(server: Server, source: FrameSource, seconds: float) -> dict:
+async def device_cpu(server: ServerProcess, source: FrameSource, seconds: float) -> dict:
+    from app.client import create_session
     from app.config import Knobs
     from client_sim.streaming import DeviceClient
 
-    sid, token, _ = await DeviceClient.create_session(server.url, name="cpu-bench")
+    sid, token, _ = await create_session(server.url, name="cpu-bench")
     device = DeviceClient(server.url, sid, token, knobs=Knobs(), on_log=lambda m: None)
     follower = asyncio.create_task(device.follow_updates())
     n = min(len(source), int(seconds * STREAM_FPS))
@@ -326,7 +327,7 @@ def main(argv: list[str] | None = None) -> int:
         reference, by_step = quality_by_depth_step(args.scene, args.eval_frames)
 
     with tempfile.TemporaryDirectory() as data_dir:
-        server = Server(data_dir)
+        server = ServerProcess(data_dir, quiet=False).start()
         try:
             cpu = asyncio.run(
                 device_cpu(server, PrerenderedSource(frames), args.frames / STREAM_FPS)

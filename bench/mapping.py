@@ -44,9 +44,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
+    from app.cli.evaluation import EvalConfig, run_eval
     from app.config import Knobs
     from app.semantics import get_text_encoder
-    from client_sim.evaluation import EvalConfig, run_eval
 
     cfg = EvalConfig(scene=args.scene, seed=args.seed, frames=args.frames, noise=args.noise)
     caps = [int(c) for c in args.caps.split(",") if c.strip()]

@@ -2,7 +2,8 @@
 
     python -m bench.server [--frames 150] [--seconds 20] [--out out/]
 
-Measures (issue 3): ingest-to-ack latency per keyframe and per plain frame; frames per
+The server runs as `app.server.runner.ServerProcess` (`python -m app.cli serve`); every call
+goes through the API client (app.client). Measures (issue 3): ingest-to-ack latency per keyframe and per plain frame; frames per
 second sustained by 1 and 4 concurrent device streams (640x480, depth ÷5); bytes per
 downstream update in `semanticxr` vs `baseline` mode on the standard synthetic scene.
 """
@@ -11,67 +12,22 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
-import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import time
 
-import httpx
 import msgpack
 import numpy as np
-import websockets
 
+from app.client import create_session, open_websocket
+from app.server.runner import ServerProcess
 from bench.common import check, machine, save_plot, write_outputs
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Server:
-    def __init__(self, data_dir: str):
-        self.port = _free_port()
-        self.url, self.ws = f"http://127.0.0.1:{self.port}", f"ws://127.0.0.1:{self.port}"
-        self.proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "app.cli",
-                "serve",
-                "--port",
-                str(self.port),
-                "--data-dir",
-                data_dir,
-                "--log-level",
-                "warning",
-            ],
-            env=dict(os.environ, HF_HUB_OFFLINE="1"),
-        )
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            try:
-                if httpx.get(f"{self.url}/healthz", timeout=1).status_code == 200:
-                    return
-            except httpx.TransportError:
-                time.sleep(0.2)
-        raise RuntimeError("server did not start")
-
-    def session(self, mode: str = "semanticxr", **knobs) -> str:
-        r = httpx.post(f"{self.url}/v1/sessions", json={"mode": mode, "knobs": knobs}, timeout=30)
-        r.raise_for_status()
-        return r.json()["session_id"]
-
-    def stop(self) -> None:
-        self.proc.send_signal(signal.SIGINT)
-        try:
-            self.proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
+async def new_session(server: ServerProcess, mode: str = "semanticxr", **knobs) -> str:
+    """A session on the (open) bench server with these knobs; its id."""
+    sid, _token, _answer = await create_session(server.url, mode=mode, knobs=knobs)
+    return sid
 
 
 def encode_frames(n_frames: int, scene: str) -> tuple[list[bytes], list[bytes]]:
@@ -93,7 +49,7 @@ def encode_frames(n_frames: int, scene: str) -> tuple[list[bytes], list[bytes]]:
 async def ack_latency(url: str, frames: list[bytes]) -> dict:
     """One frame in flight at a time: ingest-to-ack latency, keyframes and plain frames apart."""
     key, plain = [], []
-    async with websockets.connect(url, max_size=None) as ws:
+    async with await open_websocket(url, None) as ws:
         for data in frames:
             t0 = time.perf_counter()
             await ws.send(data)
@@ -109,13 +65,15 @@ async def ack_latency(url: str, frames: list[bytes]) -> dict:
     }
 
 
-async def sustained(server: Server, frames: list[bytes], streams: int, seconds: float) -> dict:
+async def sustained(
+    server: ServerProcess, frames: list[bytes], streams: int, seconds: float
+) -> dict:
     """`streams` devices, each with up to 4 frames in flight, for `seconds`; acked fps."""
-    sids = [server.session(keyframe_interval=5) for _ in range(streams)]
+    sids = [await new_session(server, keyframe_interval=5) for _ in range(streams)]
 
     async def device(sid: str) -> tuple[int, int, int]:
         acked = mapped = dropped = 0
-        async with websockets.connect(f"{server.ws}/v1/sessions/{sid}/stream", max_size=None) as ws:
+        async with await open_websocket(f"{server.ws_url}/v1/sessions/{sid}/stream", None) as ws:
             end, i, in_flight = time.perf_counter() + seconds, 0, 0
             while time.perf_counter() < end or in_flight:
                 while in_flight < 4 and time.perf_counter() < end:
@@ -140,12 +98,12 @@ async def sustained(server: Server, frames: list[bytes], streams: int, seconds: 
     }
 
 
-async def update_bytes(server: Server, keyframes: list[bytes], mode: str) -> list[int]:
+async def update_bytes(server: ServerProcess, keyframes: list[bytes], mode: str) -> list[int]:
     """Bytes of each downstream update while the keyframes stream in."""
-    sid = server.session(mode, keyframe_interval=1, local_map_update_frequency=2)
+    sid = await new_session(server, mode, keyframe_interval=1, local_map_update_frequency=2)
     sizes: list[int] = []
-    async with websockets.connect(
-        f"{server.ws}/v1/sessions/{sid}/updates?since=0", max_size=None
+    async with await open_websocket(
+        f"{server.ws_url}/v1/sessions/{sid}/updates?since=0", None
     ) as sub:
         await asyncio.wait_for(sub.recv(), 30)  # the initial (empty) sync
 
@@ -154,7 +112,7 @@ async def update_bytes(server: Server, keyframes: list[bytes], mode: str) -> lis
                 sizes.append(len(await sub.recv()))
 
         listener = asyncio.create_task(listen())
-        async with websockets.connect(f"{server.ws}/v1/sessions/{sid}/stream", max_size=None) as ws:
+        async with await open_websocket(f"{server.ws_url}/v1/sessions/{sid}/stream", None) as ws:
             for data in keyframes:
                 await ws.send(data)
                 await asyncio.wait_for(ws.recv(), 60)
@@ -179,11 +137,11 @@ def main(argv: list[str] | None = None) -> int:
     frames, keyframes = encode_frames(args.frames, args.scene)
     upstream_bytes = float(np.mean([len(f) for f in frames]))
     with tempfile.TemporaryDirectory() as data_dir:
-        server = Server(data_dir)
+        server = ServerProcess(data_dir, quiet=False).start()
         try:
-            sid = server.session(keyframe_interval=5)
+            sid = asyncio.run(new_session(server, keyframe_interval=5))
             latency = asyncio.run(
-                ack_latency(f"{server.ws}/v1/sessions/{sid}/stream", frames[:150])
+                ack_latency(f"{server.ws_url}/v1/sessions/{sid}/stream", frames[:150])
             )
             print(
                 f"ingest-to-ack: keyframe p50 {latency['keyframe_p50_ms']:.1f} ms, "

@@ -25,11 +25,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import httpx
-
+from app.client import SessionApi
 from app.semantics import TextEncoder
 from client_sim.local_map import LocalMap
-from client_sim.streaming import auth_headers, http_base_url
 
 SQ, LQ = "SQ", "LQ"
 
@@ -81,15 +79,12 @@ class QueryRouter:
         rtt_ms: Callable[[], float | None] = lambda: None,
         server_timeout_s: float = 1.0,
     ):
-        self.http_url = http_base_url(server_url)
-        self.session_id = session_id
-        self.token = token
+        self.api = SessionApi(server_url, session_id, token, timeout_s=server_timeout_s)
         self.local_map = local_map
         self.encoder = encoder
         self.threshold_ms = float(threshold_ms)
         self.rtt_ms = rtt_ms
         self.server_timeout_s = float(server_timeout_s)
-        self._http: httpx.AsyncClient | None = None
 
     def planned_mode(self) -> str:
         """The mode a query would take now from the streaming RTT alone ("?" if unknown)."""
@@ -113,7 +108,7 @@ class QueryRouter:
         else:
             sq_start_s = time.perf_counter()
             try:
-                results = await self._server_query(text, k)
+                results = await self.api.query(text, k)
             except Exception as exc:  # any failure of the server path means: answer locally
                 reason = f"SQ failed ({type(exc).__name__}: {exc}); fell back to LQ"
             else:
@@ -130,9 +125,7 @@ class QueryRouter:
         return await self._local_query(text, k, reason, start_s, rtt)
 
     async def aclose(self) -> None:
-        if self._http is not None:
-            await self._http.aclose()
-            self._http = None
+        await self.api.aclose()
 
     async def __aenter__(self) -> QueryRouter:
         return self
@@ -142,40 +135,14 @@ class QueryRouter:
 
     # --- the two modes --------------------------------------------------------------------
 
-    def _client(self) -> httpx.AsyncClient:
-        if self._http is None:
-            self._http = httpx.AsyncClient(
-                base_url=self.http_url,
-                headers=auth_headers(self.token),
-                timeout=self.server_timeout_s,
-            )
-        return self._http
-
     async def _probe_rtt_ms(self) -> tuple[float | None, str | None]:
         """(RTT of one GET /healthz in ms, None) or (None, what went wrong)."""
         start_s = time.perf_counter()
         try:
-            response = await asyncio.wait_for(self._client().get("/healthz"), self.server_timeout_s)
-            response.raise_for_status()
+            await self.api.health()
         except Exception as exc:
             return None, f"health probe: {type(exc).__name__}: {exc}"
         return (time.perf_counter() - start_s) * 1e3, None
-
-    async def _server_query(self, text: str, k: int) -> list[dict]:
-        """SQ results (points left out: the device already holds geometry it needs)."""
-        # wait_for bounds the whole call; httpx's timeout bounds each phase only.
-        response = await asyncio.wait_for(
-            self._client().get(
-                f"/v1/sessions/{self.session_id}/query",
-                params={"text": text, "k": k, "points": "false"},
-            ),
-            self.server_timeout_s,
-        )
-        response.raise_for_status()
-        return [
-            {key: hit[key] for key in ("id", "label", "score", "bbox", "centroid")}
-            for hit in response.json()["results"]
-        ]
 
     async def _local_query(
         self, text: str, k: int, reason: str, start_s: float, rtt: float | None

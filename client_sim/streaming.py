@@ -6,11 +6,12 @@ forever until `stop()`):
 - `/v1/sessions/{sid}/stream` (`DeviceClient.stream`): encoded frames up, acks down. At most
   `max_in_flight` frames wait for their ack. Frames are samples, not a log: a frame due
   while the link is down is skipped (counted in `dropped`), never queued or resent.
-- `/v1/sessions/{sid}/updates` (`DeviceClient.follow_updates`): deltas down, applied to the
-  `LocalMap`. After a disconnect it resumes from `local_map.seq` (the server sends what
-  changed since, so no update is lost); after a malformed message it resyncs from a full
-  snapshot (no `since`). The local map validates a delta before changing anything, so a
-  bad message never leaves it half-applied.
+- `/v1/sessions/{sid}/updates` (`DeviceClient.follow_updates`, an
+  `app.client.UpdatesSubscriber`): deltas down, applied to the `LocalMap`. After a
+  disconnect it resumes from `local_map.seq` (the server sends what changed since, so no
+  update is lost); after a malformed message it resyncs from a full snapshot (no `since`).
+  The local map validates a delta before changing anything, so a bad message never leaves
+  it half-applied.
 
 Round-trip time (the input of the SQ/LQ switch, client_sim/querying.py) is an EWMA
 (alpha 0.2) of two kinds of samples: frame send -> ack (minus the server's mapping time for
@@ -32,14 +33,22 @@ from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
-from urllib.parse import urlsplit
 
-import httpx
 import msgpack
-import websockets
 from websockets.asyncio.client import ClientConnection
-from websockets.exceptions import WebSocketException
 
+from app.client import (
+    CONNECTION_ERRORS,
+    Backoff,
+    Disconnect,
+    SessionApi,
+    UpdatesSubscriber,
+    create_session,
+    http_base_url,
+    open_websocket,
+    websocket_base_url,
+)
+from app.client.connection import describe, sleep_unless, until
 from app.config import Knobs
 from app.protocol import ErrorReply, InputError, unpack_reply, unpack_update
 from client_sim.encoder import EncodedFrame, FrameEncoder
@@ -48,34 +57,22 @@ from client_sim.sources.base import FrameSource
 
 log = logging.getLogger(__name__)
 
-BACKOFF_FIRST_S = 0.2
-"""First reconnect delay; doubles after each failed attempt."""
-BACKOFF_MAX_S = 5.0
-"""Reconnect delay ceiling."""
 RTT_EWMA_ALPHA = 0.2
 """Weight of a new RTT sample in the smoothed RTT."""
-PING_INTERVAL_S = 1.0
-"""Ping period on the updates socket (RTT samples while no frames are streamed)."""
-OPEN_TIMEOUT_S = 5.0
-"""WebSocket opening handshake timeout."""
 ACK_TIMEOUT_S = 15.0
 """A full window with no ack for this long: the connection is treated as dead and reopened."""
 DRAIN_TIMEOUT_S = 30.0
 """At the end of `stream()`, how long to wait for the acks of frames in flight."""
-REST_TIMEOUT_S = 10.0
-"""Timeout of the REST calls that set a session up."""
 DEFAULT_EMBEDDING_DIM = 384
 """all-MiniLM-L6-v2, the default text encoder's dimension (sessions announce theirs)."""
 
-_CONNECTION_ERRORS = (OSError, TimeoutError, EOFError, WebSocketException)
-"""What opening or using a socket raises when the network or the server goes away
-(ConnectionClosed and the handshake errors are WebSocketExceptions)."""
 
 T = TypeVar("T")
 
 
 class DeviceError(RuntimeError):
-    """A REST call that sets a session up failed (bad URL, refused, 4xx/5xx)."""
+    """The device cannot work with this session (e.g. its text encoder is another model).
+    A failed REST call raises app.client.ApiError."""
 
 
 @dataclass
@@ -121,41 +118,6 @@ class DeviceStats:
         return dataclasses.replace(self, bytes_up_by_kind=dict(self.bytes_up_by_kind))
 
 
-class Backoff:
-    """Reconnect delays: `first_s`, doubling up to `max_s`; `reset()` after a success."""
-
-    def __init__(self, first_s: float = BACKOFF_FIRST_S, max_s: float = BACKOFF_MAX_S):
-        self.first_s, self.max_s = first_s, max_s
-        self._next_s = first_s
-
-    def next_delay(self) -> float:
-        delay, self._next_s = self._next_s, min(self._next_s * 2, self.max_s)
-        return delay
-
-    def reset(self) -> None:
-        self._next_s = self.first_s
-
-
-def websocket_base_url(server_url: str) -> str:
-    """ws:// or wss:// base of an http(s):// server URL (ws(s):// is accepted as is)."""
-    parts = urlsplit(server_url)
-    scheme = {"http": "ws", "https": "wss", "ws": "ws", "wss": "wss"}.get(parts.scheme)
-    if scheme is None or not parts.netloc:
-        raise ValueError(f"server URL must look like http://host:port, got {server_url!r}")
-    return f"{scheme}://{parts.netloc}{parts.path.rstrip('/')}"
-
-
-def http_base_url(server_url: str) -> str:
-    """http:// or https:// base of a server URL (ws(s):// is mapped back)."""
-    ws = websocket_base_url(server_url)
-    return "https" + ws[3:] if ws.startswith("wss") else "http" + ws[2:]
-
-
-def auth_headers(token: str | None) -> dict[str, str]:
-    """`Authorization: Bearer` for a session token or API key (none when the server is open)."""
-    return {"Authorization": f"Bearer {token}"} if token else {}
-
-
 def make_local_map(knobs: Knobs, embedding_dim: int = DEFAULT_EMBEDDING_DIM) -> LocalMap:
     """The local map a session's knobs ask for (point cap, budget, priorities)."""
     return LocalMap(
@@ -165,25 +127,6 @@ def make_local_map(knobs: Knobs, embedding_dim: int = DEFAULT_EMBEDDING_DIM) -> 
         priority_classes=knobs.priority_class,
         distance_threshold_m=knobs.distance_threshold_m,
     )
-
-
-async def _rest(method: str, url: str, token: str | None, expect: int, json: Any = None) -> Any:
-    """One REST call; its JSON answer, or DeviceError naming the status and the server's detail."""
-    try:
-        async with httpx.AsyncClient(timeout=REST_TIMEOUT_S) as http:
-            response = await http.request(method, url, json=json, headers=auth_headers(token))
-    except httpx.HTTPError as exc:
-        raise DeviceError(f"{method} {url}: {type(exc).__name__}: {exc}") from exc
-    try:
-        body = response.json()
-    except ValueError:
-        body = None
-    if response.status_code != expect:
-        detail = body.get("detail", body) if isinstance(body, dict) else response.text
-        raise DeviceError(f"{method} {url}: HTTP {response.status_code}: {detail}")
-    if body is None:
-        raise DeviceError(f"{method} {url}: the answer is not JSON")
-    return body
 
 
 class DeviceClient:
@@ -234,7 +177,7 @@ class DeviceClient:
         self._outage = False  # a socket dropped and has not come back yet
         self._map_changed = asyncio.Event()  # replaced after each set: one event per change
         self._links: set[_StreamLink] = set()
-        self._updates_ws: ClientConnection | None = None
+        self._updates: UpdatesSubscriber | None = None
         self._next_seq = 0  # frame seq across stream() calls: unique per device
 
     # --- session set-up (REST) ------------------------------------------------------------
@@ -250,25 +193,21 @@ class DeviceClient:
         api_key: str | None = None,
     ) -> tuple[str, str, dict]:
         """POST /v1/sessions -> (session_id, token, the whole answer incl. embedding, knobs)."""
-        body: dict[str, Any] = {"mode": mode, "knobs": knobs or {}}
-        if name is not None:
-            body["name"] = name
-        answer = await _rest("POST", f"{http_base_url(server_url)}/v1/sessions", api_key, 201, body)
-        return answer["session_id"], answer["token"], answer
+        return await create_session(server_url, name=name, mode=mode, knobs=knobs, api_key=api_key)
 
     @staticmethod
     async def fetch_session(server_url: str, session_id: str, token: str | None) -> dict:
         """GET /v1/sessions/{sid}: stats, knobs in force, embedding model and dimension."""
-        url = f"{http_base_url(server_url)}/v1/sessions/{session_id}"
-        return await _rest("GET", url, token, 200)
+        async with SessionApi(server_url, session_id, token) as api:
+            return await api.fetch()
 
     @staticmethod
     async def patch_knobs(
         server_url: str, session_id: str, token: str | None, changes: dict
     ) -> dict:
         """PATCH /v1/sessions/{sid}/knobs -> the knobs now in force."""
-        url = f"{http_base_url(server_url)}/v1/sessions/{session_id}/knobs"
-        return await _rest("PATCH", url, token, 200, changes)
+        async with SessionApi(server_url, session_id, token) as api:
+            return await api.patch_knobs(changes)
 
     # --- state ----------------------------------------------------------------------------
 
@@ -308,9 +247,8 @@ class DeviceClient:
         self._stopped.set()
         for link in list(self._links):
             await link.notify()
-        if self._updates_ws is not None:
-            with contextlib.suppress(Exception):
-                await self._updates_ws.close()
+        if self._updates is not None:
+            await self._updates.stop()
 
     # --- helpers --------------------------------------------------------------------------
 
@@ -354,41 +292,17 @@ class DeviceClient:
 
     async def _until_stopped(self, awaitable: Awaitable[T]) -> T | None:
         """`awaitable`'s result, or None (and it is cancelled) if `stop()` comes first."""
-        task = asyncio.ensure_future(awaitable)
-        stopper = asyncio.ensure_future(self._stopped.wait())
-        try:
-            await asyncio.wait({task, stopper}, return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            stopper.cancel()
-            if not task.done():
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError, *_CONNECTION_ERRORS):
-                    await task
-        if not task.done() or task.cancelled():
-            return None
-        return task.result()
+        return await until(self._stopped, awaitable)
 
     async def _sleep(self, seconds: float) -> bool:
         """Sleep (a pacing or backoff timer, not synchronisation); False if stopped meanwhile."""
-        if seconds > 0:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._stopped.wait(), seconds)
-        return not self._stopped.is_set()
+        return await sleep_unless(self._stopped, seconds)
 
     async def _open(self, path: str, **kwargs: Any) -> ClientConnection | None:
         """Open a WebSocket to `path` (None if stopped first); raises the connection errors."""
-
-        async def connect() -> ClientConnection:
-            return await websockets.connect(
-                f"{self.ws_url}{path}",
-                additional_headers=auth_headers(self.token),
-                open_timeout=OPEN_TIMEOUT_S,
-                compression=None,  # JPEG, zstd and float16 do not deflate; save the CPU
-                max_size=None,  # a full snapshot of a large map is big, and the server is trusted
-                **kwargs,
-            )
-
-        return await self._until_stopped(connect())
+        return await self._until_stopped(
+            open_websocket(f"{self.ws_url}{path}", self.token, **kwargs)
+        )
 
     # --- frames up ------------------------------------------------------------------------
 
@@ -472,54 +386,38 @@ class DeviceClient:
         """Apply the session's deltas to the local map until `stop()`.
 
         Resumes from `local_map.seq` after a disconnect; resyncs from a full snapshot after a
-        malformed message. Starts from a full snapshot when the local map is new.
+        malformed message. Starts from a full snapshot when the local map is new. Pings the
+        socket for RTT samples.
         """
-        backoff = Backoff()
-        resync = self.local_map.seq == 0 and len(self.local_map) == 0
-        ever_up = False  # the first connection is not a re-connection
-        down_told = False  # say "lost" once per outage, not once per failed attempt
-        while not self._stopped.is_set():
-            since = None if resync else self.local_map.seq
-            path = f"/v1/sessions/{self.session_id}/updates"
-            if since is not None:
-                path += f"?since={since}"
-            try:
-                ws = await self._open(path)
-            except _CONNECTION_ERRORS as exc:
-                if not down_told:
-                    self._socket_down("updates", f"{type(exc).__name__}: {exc}", expected=False)
-                    down_told = True
-            else:
-                if ws is None:  # stopped while connecting
-                    break
-                self._updates_ws = ws
-                self.subscriptions.append(since)
-                self._socket_up("updates", reconnect=ever_up and not resync)
-                ever_up, down_told = True, False
-                reason, expected = "closed by the server", False
-                pinger = asyncio.create_task(self._ping_loop(ws))
-                try:
-                    while (raw := await self._until_stopped(ws.recv())) is not None:
-                        self.stats.bytes_down += len(raw)
-                        problem = self._apply_update(raw)
-                        if problem is not None:
-                            self.stats.resyncs += 1
-                            self._problem(f"bad update ({problem}); resyncing with a full snapshot")
-                            resync, expected = True, True
-                            break
-                        resync = False
-                        backoff.reset()
-                except _CONNECTION_ERRORS as exc:
-                    reason = f"{type(exc).__name__}: {exc}"
-                finally:
-                    pinger.cancel()
-                    self._updates_ws = None
-                    with contextlib.suppress(Exception):
-                        await ws.close()
-                    self._socket_down("updates", reason, expected)
-                    down_told = not expected
-            if not await self._sleep(backoff.next_delay()):
-                break
+        if self._stopped.is_set():
+            return
+        self._updates = UpdatesSubscriber(
+            self.ws_url,
+            self.session_id,
+            self.token,
+            apply=self._receive_update,
+            applied_seq=lambda: self.local_map.seq,
+            start_from_snapshot=self.local_map.seq == 0 and len(self.local_map) == 0,
+            on_connected=self._updates_connected,
+            on_disconnected=self._updates_disconnected,
+            on_rtt_ms=self._observe_rtt,
+        )
+        await self._updates.run()
+
+    def _updates_connected(self, since: int | None, reconnect: bool) -> None:
+        self.subscriptions.append(since)
+        self._socket_up("updates", reconnect=reconnect and since is not None)
+
+    def _updates_disconnected(self, event: Disconnect) -> None:
+        if event.bad_update is not None:
+            self.stats.resyncs += 1
+            self._problem(event.reason)
+        if not event.repeated:
+            self._socket_down("updates", event.reason, expected=event.bad_update is not None)
+
+    def _receive_update(self, raw: bytes | str) -> str | None:
+        self.stats.bytes_down += len(raw)
+        return self._apply_update(raw)
 
     def _apply_update(self, raw: bytes | str) -> str | None:
         """Apply one updates-socket message; what was wrong with it, or None if applied."""
@@ -540,20 +438,6 @@ class DeviceClient:
         event, self._map_changed = self._map_changed, asyncio.Event()
         event.set()
         return None
-
-    async def _ping_loop(self, ws: ClientConnection) -> None:
-        """RTT samples from ping -> pong while the updates socket is up (websockets' own
-        keepalive pings, every 20 s, only detect dead links)."""
-        while True:
-            await asyncio.sleep(PING_INTERVAL_S)  # a sampling period, not synchronisation
-            try:
-                pong = await ws.ping()
-                latency_s = await asyncio.wait_for(pong, ACK_TIMEOUT_S)
-            except TimeoutError:
-                continue  # no sample; websockets' keepalive decides whether the link is dead
-            except _CONNECTION_ERRORS:
-                return
-            self._observe_rtt(latency_s * 1e3)
 
 
 class _StreamLink:
@@ -586,9 +470,9 @@ class _StreamLink:
         while not self._done():
             try:
                 ws = await client._open(path)
-            except _CONNECTION_ERRORS as exc:
+            except CONNECTION_ERRORS as exc:
                 if not down_told:
-                    client._socket_down("stream", f"{type(exc).__name__}: {exc}", expected=False)
+                    client._socket_down("stream", describe(exc), expected=False)
                     down_told = True
             else:
                 if ws is None:  # stopped while connecting
@@ -605,8 +489,8 @@ class _StreamLink:
                         self.stats.bytes_down += len(raw)
                         self._on_reply(raw)
                         await self.notify()
-                except _CONNECTION_ERRORS as exc:
-                    reason = f"{type(exc).__name__}: {exc}"
+                except CONNECTION_ERRORS as exc:
+                    reason = describe(exc)
                 finally:
                     self.ws = None
                     # Sent frames whose ack can no longer come; they are not resent.
@@ -683,7 +567,7 @@ class _StreamLink:
         self.in_flight[seq] = time.perf_counter()
         try:
             await ws.send(data)
-        except _CONNECTION_ERRORS:
+        except CONNECTION_ERRORS:
             self.in_flight.pop(seq, None)
             return False
         self.stats.frames_sent += 1

@@ -15,10 +15,7 @@ import argparse
 import asyncio
 import os
 import shutil
-import socket
 import sys
-import threading
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,52 +31,14 @@ SESSION_KNOBS = {"keyframe_interval": 2}
 PAGE_TIMEOUT_MS = 30_000
 
 
-class InProcessServer:
-    """The app under uvicorn on a free loopback port, in a daemon thread."""
-
-    def __init__(self, data_dir: Path):
-        import uvicorn
-
-        from app.server.app import create_app
-        from app.server.settings import ServerSettings
-
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        settings = ServerSettings(host="127.0.0.1", port=port, data_dir=str(data_dir))
-        config = uvicorn.Config(
-            create_app(settings),
-            host="127.0.0.1",
-            port=port,
-            log_level="warning",
-            ws_max_size=settings.max_message_bytes,
-            ws_per_message_deflate=False,
-        )
-        self.server = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.server.run, daemon=True)
-        self.url = f"http://127.0.0.1:{port}"
-
-    def __enter__(self) -> InProcessServer:
-        self.thread.start()
-        deadline = time.monotonic() + 60  # the lifespan loads the text encoder
-        while not self.server.started:
-            if time.monotonic() > deadline or not self.thread.is_alive():
-                raise RuntimeError("the server did not start")
-            time.sleep(0.05)  # polling a flag uvicorn sets; it offers nothing to wait on
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.server.should_exit = True
-        self.thread.join(timeout=30)
-
-
 async def stream_scene(server_url: str, scene: str, frames: int) -> str:
     """A session with the first `frames` frames of the walk mapped; its id."""
+    from app.client import create_session
     from app.config import Knobs, updated_knobs
     from client_sim.sources.synthetic import SyntheticSource
     from client_sim.streaming import DeviceClient
 
-    sid, token, answer = await DeviceClient.create_session(
+    sid, token, answer = await create_session(
         server_url, name=scene.replace("_", " "), knobs=SESSION_KNOBS
     )
     client = DeviceClient(server_url, sid, token, knobs=updated_knobs(Knobs(), answer["knobs"]))
@@ -137,9 +96,17 @@ def main() -> int:
 
     import tempfile
 
-    with tempfile.TemporaryDirectory() as data_dir, InProcessServer(Path(data_dir)) as server:
-        sid = asyncio.run(stream_scene(server.url, args.scene, args.frames))
-        screenshot(server.url, sid, args.query, args.out, args.dark)
+    from app.server.runner import ServerThread
+    from app.server.settings import ServerSettings
+
+    with tempfile.TemporaryDirectory() as data_dir:
+        settings = ServerSettings(host="127.0.0.1", port=0, data_dir=data_dir)
+        server = ServerThread(settings).start()  # the lifespan loads the text encoder
+        try:
+            sid = asyncio.run(stream_scene(server.url, args.scene, args.frames))
+            screenshot(server.url, sid, args.query, args.out, args.dark)
+        finally:
+            server.stop()
     return 0
 
 

@@ -13,10 +13,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
-import socket
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -46,51 +44,24 @@ def wait_for(condition: Callable[[], object], what: str, timeout_s: float = WAIT
         time.sleep(0.05)  # a polling period
 
 
-def start_server(data_dir: str):
-    """The real app under uvicorn on a free loopback port; (server, thread, url)."""
-    import uvicorn
-
-    from app.semantics import get_text_encoder
-    from app.server.app import create_app
-    from app.server.settings import ServerSettings
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    settings = ServerSettings(host="127.0.0.1", port=port, data_dir=data_dir)
-    config = uvicorn.Config(
-        create_app(settings, encoder=get_text_encoder()),
-        host="127.0.0.1",
-        port=port,
-        log_level="warning",
-        ws_max_size=settings.max_message_bytes,
-        ws_per_message_deflate=False,
-    )
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    wait_for(lambda: server.started or not thread.is_alive(), "the server to start")
-    if not server.started:
-        raise RuntimeError("the server did not start")
-    return server, thread, f"http://127.0.0.1:{port}"
-
-
 def stream_scene(url: str, scene: str, frames: int) -> tuple[str, str, int]:
     """Create a session and play `frames` frames of the synthetic `scene` at 640x480 into it;
     (session id, token, the server's update seq)."""
+    from app.client import SessionApi, create_session
     from app.config import Knobs, updated_knobs
     from client_sim.sources.synthetic import SyntheticSource
     from client_sim.streaming import DeviceClient
     from client_sim.world.render import default_camera
 
     async def play() -> tuple[str, str, int]:
-        sid, token, answer = await DeviceClient.create_session(url, knobs=SESSION_KNOBS)
+        sid, token, answer = await create_session(url, knobs=SESSION_KNOBS)
         knobs = updated_knobs(Knobs(), answer["knobs"])
         source = SyntheticSource(scene, n_frames=frames, camera=default_camera(640, 480))
         device = DeviceClient(url, sid, token, knobs=knobs)
         stats = await device.stream(source, fps=None, max_in_flight=1)
         await device.stop()
-        session = await DeviceClient.fetch_session(url, sid, token)
+        async with SessionApi(url, sid, token) as api:
+            session = await api.fetch()
         print(
             f"streamed {stats.frames_sent} frames ({stats.keyframes_acked} mapped): "
             f"{session['objects']} objects",
@@ -155,11 +126,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--height", type=int, default=860)
     args = parser.parse_args(argv)
 
+    from app.semantics import get_text_encoder
+    from app.server.runner import ServerThread
+    from app.server.settings import ServerSettings
     from viewer.app import ViewerApp
     from viewer.scene import points_node
 
     with tempfile.TemporaryDirectory(prefix="semanticxr-shot-") as data_dir:
-        server, thread, url = start_server(data_dir)
+        settings = ServerSettings(host="127.0.0.1", port=0, data_dir=data_dir)
+        server = ServerThread(settings, encoder=get_text_encoder()).start()
+        url = server.url
         try:
             sid, token, seq = stream_scene(url, args.scene, args.frames)
             app = ViewerApp(url, sid, token, port=0, stats_period_s=0.5)
@@ -184,8 +160,7 @@ def main(argv: list[str] | None = None) -> int:
             finally:
                 app.stop()
         finally:
-            server.should_exit = True
-            thread.join(timeout=30)
+            server.stop()
     return 0
 
 

@@ -18,13 +18,11 @@ __all__ = [
     "SceneSink",
     "ViewObject",
     "ViewerApp",
-    "add_viewer_parser",
-    "run_viewer",
 ]
 
 
 def __getattr__(name: str) -> Any:
-    if name in ("ViewerApp", "add_viewer_parser", "run_viewer"):
+    if name == "ViewerApp":
         from viewer import app
 
         return getattr(app, name)

@@ -5,9 +5,10 @@ viewer runs one background thread with an asyncio loop that follows the updates 
 and polls the session's stats. `SceneModel` is not thread-safe, so every use of it holds
 `ViewerApp._lock`.
 
-The updates socket is kept up like the device's (client_sim/streaming.py): exponential
-backoff (0.2 s doubling to 5 s), resume from the last applied seq after a disconnect, resync
-from a full snapshot after a malformed message. While it is down the GUI says so in red.
+The updates socket is kept up by the API client's `UpdatesSubscriber` (app/client/), as the
+device's is: exponential backoff (0.2 s doubling to 5 s), resume from the last applied seq
+after a disconnect, resync from a full snapshot after a malformed message. While it is down
+the GUI says so in red.
 
 The device's camera pose and path come from the optional "device_pose" field of updates
 (an extension of v1: the newest mapped keyframe's camera-to-world pose): a frustum at the
@@ -16,29 +17,23 @@ newest pose and a line through the poses seen so far.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import contextlib
 import html
 import logging
-import os
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import httpx
 import numpy as np
 import viser
 import viser.transforms as vtf
-import websockets
-from websockets.exceptions import WebSocketException
 
+from app.client import ApiError, Disconnect, SessionApi, UpdatesSubscriber
 from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
 from app.protocol import unpack_update
-from client_sim.streaming import Backoff, auth_headers, http_base_url, websocket_base_url
 from viewer.scene import HIT_BOXES_NODE, HITS_GROUP, DeltaError, Rgb, SceneModel
 
 MAX_PATH_POINTS = 5000
@@ -48,8 +43,6 @@ log = logging.getLogger(__name__)
 
 UpDirection = Literal["+x", "+y", "+z", "-x", "-y", "-z"]
 
-OPEN_TIMEOUT_S = 5.0
-"""WebSocket opening handshake timeout."""
 REST_TIMEOUT_S = 10.0
 """Timeout of a query or a stats request."""
 STATS_PERIOD_S = 2.0
@@ -62,9 +55,6 @@ HIT_BOX_THICKNESS_PX = 4.0
 """Line width of the highlighted hits' boxes."""
 LIVE_RGB, DOWN_RGB, WAITING_RGB = "#1a7f37", "#cf222e", "#6e7781"
 """Status colours: live (green), disconnected (red), not connected yet (grey)."""
-
-_CONNECTION_ERRORS = (OSError, TimeoutError, EOFError, WebSocketException)
-"""What opening or reading a socket raises when the network or the server goes away."""
 
 
 class ViewerError(RuntimeError):
@@ -200,8 +190,8 @@ class ViewerApp:
         stats_period_s: float = STATS_PERIOD_S,
         verbose: bool = False,
     ):
-        self.http_url = http_base_url(server_url)
-        self.ws_url = websocket_base_url(server_url)
+        self.api = SessionApi(server_url, session_id, token, timeout_s=REST_TIMEOUT_S)
+        self.server_url = server_url
         self.session_id = session_id
         self.token = token
         self.host = host
@@ -286,48 +276,27 @@ class ViewerApp:
     async def _follow_updates(self) -> None:
         """Apply the session's deltas until cancelled; resume from the applied seq after a
         disconnect, resync from a full snapshot after a malformed message."""
-        backoff = Backoff()
-        resync = True  # the first connection asks for a full snapshot
-        down_told = False  # log "lost" once per outage, not once per failed attempt
-        path = f"/v1/sessions/{self.session_id}/updates"
-        while True:
-            since = None if resync else self.applied_seq
-            url = self.ws_url + path + ("" if since is None else f"?since={since}")
-            try:
-                ws = await websockets.connect(
-                    url,
-                    additional_headers=auth_headers(self.token),
-                    open_timeout=OPEN_TIMEOUT_S,
-                    compression=None,  # float16 points do not deflate; save the CPU
-                    max_size=None,  # a full snapshot of a large map is big; the server is trusted
-                )
-            except _CONNECTION_ERRORS as exc:
-                self._set_connected(False, f"{type(exc).__name__}: {exc}", quiet=down_told)
-                down_told = True
-            else:
-                self.status.last_since = since
-                self._set_connected(True)
-                down_told = False
-                reason = "closed by the server"
-                try:
-                    async for raw in ws:
-                        # Off the loop: a big snapshot takes a while to hand to viser, and
-                        # the socket's keepalive pings must still be answered meanwhile.
-                        problem = await asyncio.to_thread(self._apply_update, raw)
-                        if problem is not None:
-                            self.status.resyncs += 1
-                            reason = f"bad update ({problem}); resyncing with a full snapshot"
-                            resync = True
-                            break
-                        resync = False
-                        backoff.reset()
-                except _CONNECTION_ERRORS as exc:
-                    reason = f"{type(exc).__name__}: {exc}"
-                finally:
-                    with contextlib.suppress(Exception):
-                        await ws.close()
-                self._set_connected(False, reason)
-            await asyncio.sleep(backoff.next_delay())  # a backoff timer, not synchronisation
+        subscriber = UpdatesSubscriber(
+            self.server_url,
+            self.session_id,
+            self.token,
+            apply=self._apply_update,
+            applied_seq=lambda: self.applied_seq,
+            # Off the loop: a big snapshot takes a while to hand to viser, and the socket's
+            # keepalive pings must still be answered meanwhile.
+            apply_in_thread=True,
+            on_connected=self._updates_connected,
+            on_disconnected=self._updates_disconnected,
+        )
+        await subscriber.run()
+
+    def _updates_connected(self, since: int | None, reconnect: bool) -> None:
+        self.status.last_since = since
+        self._set_connected(True)
+
+    def _updates_disconnected(self, event: Disconnect) -> None:
+        self.status.resyncs += event.bad_update is not None
+        self._set_connected(False, event.reason, quiet=event.repeated)
 
     def _apply_update(self, raw: bytes | str) -> str | None:
         """Apply one updates-socket message; what was wrong with it, or None if applied."""
@@ -364,17 +333,12 @@ class ViewerApp:
     # --- stats ------------------------------------------------------------------------------
 
     async def _poll_stats(self) -> None:
-        url = f"{self.http_url}/v1/sessions/{self.session_id}"
-        async with httpx.AsyncClient(
-            timeout=REST_TIMEOUT_S, headers=auth_headers(self.token)
-        ) as http:
+        async with self.api:
             while True:
                 try:
-                    response = await http.get(url)
-                    response.raise_for_status()
-                    self.status.stats = response.json()
+                    self.status.stats = await self.api.fetch()
                     self.status.stats_ok = True
-                except (httpx.HTTPError, ValueError):
+                except ApiError:
                     self.status.stats_ok = False
                 self._show_stats()
                 await asyncio.sleep(self.stats_period_s)  # a polling period
@@ -387,17 +351,10 @@ class ViewerApp:
 
         Raises ViewerError when the server cannot answer (the highlight is left as it was).
         """
-        url = f"{self.http_url}/v1/sessions/{self.session_id}/query"
-        params = {"text": text, "k": k, "points": "false"}  # hits are drawn from the model
         try:
-            response = httpx.get(
-                url, params=params, headers=auth_headers(self.token), timeout=REST_TIMEOUT_S
-            )
-        except httpx.HTTPError as exc:
-            raise ViewerError(f"query failed: {type(exc).__name__}: {exc}") from exc
-        if response.status_code != 200:
-            raise ViewerError(f"query failed: HTTP {response.status_code}: {response.text[:200]}")
-        results = response.json()["results"]
+            results = self.api.query_blocking(text, k)  # no points: hits are drawn from the model
+        except ApiError as exc:
+            raise ViewerError(f"query failed: {exc}") from exc
         with self._lock:
             self.model.highlight((r["id"], r["score"]) for r in results)
             held = set(self.model.objects)
@@ -569,61 +526,3 @@ class ViewerApp:
             with contextlib.suppress(AssertionError):  # its camera is not known yet
                 client.camera.position = position
                 client.camera.look_at = center
-
-
-# --- command line -------------------------------------------------------------------------
-
-
-def add_viewer_parser(subparsers: Any) -> argparse.ArgumentParser:
-    """Add the `viewer` subcommand to `semanticxr`'s subparsers."""
-    from app.cli import server_url
-
-    parser = subparsers.add_parser(
-        "viewer",
-        help="3D viewer of a session's map (viser): objects, boxes, labels, queries",
-        description="Follow a session's map updates and show them in the browser; ask "
-        "natural-language queries and see the hits highlighted.",
-    )
-    parser.add_argument(
-        "--server", required=True, type=server_url, metavar="URL", help="e.g. http://host:8000"
-    )
-    parser.add_argument("--session", required=True, metavar="SID", help="session id to show")
-    parser.add_argument(
-        "--token",
-        default=os.environ.get("SEMANTICXR_TOKEN"),
-        help="the session's token (default: env SEMANTICXR_TOKEN; none for an open server)",
-    )
-    parser.add_argument("--port", type=int, default=8080, help="viewer port (default 8080)")
-    parser.add_argument(
-        "--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1)"
-    )
-    parser.add_argument(
-        "--up",
-        default="+z",
-        choices=("+x", "+y", "+z", "-x", "-y", "-z"),
-        help="up axis of the device's world frame (default +z, the synthetic world's)",
-    )
-    parser.set_defaults(func=run_viewer)
-    return parser
-
-
-def run_viewer(args: argparse.Namespace) -> int:
-    """Run the viewer until Ctrl-C; prints its URL."""
-    app = ViewerApp(
-        args.server,
-        args.session,
-        token=args.token,
-        port=args.port,
-        host=args.host,
-        up_direction=args.up,
-    )
-    app.start()
-    print(f"SemanticXR viewer of session {args.session} on {app.url}  (Ctrl-C to stop)")
-    try:
-        while True:
-            time.sleep(3600)  # idle: the work happens in the viewer's threads
-    except KeyboardInterrupt:
-        pass
-    finally:
-        app.stop()
-    return 0

@@ -1,11 +1,21 @@
-"""Run the server inside another program: uvicorn in a background thread (demo, tests)."""
+"""Run the server: the one uvicorn configuration (`semanticxr serve`), uvicorn in a background
+thread of another program (`ServerThread`: the demo, scripts, tests), and `semanticxr serve`
+in a child process as an operator runs it (`ServerProcess`: benches, crash tests)."""
 
 from __future__ import annotations
 
+import os
+import signal
 import socket
+import subprocess
+import sys
+import tempfile
 import threading
 import time
+from collections.abc import Sequence
+from pathlib import Path
 
+import httpx
 import uvicorn
 
 from app.semantics import TextEncoder
@@ -33,7 +43,10 @@ def uvicorn_config(app, settings: ServerSettings, log_level: str | None = None) 
 
 
 class ServerThread:
-    """A real uvicorn serving the app; `url` once `start()` returns."""
+    """A real uvicorn serving the app in a daemon thread; `url` once `start()` returns.
+
+    Port 0 picks a free port. A stopped ServerThread does not start again: make a new one
+    (on the same port and data dir to "restart" the server)."""
 
     def __init__(self, settings: ServerSettings, encoder: TextEncoder | None = None):
         if settings.port == 0:
@@ -61,3 +74,101 @@ class ServerThread:
     def stop(self, timeout_s: float = 30.0) -> None:
         self.server.should_exit = True
         self.thread.join(timeout=timeout_s)
+
+
+class ServerProcess:
+    """`semanticxr serve` in a child process (`python -m app.cli serve`), as an operator runs
+    it, on loopback: `url` and `ws_url` once `start()` returns (/healthz answered).
+
+    port 0 picks a free port. extra_args: more `serve` flags. quiet: the child's stderr goes
+    to a temporary file (its tail is in the error if it dies at start) instead of ours.
+    """
+
+    def __init__(
+        self,
+        data_dir: str | Path,
+        port: int = 0,
+        *,
+        extra_args: Sequence[str] = (),
+        log_level: str = "warning",
+        quiet: bool = True,
+    ):
+        self.port = port or free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.ws_url = f"ws://127.0.0.1:{self.port}"
+        self.argv = [
+            sys.executable,
+            "-m",
+            "app.cli",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--data-dir",
+            str(data_dir),
+            "--log-level",
+            log_level,
+            *extra_args,
+        ]
+        self.quiet = quiet
+        self.proc: subprocess.Popen | None = None
+        self._stderr = None
+
+    def start(self, timeout_s: float = 120.0) -> ServerProcess:
+        """Start the child and wait until /healthz answers 200 (RuntimeError if it exits or
+        does not answer within `timeout_s`)."""
+        # Closed by stop(): it lives as long as the child.
+        self._stderr = tempfile.TemporaryFile() if self.quiet else None  # noqa: SIM115
+        self.proc = subprocess.Popen(
+            self.argv,
+            env=dict(os.environ, HF_HUB_OFFLINE="1"),
+            stdout=subprocess.DEVNULL if self.quiet else None,
+            stderr=self._stderr,
+        )
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"the server exited at start: {self._stderr_tail()}")
+            try:
+                if httpx.get(f"{self.url}/healthz", timeout=1).status_code == 200:
+                    return self
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                self.proc.kill()
+                self.proc.wait(timeout=30)
+                raise RuntimeError(f"the server did not answer within {timeout_s:.0f} s")
+            time.sleep(0.1)  # a polling period: the child offers nothing to wait on
+
+    def kill9(self) -> None:
+        """SIGKILL: a crash, no shutdown code runs."""
+        assert self.proc is not None, "not started"
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait(timeout=30)
+        self.stop()  # releases what is left (the stderr file)
+
+    def stop(self, timeout_s: float = 30.0) -> None:
+        """Ctrl-C (a clean shutdown); SIGKILL if it takes longer than `timeout_s`."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=30)
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
+
+    def _stderr_tail(self, n_chars: int = 2000) -> str:
+        if self._stderr is None:
+            return "(see its stderr above)"
+        self._stderr.seek(0)
+        return self._stderr.read().decode(errors="replace")[-n_chars:]
+
+    def __enter__(self) -> ServerProcess:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()

@@ -3,12 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import os
-import signal
-import socket
-import subprocess
-import sys
-import time
 
 import httpx
 import msgpack
@@ -16,6 +10,8 @@ import pytest
 import websockets
 from analytic_world import Rect
 from devices import TIMEOUT_S, frame_message, stream_in_step
+
+from app.server.runner import ServerProcess, free_port
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
@@ -29,62 +25,6 @@ KNOBS = {
     "min_mapping_bbox_area": 100,
     "local_map_update_frequency": 1,
 }
-
-
-class ServerProcess:
-    """`semanticxr serve` in a child process, as an operator would run it."""
-
-    def __init__(self, data_dir, port: int):
-        self.port, self.url = port, f"http://127.0.0.1:{port}"
-        env = dict(os.environ, HF_HUB_OFFLINE="1")
-        self.proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "app.cli",
-                "serve",
-                "--port",
-                str(port),
-                "--data-dir",
-                str(data_dir),
-                "--log-level",
-                "warning",
-            ],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-        )
-        deadline = time.monotonic() + 90
-        while True:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"server exited: {self.proc.stderr.read().decode()[-2000:]}")
-            try:
-                if httpx.get(f"{self.url}/healthz", timeout=1).status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                self.proc.kill()
-                raise RuntimeError("server did not come up in 90 s")
-            time.sleep(0.1)
-
-    def kill9(self):
-        self.proc.send_signal(signal.SIGKILL)
-        self.proc.wait(timeout=30)
-
-    def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 async def collect_updates(url: str, since: int, until_seq: int) -> tuple[dict, int]:
@@ -107,7 +47,7 @@ async def collect_updates(url: str, since: int, until_seq: int) -> tuple[dict, i
 @pytest.mark.parametrize("how", ["restart", "kill -9"])
 def test_the_server_comes_back_with_everything_it_acknowledged(tmp_path, how):
     port = free_port()
-    server = ServerProcess(tmp_path, port)
+    server = ServerProcess(tmp_path, port).start()
     ws_base = f"ws://127.0.0.1:{port}"
     try:
         sid = httpx.post(f"{server.url}/v1/sessions", json={"name": "home", "knobs": KNOBS}).json()[
@@ -128,7 +68,7 @@ def test_the_server_comes_back_with_everything_it_acknowledged(tmp_path, how):
         else:
             server.stop()
 
-        server = ServerProcess(tmp_path, port)
+        server = ServerProcess(tmp_path, port).start()
         after = httpx.get(f"{server.url}/v1/sessions/{sid}/objects", params={"points": True}).json()
         assert after == before
         assert httpx.get(f"{server.url}/v1/sessions/{sid}").json()["update_seq"] == seq_before

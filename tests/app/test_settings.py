@@ -68,3 +68,24 @@ def test_commands_refuse_bad_arguments_and_name_them(capsys, argv, named):
         main(argv)
     assert exit_info.value.code == 2
     assert named in capsys.readouterr().err
+
+
+def test_serve_has_a_flag_per_setting_and_a_flag_beats_the_environment(monkeypatch, capsys):
+    import dataclasses
+
+    from app.cli import build_parser
+    from app.cli.serve import settings_from_args
+
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["serve", "--help"])
+    help_text = capsys.readouterr().out
+    for field in dataclasses.fields(ServerSettings):
+        assert f"--{field.name.replace('_', '-')}" in help_text
+        assert f"SEMANTICXR_{field.name.upper()}" in help_text.replace("\n", "").replace(" ", "")
+
+    monkeypatch.setenv("SEMANTICXR_PORT", "9001")
+    monkeypatch.setenv("SEMANTICXR_MAX_SESSIONS", "5")
+    args = build_parser().parse_args(["serve", "--port", "9002", "--max-query-k", "7"])
+    settings = settings_from_args(args)
+    assert (settings.port, settings.max_sessions, settings.max_query_k) == (9002, 5, 7)
+    assert settings.host == ServerSettings().host

@@ -437,11 +437,11 @@ def test_the_device_command_streams_queries_and_writes_a_summary(live_server, tm
     import argparse
     import json
 
-    from client_sim.device import add_device_parser
+    from app.cli.device import add_parser
 
     server = live_server()
     parser = argparse.ArgumentParser()
-    add_device_parser(parser.add_subparsers(dest="command"))
+    add_parser(parser.add_subparsers(dest="command"))
     summary = tmp_path / "device.json"
     args = parser.parse_args(
         [

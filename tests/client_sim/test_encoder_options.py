@@ -149,7 +149,7 @@ def device_args(*flags: str):
 
 
 def test_device_flags_default_to_the_encoder_defaults() -> None:
-    from client_sim.device import encoder_options_from_args
+    from app.cli.device import encoder_options_from_args
 
     options = encoder_options_from_args(device_args())
     encoder, default = FrameEncoder(**options), FrameEncoder()
@@ -159,7 +159,7 @@ def test_device_flags_default_to_the_encoder_defaults() -> None:
 
 
 def test_device_flags_reach_the_encoder_options() -> None:
-    from client_sim.device import encoder_options_from_args
+    from app.cli.device import encoder_options_from_args
 
     options = encoder_options_from_args(
         device_args(
@@ -178,7 +178,7 @@ def test_device_flags_reach_the_encoder_options() -> None:
 
 
 def test_a_bad_encoding_flag_stops_the_device_command_before_connecting(capsys) -> None:
-    from client_sim.device import run_device
+    from app.cli.device import run
 
-    assert run_device(device_args("--jpeg-quality", "0")) == 2
+    assert run(device_args("--jpeg-quality", "0")) == 2
     assert "jpeg_quality" in capsys.readouterr().err

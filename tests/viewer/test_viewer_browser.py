@@ -11,9 +11,7 @@ from __future__ import annotations
 import asyncio
 import re
 import shutil
-import socket
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -22,7 +20,10 @@ from pathlib import Path
 import pytest
 from analytic_world import BATHROOM, KITCHEN, RectSource
 
+from app.client import create_session
 from app.config import Knobs, updated_knobs
+from app.server.runner import ServerThread, free_port
+from app.server.settings import ServerSettings
 from client_sim.sources.base import FrameSource
 from client_sim.streaming import DeviceClient
 from viewer.app import ViewerApp
@@ -76,55 +77,15 @@ def wait_for(condition: Callable[[], object], what: str, timeout_s: float = WAIT
     return result
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class RestartableServer:
-    """The real app under uvicorn on a fixed port and data dir, so that it can be stopped and
-    started again where the viewer expects it (conftest's live_server picks a new port)."""
-
-    def __init__(self, data_dir: Path, encoder, port: int):
-        self.data_dir, self.encoder, self.port = data_dir, encoder, port
-        self.url = f"http://127.0.0.1:{port}"
-        self._server = None
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> RestartableServer:
-        import uvicorn
-
-        from app.server.app import create_app
-        from app.server.settings import ServerSettings
-
-        settings = ServerSettings(host="127.0.0.1", port=self.port, data_dir=str(self.data_dir))
-        config = uvicorn.Config(
-            create_app(settings, encoder=self.encoder),
-            host="127.0.0.1",
-            port=self.port,
-            log_level="warning",
-            ws_max_size=settings.max_message_bytes,
-            ws_per_message_deflate=False,
-        )
-        self._server = uvicorn.Server(config)
-        self._thread = threading.Thread(target=self._server.run, daemon=True)
-        self._thread.start()
-        wait_for(lambda: self._server.started or not self._thread.is_alive(), "the server to start")
-        assert self._server.started, "the server did not start"
-        return self
-
-    def stop(self) -> None:
-        if self._server is not None:
-            self._server.should_exit = True
-            self._thread.join(timeout=30)
-            self._server = None
+def server_on(port: int, data_dir: Path, encoder) -> ServerThread:
+    """The real app on a fixed port and data dir, so that it can be stopped and started again
+    where the viewer expects it (conftest's live_server picks a new port)."""
+    settings = ServerSettings(host="127.0.0.1", port=port, data_dir=str(data_dir))
+    return ServerThread(settings, encoder).start()
 
 
 def new_session(server_url: str, api_key: str | None = None) -> tuple[str, str, Knobs]:
-    sid, token, answer = asyncio.run(
-        DeviceClient.create_session(server_url, knobs=FAST_KNOBS, api_key=api_key)
-    )
+    sid, token, answer = asyncio.run(create_session(server_url, knobs=FAST_KNOBS, api_key=api_key))
     return sid, token, updated_knobs(Knobs(), answer["knobs"])
 
 
@@ -226,7 +187,7 @@ def test_the_viewer_shows_the_outage_and_resumes_from_its_seq_after_a_server_res
     tmp_path, encoder
 ):
     port = free_port()
-    server = RestartableServer(tmp_path / "data", encoder, port).start()
+    server = server_on(port, tmp_path / "data", encoder)
     try:
         sid, token, knobs = new_session(server.url)
         seq_before = stream(server.url, sid, token, knobs, RectSource(KITCHEN, 6))
@@ -238,7 +199,7 @@ def test_the_viewer_shows_the_outage_and_resumes_from_its_seq_after_a_server_res
             wait_for(lambda: not app.status.connected, "the viewer to notice the server is gone")
             assert "disconnected — reconnecting" in app.gui.status.content
 
-            server = RestartableServer(tmp_path / "data", encoder, port).start()
+            server = server_on(port, tmp_path / "data", encoder)
             wait_for(lambda: app.status.connected, "the viewer to reconnect", timeout_s=20)
             assert app.status.reconnects == 1
             assert app.status.last_since == seq_before  # resumed, not resynced
@@ -257,10 +218,10 @@ def test_the_viewer_shows_the_outage_and_resumes_from_its_seq_after_a_server_res
 def test_the_viewer_command_takes_the_server_the_session_and_where_to_listen():
     import argparse
 
-    from viewer.app import add_viewer_parser, run_viewer
+    from app.cli.viewer import add_parser, run
 
     parser = argparse.ArgumentParser()
-    add_viewer_parser(parser.add_subparsers(dest="command"))
+    add_parser(parser.add_subparsers(dest="command"))
     args = parser.parse_args(
         ["viewer", "--server", "http://10.0.0.2:8000", "--session", "abc", "--port", "8090"]
     )
@@ -270,4 +231,4 @@ def test_the_viewer_command_takes_the_server_the_session_and_where_to_listen():
         8090,
         "127.0.0.1",
     )
-    assert args.func is run_viewer and args.up == "+z"
+    assert args.func is run and args.up == "+z"

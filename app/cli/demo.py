@@ -16,6 +16,9 @@ import tempfile
 import time
 from typing import Any
 
+from app.cli.common import scene_name
+from app.flags import positive_int
+
 DEFAULT_QUERIES = (
     "something to sit on",
     "where can I wash the dishes?",
@@ -24,9 +27,7 @@ DEFAULT_QUERIES = (
 )
 
 
-def add_demo_parser(subparsers: Any) -> None:
-    from app.cli import positive_int, scene_name
-
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     demo = subparsers.add_parser(
         "demo",
         help="run server + emulated device + viewer on a synthetic apartment, with a network drop",
@@ -45,7 +46,8 @@ def add_demo_parser(subparsers: Any) -> None:
     demo.add_argument("--data-dir", help="server data folder (default: a temporary folder)")
     demo.add_argument("--query", action="append", help="query to ask (repeatable)")
     demo.add_argument("--exit", action="store_true", help="exit after the scripted run")
-    demo.set_defaults(func=run_demo)
+    demo.set_defaults(func=run)
+    return demo
 
 
 def _say(message: str) -> None:
@@ -60,6 +62,7 @@ def _show(answer) -> None:
 
 
 async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
+    from app.client import SessionApi, create_session
     from app.config import Knobs
     from client_sim.netem import NetemProxy
     from client_sim.querying import QueryRouter
@@ -70,7 +73,8 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     proxy = NetemProxy("127.0.0.1", port)
     proxy.start()
     device_url = proxy.url()
-    sid, token, _ = await DeviceClient.create_session(server_url, name="demo")
+    sid, token, _ = await create_session(server_url, name="demo")
+    api = SessionApi(server_url, sid, token)
     _say(f"session {sid} created; the device reaches the server through {device_url}")
 
     viewer = None
@@ -115,7 +119,7 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     reporter = asyncio.create_task(progress(first_part))
     await device.stream(source, fps=None, limit=first_part)
     reporter.cancel()
-    server_seq = (await DeviceClient.fetch_session(server_url, sid, token))["update_seq"]
+    server_seq = (await api.fetch())["update_seq"]
     await device.wait_synced(server_seq, timeout_s=15)
     _say(
         f"mapped: the device holds {len(device.local_map)} objects, "
@@ -146,17 +150,9 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     await device.stream(
         source.__class__(args.scene, n_frames=args.frames), fps=None, limit=args.frames
     )
-    server_seq = (await DeviceClient.fetch_session(server_url, sid, token))["update_seq"]
+    server_seq = (await api.fetch())["update_seq"]
     synced = await device.wait_synced(server_seq, timeout_s=20)
-    import httpx
-
-    async with httpx.AsyncClient() as http:
-        objects = (
-            await http.get(
-                f"{server_url}/v1/sessions/{sid}/objects",
-                headers={"Authorization": f"Bearer {token}"},
-            )
-        ).json()
+    objects = await api.objects()
     server_map = {o["id"]: o["version"] for o in objects}
     local = {oid: version for oid, (version, _label) in device.local_map.snapshot().items()}
     same = synced and local == server_map
@@ -170,6 +166,7 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
         _show(await router.query(text))
 
     await router.aclose()
+    await api.aclose()
     await device.stop()
     follower.cancel()
     with contextlib.suppress(asyncio.CancelledError):
@@ -178,7 +175,7 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     return {"session_id": sid, "token": token, "viewer": viewer, "in_sync": same}
 
 
-def run_demo(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     from app.semantics import get_text_encoder
     from app.server.runner import ServerThread
     from app.server.settings import ServerSettings

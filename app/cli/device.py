@@ -8,7 +8,8 @@ frame), keeps a local copy of the map from the session's updates, prints progres
 about once a second, and at the end asks each --query (SQ or LQ, see client_sim/querying.py)
 and prints the answers. Ctrl-C stops it cleanly (the summary is still written).
 
-`add_device_parser` and `run_device` are what app/cli.py hooks in.
+The device itself is client_sim (DeviceClient, QueryRouter, the local map); this module is
+the command around it: flags, progress line, answers and the summary.
 """
 
 from __future__ import annotations
@@ -23,10 +24,13 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
+from app.cli.common import write_json
+from app.client import ApiError, http_base_url
 from app.config import Knobs, updated_knobs
+from app.flags import add_knob_flags, explicit_knobs, knobs_from_args, server_url
 
 if TYPE_CHECKING:  # the real imports are in the functions: torch loads in ~1.5 s, and
-    # app/cli.py builds this parser for every command, not only `device`
+    # app.cli builds this parser for every command, not only `device`
     from app.semantics import TextEncoder
     from client_sim.querying import QueryAnswer
     from client_sim.sources.base import FrameSource
@@ -41,10 +45,8 @@ may never be pushed: the wait is short, and queries go ahead either way."""
 SYNTHETIC_DEFAULT_FRAMES = 300
 
 
-def add_device_parser(subparsers: Any) -> None:
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the `device` subcommand (with its knob flags) to `semanticxr`'s subparsers."""
-    from app.cli import add_knob_flags, server_url  # here: app.cli imports this module
-
     parser = subparsers.add_parser(
         "device",
         help="emulate an XR device: stream a source to a server, follow the map, ask queries",
@@ -96,7 +98,8 @@ def add_device_parser(subparsers: Any) -> None:
     parser.add_argument("-k", type=int, default=3, help="results per query")
     parser.add_argument("--json", metavar="PATH", help="write a summary as JSON here")
     add_knob_flags(parser)
-    parser.set_defaults(func=run_device)
+    parser.set_defaults(func=run)
+    return parser
 
 
 def add_encoder_flags(parser: argparse.ArgumentParser) -> None:
@@ -162,10 +165,9 @@ def encoder_options_from_args(args: argparse.Namespace) -> dict[str, Any]:
     return options
 
 
-def run_device(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run the device command; 0 on success, 2 on a set-up error, 130 on Ctrl-C."""
-    from app.cli import knobs_from_args
-    from client_sim.streaming import DeviceError, http_base_url
+    from client_sim.streaming import DeviceError
 
     knobs_from_args(args)  # validates the knob flags (KnobError names the bad one)
     if not args.create and not args.session:
@@ -188,7 +190,7 @@ def run_device(args: argparse.Namespace) -> int:
         return 2
     try:
         return asyncio.run(_run(args, source))
-    except DeviceError as exc:
+    except (ApiError, DeviceError) as exc:
         print(f"semanticxr device: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -208,20 +210,11 @@ def make_device_source(spec: str, frames: int | None) -> FrameSource:
     return make_source(spec)
 
 
-def _explicit_knobs(args: argparse.Namespace) -> dict[str, Any]:
-    """Only the knob flags given on the command line (the rest stays as the session has it)."""
-    return {
-        f.name: getattr(args, f"knob_{f.name}")
-        for f in dataclasses.fields(Knobs)
-        if getattr(args, f"knob_{f.name}", None) is not None
-    }
-
-
 async def _join_session(args: argparse.Namespace) -> tuple[str, str | None, dict]:
     """(session id, token, session info with "knobs" and "embedding") for --create or --session."""
     from client_sim.streaming import DeviceClient
 
-    changes = _explicit_knobs(args)
+    changes = explicit_knobs(args)
     if args.create:
         sid, token, answer = await DeviceClient.create_session(
             args.server, name=args.name, mode=args.mode, knobs=changes, api_key=args.api_key
@@ -343,8 +336,6 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
             tasks.append(encoder_task)
         await asyncio.gather(*tasks, return_exceptions=True)
         if args.json:
-            from app.cli import write_json
-
             write_json(args.json, _summary(args, sid, client, answers, start_s, interrupted))
     return 0
 

@@ -1,0 +1,47 @@
+"""`semanticxr serve`: the server. One flag per ServerSettings field, generated (help from
+the field's docstring), so a new setting gets its flag for free; a flag overrides the
+SEMANTICXR_<FIELD> environment variable, which overrides the default."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from typing import Any
+
+from app.flags import add_dataclass_flags
+from app.server.settings import ServerSettings
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "serve",
+        help="run the SemanticXR server (REST + WebSockets, wire protocol v1)",
+        description="Serve the wire protocol v1. Flags override SEMANTICXR_* environment variables.",
+    )
+    add_dataclass_flags(parser, ServerSettings, env_prefix="SEMANTICXR_")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def settings_from_args(args: argparse.Namespace) -> ServerSettings:
+    """Defaults, then SEMANTICXR_* variables, then the flags given (SettingsError names a bad
+    value)."""
+    flags = {f.name: getattr(args, f.name, None) for f in dataclasses.fields(ServerSettings)}
+    return ServerSettings.from_env(**flags)
+
+
+def run(args: argparse.Namespace) -> int:
+    import logging
+
+    from uvicorn import Server
+
+    from app.server.app import create_app
+    from app.server.runner import uvicorn_config
+
+    settings = settings_from_args(args)
+    logging.basicConfig(
+        level=settings.log_level.upper(), format="%(levelname)s %(name)s: %(message)s"
+    )
+    print(f"SemanticXR on http://{settings.host}:{settings.port}  (data in {settings.data_dir})")
+    Server(uvicorn_config(create_app(settings), settings)).run()
+    return 0

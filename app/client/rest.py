@@ -1,0 +1,173 @@
+"""The REST calls of wire protocol v1: create a session, read it, change its knobs, query it."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+import httpx
+
+from app.client.connection import auth_headers, http_base_url
+
+REST_TIMEOUT_S = 10.0
+"""Longest wait for one REST call, whole (connect, send, answer)."""
+QUERY_HIT_FIELDS = ("id", "label", "score", "bbox", "centroid")
+"""The fields of a query hit without its points."""
+
+
+class ApiError(RuntimeError):
+    """A REST call failed: the server was unreachable or slow, or answered with another
+    status than expected, or with a body that is not JSON. The message names the call."""
+
+    def __init__(self, message: str, status: int | None = None):
+        super().__init__(message)
+        self.status = status
+        """The HTTP status, when the server answered."""
+
+
+def _answer(method: str, url: str, response: httpx.Response, expect: int) -> Any:
+    """The JSON body of an answer with status `expect`, or ApiError naming the status and
+    the server's detail."""
+    try:
+        body = response.json()
+    except ValueError:
+        body = None
+    if response.status_code != expect:
+        detail = body.get("detail", body) if isinstance(body, dict) else response.text[:200]
+        raise ApiError(
+            f"{method} {url}: HTTP {response.status_code}: {detail}", response.status_code
+        )
+    if body is None:
+        raise ApiError(f"{method} {url}: the answer is not JSON", response.status_code)
+    return body
+
+
+async def request(
+    http: httpx.AsyncClient,
+    method: str,
+    url: str,
+    *,
+    expect: int = 200,
+    timeout_s: float = REST_TIMEOUT_S,
+    **kwargs: Any,
+) -> Any:
+    """One REST call on `http`, bounded by `timeout_s` as a whole; its JSON answer."""
+    try:
+        # wait_for bounds the whole call; httpx's timeout bounds each phase only.
+        response = await asyncio.wait_for(http.request(method, url, **kwargs), timeout_s)
+    except (httpx.HTTPError, TimeoutError) as exc:
+        raise ApiError(f"{method} {url}: {type(exc).__name__}: {exc}") from exc
+    return _answer(method, url, response, expect)
+
+
+async def create_session(
+    server_url: str,
+    *,
+    name: str | None = None,
+    mode: str = "semanticxr",
+    knobs: dict | None = None,
+    api_key: str | None = None,
+) -> tuple[str, str, dict]:
+    """POST /v1/sessions -> (session_id, token, the whole answer incl. embedding, knobs)."""
+    body: dict[str, Any] = {"mode": mode, "knobs": knobs or {}}
+    if name is not None:
+        body["name"] = name
+    url = f"{http_base_url(server_url)}/v1/sessions"
+    async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(api_key)) as http:
+        answer = await request(http, "POST", url, expect=201, json=body)
+    return answer["session_id"], answer["token"], answer
+
+
+class SessionApi:
+    """The REST calls on one session, over one kept-alive HTTP connection.
+
+    server_url: http(s)://host:port (ws(s):// is mapped back). token: the session's token or
+    the API key (None for an open server). timeout_s: longest wait for each call, whole.
+    Use `async with`, or `aclose()` when done; the connection opens at the first call (on
+    the loop of that call).
+    """
+
+    def __init__(
+        self,
+        server_url: str,
+        session_id: str,
+        token: str | None = None,
+        *,
+        timeout_s: float = REST_TIMEOUT_S,
+    ):
+        self.http_url = http_base_url(server_url)
+        self.session_id = session_id
+        self.token = token
+        self.timeout_s = float(timeout_s)
+        self.session_url = f"{self.http_url}/v1/sessions/{session_id}"
+        self._http: httpx.AsyncClient | None = None
+
+    def _client(self) -> httpx.AsyncClient:
+        if self._http is None:
+            self._http = httpx.AsyncClient(timeout=self.timeout_s, headers=auth_headers(self.token))
+        return self._http
+
+    async def _call(self, method: str, url: str, expect: int = 200, **kwargs: Any) -> Any:
+        return await request(
+            self._client(), method, url, expect=expect, timeout_s=self.timeout_s, **kwargs
+        )
+
+    async def fetch(self) -> dict:
+        """GET /v1/sessions/{sid}: stats, knobs in force, embedding model and dimension."""
+        return await self._call("GET", self.session_url)
+
+    async def patch_knobs(self, changes: dict) -> dict:
+        """PATCH /v1/sessions/{sid}/knobs -> the knobs now in force."""
+        return await self._call("PATCH", f"{self.session_url}/knobs", json=changes)
+
+    async def query(self, text: str, k: int = 5) -> list[dict]:
+        """GET /v1/sessions/{sid}/query: the k best hits, best first, without their points
+        ({"id", "label", "score", "bbox", "centroid"})."""
+        answer = await self._call("GET", f"{self.session_url}/query", params=_query_params(text, k))
+        return _hits(answer)
+
+    async def objects(self, *, points: bool = False) -> list[dict]:
+        """GET /v1/sessions/{sid}/objects: the confirmed objects (with their points if asked)."""
+        params = {"points": "true" if points else "false"}
+        return await self._call("GET", f"{self.session_url}/objects", params=params)
+
+    def query_blocking(self, text: str, k: int = 5) -> list[dict]:
+        """`query` for a caller without an event loop (a GUI callback's thread)."""
+        url = f"{self.session_url}/query"
+        try:
+            response = httpx.get(
+                url,
+                params=_query_params(text, k),
+                headers=auth_headers(self.token),
+                timeout=self.timeout_s,
+            )
+        except httpx.HTTPError as exc:
+            raise ApiError(f"GET {url}: {type(exc).__name__}: {exc}") from exc
+        return _hits(_answer("GET", url, response, 200))
+
+    async def health(self) -> None:
+        """GET /healthz (the cheapest round trip); ApiError unless the server is up."""
+        await self._call("GET", f"{self.http_url}/healthz")
+
+    async def aclose(self) -> None:
+        if self._http is not None:
+            await self._http.aclose()
+            self._http = None
+
+    async def __aenter__(self) -> SessionApi:
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.aclose()
+
+
+def _query_params(text: str, k: int) -> dict[str, Any]:
+    # Points left out: the device and the viewer already hold the geometry they need.
+    return {"text": text, "k": k, "points": "false"}
+
+
+def _hits(answer: Any) -> list[dict]:
+    try:
+        return [{key: hit[key] for key in QUERY_HIT_FIELDS} for hit in answer["results"]]
+    except (KeyError, TypeError) as exc:
+        raise ApiError(f"a query answer without {exc} in its results") from exc
