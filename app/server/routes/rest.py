@@ -195,7 +195,7 @@ def manager(request: Request) -> SessionManager:
 
 
 def session_for(request: Request, sid: str) -> Session:
-    return authorize_session(manager(request), sid, bearer(request.headers, request.query_params))
+    return authorize_session(manager(request), sid, bearer(request.headers))
 
 
 def _points(obj: MapObject, session: Session) -> list[list[float]]:
