@@ -5,12 +5,14 @@ from __future__ import annotations
 import logging
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse, PlainTextResponse
 from starlette.routing import Match
 
 from app import __version__
 from app.semantics import TextEncoder, get_text_encoder
+from app.server.auth import require_api_key
+from app.server.edges import HostOriginMiddleware
 from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware
 from app.server.metrics import make_metrics
 from app.server.routes import pages, rest, ws
@@ -53,6 +55,18 @@ def create_app(
 
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(SocketLimitMiddleware, max_sockets=settings.max_connections)
+    allowed_hosts = settings.allowed_host_list()
+    if allowed_hosts is None and settings.allowed_hosts is None:
+        log.warning(
+            "bound to %s: every Host header is served; pass --allowed-hosts to restrict it",
+            settings.host,
+        )
+    # Outermost: a request for a foreign Host is refused before anything reads it.
+    app.add_middleware(
+        HostOriginMiddleware,
+        allowed_hosts=allowed_hosts,
+        allowed_origins=settings.allowed_origin_list(),
+    )
 
     @app.exception_handler(405)
     async def method_not_allowed(request: Request, exc: Exception) -> JSONResponse:
@@ -76,7 +90,12 @@ def create_app(
     def healthz() -> dict:
         return {"status": "ok", "version": __version__}
 
-    @app.get("/metrics", response_class=PlainTextResponse, summary="Prometheus metrics")
+    @app.get(
+        "/metrics",
+        response_class=PlainTextResponse,
+        summary="Prometheus metrics (needs the API key where the server has one)",
+        dependencies=[Depends(require_api_key)],
+    )
     def metrics(request: Request) -> str:
         manager: SessionManager = request.app.state.manager
         sessions = list(manager.sessions.values())

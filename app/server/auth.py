@@ -14,18 +14,21 @@ from fastapi import HTTPException, Request
 from app.server.sessions import Session, SessionManager
 
 
-def bearer(request_headers, query_params) -> str | None:
+def bearer(request_headers, query_params=None) -> str | None:
+    """The credential of `Authorization: Bearer <credential>`; else, where `query_params` is
+    given (WebSocket handshakes only: browsers cannot set headers on them), `?token=`.
+    REST takes the header only, so credentials never sit in URLs that proxies log."""
     header = request_headers.get("authorization", "")
     if header.lower().startswith("bearer "):
         return header[7:].strip()
-    return query_params.get("token")
+    return None if query_params is None else query_params.get("token")
 
 
 def require_api_key(request: Request) -> None:
     key = request.app.state.settings.api_key
     if key is None:
         return
-    token = bearer(request.headers, request.query_params)
+    token = bearer(request.headers)
     if token is None:
         raise HTTPException(
             401,

@@ -57,7 +57,7 @@ class BodyLimitMiddleware:
         await self.app(scope, counted_receive, guarded_send)
 
     async def _refuse(self, send: Send) -> None:
-        await _send_json(send, "http.response", 413, f"request body over {self.max_bytes} bytes")
+        await send_json(send, "http.response", 413, f"request body over {self.max_bytes} bytes")
 
 
 class SocketLimitMiddleware:
@@ -87,12 +87,12 @@ class SocketLimitMiddleware:
         if "websocket.http.response" not in scope.get("extensions", {}):
             await send({"type": "websocket.close", "code": 1013})  # the client sees 403
             return
-        await _send_json(
+        await send_json(
             send, "websocket.http.response", 503, f"over {self.max_sockets} open connections"
         )
 
 
-async def _send_json(send: Send, kind: str, status: int, detail: str) -> None:
+async def send_json(send: Send, kind: str, status: int, detail: str) -> None:
     """A whole JSON answer {"detail": ...}; kind: "http.response" or, to refuse a WebSocket
     handshake, "websocket.http.response". The connection closes after it."""
     body = json.dumps({"detail": detail}).encode()

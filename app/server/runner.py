@@ -20,6 +20,7 @@ import uvicorn
 
 from app.semantics import TextEncoder
 from app.server.app import create_app
+from app.server.edges import logging_config
 from app.server.settings import ServerSettings
 
 
@@ -36,6 +37,7 @@ def uvicorn_config(app, settings: ServerSettings, log_level: str | None = None) 
         host=settings.host,
         port=settings.port,
         log_level=log_level or settings.log_level,
+        log_config=logging_config(),  # tokens in URLs never reach the access log
         ws_max_size=settings.max_message_bytes,
         ws_per_message_deflate=False,  # payloads are JPEG/zstd already
         limit_concurrency=settings.max_connections,  # beyond: 503 (HTTP) or refused (socket)

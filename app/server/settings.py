@@ -14,6 +14,8 @@ from app.store import StoreURLError, check_store_url, sqlite_url
 STORE_FILE = "semanticxr.sqlite3"
 """The SQLite file the default store keeps in data_dir (existing databases use this name)."""
 
+from app.server.edges import default_allowed_hosts
+
 
 @dataclass
 class ServerSettings:
@@ -49,6 +51,21 @@ class ServerSettings:
     """Largest k a query may ask for."""
     log_level: str = "info"
     """uvicorn log level."""
+    allowed_hosts: str | None = None
+    """Comma-separated Host names the server answers to ('*' any, '*.example.com' subdomains);
+    default: the loopback names for a loopback bind, any Host for a wildcard bind (0.0.0.0, ::)."""
+    allow_origin: str = ""
+    """Comma-separated browser origins (scheme://host:port) besides the server's own that may
+    open its WebSockets."""
+
+    def allowed_host_list(self) -> list[str] | None:
+        """The Host names served (None: any), from allowed_hosts or the bind address."""
+        if self.allowed_hosts is None:
+            return default_allowed_hosts(self.host)
+        return [h.strip() for h in self.allowed_hosts.split(",") if h.strip()]
+
+    def allowed_origin_list(self) -> list[str]:
+        return [o.strip() for o in self.allow_origin.split(",") if o.strip()]
 
     def __post_init__(self) -> None:
         """Raise SettingsError naming the setting whose value cannot work."""

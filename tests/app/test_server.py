@@ -284,7 +284,7 @@ def test_request_bodies_over_the_limit_get_413_even_when_chunked(live_server):
     size = 256 * 1024
     chunk = b"%x\r\n" % size + b"x" * size + b"\r\n"
     head = (
-        b"POST /v1/sessions HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        b"POST /v1/sessions HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
         b"Transfer-Encoding: chunked\r\n\r\n"
     )
     status, sent = _raw_request(server.url, head, [chunk] * 64 + [b"0\r\n\r\n"], size)

@@ -209,7 +209,7 @@ def manager(request: Request) -> SessionManager:
 
 
 def session_for(request: Request, sid: str) -> Session:
-    return authorize_session(manager(request), sid, bearer(request.headers, request.query_params))
+    return authorize_session(manager(request), sid, bearer(request.headers))
 
 
 def _object_record(obj: MapObject, session: Session, with_points: bool) -> protocol.ObjectRecord:
