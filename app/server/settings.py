@@ -9,12 +9,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from app.perception import BACKENDS, DEFAULT_BACKEND
+from app.server.edges import default_allowed_hosts
 from app.store import StoreURLError, check_store_url, sqlite_url
 
 STORE_FILE = "semanticxr.sqlite3"
 """The SQLite file the default store keeps in data_dir (existing databases use this name)."""
-
-from app.server.edges import default_allowed_hosts
 
 
 @dataclass
