@@ -11,7 +11,6 @@ from __future__ import annotations
 import asyncio
 import re
 import shutil
-import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -19,6 +18,7 @@ from pathlib import Path
 
 import pytest
 from analytic_world import BATHROOM, KITCHEN, RectSource
+from helpers_device import FAST_KNOBS, server_state
 
 from app.client import create_session
 from app.config import Knobs, updated_knobs
@@ -28,11 +28,6 @@ from client_sim.sources.base import FrameSource
 from client_sim.streaming import DeviceClient
 from viewer.app import ViewerApp
 from viewer.scene import HIT_BOXES_NODE, points_node
-
-# The device tests' helpers (session knobs, the server's state): tests/ has no packages, so
-# their folder is put on the path explicitly.
-sys.path.append(str(Path(__file__).resolve().parents[1] / "client_sim"))
-from helpers_device import FAST_KNOBS, server_state  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 

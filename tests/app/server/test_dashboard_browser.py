@@ -21,7 +21,7 @@ try:  # optional: without playwright only the browser tests skip
 except ImportError:
     expect = sync_playwright = None
 
-ARTIFACTS = Path(__file__).resolve().parents[2] / "out" / "test-artifacts"
+ARTIFACTS = Path(__file__).resolve().parents[3] / "out" / "test-artifacts"
 BROWSER_TIMEOUT_MS = 30_000
 """Longest wait for the page to show something (it polls the server every 2 s)."""
 CHROMIUM_ARGS = [

@@ -30,13 +30,13 @@ from client_sim.sources.tum import FREIBURG1_INTRINSICS, TumSource, quaternion_t
 
 pytestmark = pytest.mark.timeout(60)
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 
 
 def shared_data_dir() -> Path:
     """The shared sample data folder, or skip the test if this checkout has none."""
     env = os.environ.get("SEMANTICXR_SHARED_DATA")
-    path = Path(env) if env else Path(__file__).resolve().parents[3] / "shared" / "data"
+    path = Path(env) if env else Path(__file__).resolve().parents[4] / "shared" / "data"
     if not path.is_dir():
         pytest.skip(f"shared sample data not found at {path} (set SEMANTICXR_SHARED_DATA)")
     return path

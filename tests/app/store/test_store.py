@@ -34,7 +34,7 @@ from app.store import (
 )
 from app.store.sqlite import SCHEMA_VERSION, SqliteStore
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 DIM = 16
 
 
