@@ -8,11 +8,11 @@ from typing import Any
 import httpx
 
 from app.client.connection import auth_headers, http_base_url
+from app.errors import InputError
+from app.protocol import parse_query_result
 
 REST_TIMEOUT_S = 10.0
 """Longest wait for one REST call, whole (connect, send, answer)."""
-QUERY_HIT_FIELDS = ("id", "label", "score", "bbox", "centroid")
-"""The fields of a query hit without its points."""
 
 
 class ApiError(RuntimeError):
@@ -167,7 +167,9 @@ def _query_params(text: str, k: int) -> dict[str, Any]:
 
 
 def _hits(answer: Any) -> list[dict]:
+    """The hits of a query answer, parsed by the protocol, as dicts without points."""
     try:
-        return [{key: hit[key] for key in QUERY_HIT_FIELDS} for hit in answer["results"]]
-    except (KeyError, TypeError) as exc:
-        raise ApiError(f"a query answer without {exc} in its results") from exc
+        result = parse_query_result(answer)
+    except InputError as exc:
+        raise ApiError(f"a malformed query answer: {exc}") from exc
+    return [hit.model_dump(exclude={"points"}) for hit in result.results]

@@ -45,13 +45,19 @@ from app.protocol.limits import (
 )
 from app.protocol.replies import Ack, ErrorReply, parse_reply, unpack_reply
 from app.protocol.rest import (
+    KNOB_CHANGES_SCHEMA,
+    MAX_QUERY_CHARS,
+    CreateSession,
     EmbeddingInfo,
+    ErrorBody,
+    KnobsBody,
     ObjectRecord,
-    QueryHitRecord,
+    QueryHit,
     QueryResult,
     SessionCreated,
     SessionStats,
     SessionSummary,
+    UnprocessableBody,
     parse_query_result,
 )
 
@@ -64,7 +70,13 @@ __all__ = [
     "MAX_REMOVED_PER_DELTA",
     "MAX_UPSERTS_PER_DELTA",
     "PROTOCOL_VERSION",
+    "KNOB_CHANGES_SCHEMA",
+    "MAX_QUERY_CHARS",
     "Ack",
+    "CreateSession",
+    "ErrorBody",
+    "KnobsBody",
+    "UnprocessableBody",
     "DeltaError",
     "DeltaMessage",
     "EmbeddingInfo",
@@ -72,7 +84,7 @@ __all__ = [
     "FrameInput",
     "InputError",
     "ObjectRecord",
-    "QueryHitRecord",
+    "QueryHit",
     "QueryResult",
     "SessionCreated",
     "SessionStats",

@@ -1,83 +1,185 @@
-"""The JSON bodies of v1's REST answers: typed records with `to_json()` for the server, and
-parsers for the clients.
+"""The JSON bodies of v1's REST calls: one pydantic model per body.
+
+These models are the one definition of each body: the server builds its answers with them,
+FastAPI validates requests and writes the OpenAPI document from them, and clients parse
+answers with them (`parse_query_result`). Field docs are the attribute docstrings.
 
 Geometry is rounded to 0.1 mm and scores to 5 decimals on the wire (JSON text is the cost).
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
-from typing import Any
+import dataclasses
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model
 
+from app.config import KNOB_RANGES, Knobs, knob_docs
 from app.errors import InputError
 from app.protocol.limits import PROTOCOL_VERSION
 
+MAX_QUERY_CHARS = 500
+"""Longest query text."""
+MAX_NAME_CHARS = 200
+"""Longest session name."""
 
-def _rounded(values: Sequence[float]) -> list[float]:
-    return [round(float(v), 4) for v in values]
+
+def _rounded_floats(values: Any) -> Any:
+    """Numbers (or an array) -> floats rounded to 0.1 mm; anything else is left to validation."""
+    if isinstance(values, np.ndarray):
+        return np.asarray(values, np.float64).round(4).tolist()
+    if isinstance(values, list | tuple) and all(
+        isinstance(v, int | float | np.floating | np.integer) and not isinstance(v, bool)
+        for v in values
+    ):
+        return [round(float(v), 4) for v in values]
+    return values
 
 
-@dataclass
-class EmbeddingInfo:
-    """The session's text embedding: model id and dimension (the same on server and device)."""
+def _rounded_points(points: Any) -> Any:
+    if isinstance(points, np.ndarray):
+        return np.asarray(points, np.float64).round(4).tolist()
+    return points
 
-    model: str
-    dim: int
+
+def _rounded_score(score: Any) -> Any:
+    if isinstance(score, float | np.floating):
+        return round(float(score), 5)
+    return score
+
+
+Box = Annotated[list[float], BeforeValidator(_rounded_floats), Field(min_length=6, max_length=6)]
+"""[x0, y0, z0, x1, y1, z1] metres, world frame."""
+Point = Annotated[list[float], BeforeValidator(_rounded_floats), Field(min_length=3, max_length=3)]
+Points = Annotated[
+    list[Annotated[list[float], Field(min_length=3, max_length=3)]] | None,
+    BeforeValidator(_rounded_points),
+    Field(exclude_if=lambda points: points is None),  # left out when not asked for
+]
+Score = Annotated[float, BeforeValidator(_rounded_score)]
+
+
+class Record(BaseModel):
+    """A REST body; keys beyond its fields are left out when parsing."""
+
+    model_config = ConfigDict(use_attribute_docstrings=True, extra="ignore")
 
     def to_json(self) -> dict:
-        return {"model": self.model, "dim": self.dim}
+        """The JSON body."""
+        return self.model_dump(mode="json")
 
 
-@dataclass
-class SessionCreated:
-    """201 answer of `POST /v1/sessions` (and of an import)."""
+class ErrorBody(Record):
+    """Every 4xx/5xx answer but FastAPI's own 422 for a body of the wrong shape."""
+
+    detail: str
+    """What is wrong, in words."""
+
+
+class UnprocessableBody(Record):
+    detail: str | list[dict[str, Any]]
+    """A bad knob value or setting, in words; or FastAPI's list of {loc, msg, type} for a body
+    or parameter of the wrong shape."""
+
+
+def _knobs_model() -> type[BaseModel]:
+    """The knobs in force, generated from app.config.Knobs (each knob documented once)."""
+    docs, defaults = knob_docs(), Knobs()
+    fields: dict[str, Any] = {
+        f.name: (f.type, Field(getattr(defaults, f.name), description=docs.get(f.name)))
+        for f in dataclasses.fields(Knobs)
+    }
+    return create_model("Knobs", **fields)
+
+
+def _knob_changes_schema() -> dict[str, Any]:
+    """JSON schema of a knob-changes body: known knobs only, each of its type and range.
+
+    Validation itself stays in app.config.updated_knobs (one place, and it names the knob of
+    a bad value); it also takes numbers as strings and lists as comma-separated strings,
+    which is what the device's command-line flags send."""
+    docs, defaults = knob_docs(), Knobs()
+    properties: dict[str, Any] = {}
+    for f in dataclasses.fields(Knobs):
+        default = getattr(defaults, f.name)
+        if isinstance(default, list):
+            prop: dict[str, Any] = {
+                "anyOf": [
+                    {"type": "array", "items": {"type": "string", "maxLength": 200}},
+                    {"type": "string", "description": "comma-separated"},
+                ]
+            }
+        else:
+            lo, hi = KNOB_RANGES[f.name]
+            kind = "integer" if isinstance(default, int) else "number"
+            prop = {"type": kind, "minimum": lo, "maximum": hi}
+            if default is None:
+                prop = {"anyOf": [prop, {"type": "null"}]}
+        properties[f.name] = {**prop, "description": docs.get(f.name, "")}
+    return {"type": "object", "properties": properties, "additionalProperties": False}
+
+
+KnobsBody = _knobs_model()
+KNOB_CHANGES_SCHEMA = _knob_changes_schema()
+"""JSON schema of `PATCH .../knobs` and of the `knobs` of `POST /v1/sessions`."""
+
+
+class EmbeddingInfo(Record):
+    """The session's text embedding (the same on server and device)."""
+
+    model: str
+    """Encoder model id."""
+    dim: int
+    """Embedding dimension."""
+
+
+class CreateSession(Record):
+    """Body of `POST /v1/sessions`."""
+
+    name: str | None = Field(None, max_length=MAX_NAME_CHARS)
+    """Human-readable name."""
+    mode: Literal["semanticxr", "baseline"] = "semanticxr"
+    """System organisation."""
+    knobs: dict[str, Any] = Field(default_factory=dict, json_schema_extra=KNOB_CHANGES_SCHEMA)
+    """Knob overrides (see GET knobs)."""
+    perception: str | None = Field(None, max_length=100)
+    """Perception backend: detections or one the server loaded with --perception (default:
+    the first of those)."""
+
+
+class SessionCreated(Record):
+    """201 answer of `POST /v1/sessions`."""
 
     session_id: str
     token: str
     """Bearer token for everything under this session; shown once."""
     embedding: EmbeddingInfo
-    knobs: dict[str, Any]
+    knobs: KnobsBody  # type: ignore[valid-type]
     protocol: int = PROTOCOL_VERSION
     """Extension: the wire protocol version the server speaks."""
 
-    def to_json(self) -> dict:
-        return {
-            "session_id": self.session_id,
-            "token": self.token,
-            "embedding": self.embedding.to_json(),
-            "knobs": self.knobs,
-            "protocol": self.protocol,
-        }
 
-
-@dataclass
-class SessionSummary:
+class SessionSummary(Record):
     """One entry of `GET /v1/sessions`."""
 
     session_id: str
     name: str
     mode: str
     objects: int
+    """Confirmed objects."""
     frames: int
     keyframes: int
     fps: float
     update_seq: int
 
-    @classmethod
-    def from_stats(cls, stats: Mapping[str, Any]) -> SessionSummary:
-        """The summary part of a session's full stats (`SessionStats` fields)."""
-        return cls(**{f.name: stats[f.name] for f in fields(cls)})
 
-    def to_json(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+class LatencySummary(Record):
+    p50: float | None
+    p95: float | None
 
 
-@dataclass
-class SessionStats:
+class SessionStats(Record):
     """`GET /v1/sessions/{sid}`: what a session has done so far."""
 
     session_id: str
@@ -100,143 +202,72 @@ class SessionStats:
     """Upstream bytes by kind (rgb, depth, detections) and "total"."""
     bytes_out: dict[str, int]
     """Downstream update bytes by kind and "total"."""
-    mapping_latency_ms: dict[str, float | None]
-    """{"p50", "p95"}, None before the first keyframe."""
+    mapping_latency_ms: LatencySummary
+    """Server time per mapped keyframe, p50 and p95 (None before the first keyframe):
+    decode + perception + mapping + delta."""
     update_seq: int
     """Sequence number of the newest map change."""
     subscribers: int
     embedding: EmbeddingInfo
-    knobs: dict[str, Any]
-
-    @classmethod
-    def from_stats(cls, stats: Mapping[str, Any]) -> SessionStats:
-        """The record of a stats mapping (keys beyond the record's fields are left out)."""
-        values = {f.name: stats[f.name] for f in fields(cls)}
-        embedding = values["embedding"]
-        if isinstance(embedding, Mapping):
-            values["embedding"] = EmbeddingInfo(embedding["model"], embedding["dim"])
-        return cls(**values)
-
-    def to_json(self) -> dict:
-        body = {f.name: getattr(self, f.name) for f in fields(self)}
-        body["embedding"] = self.embedding.to_json()
-        return body
+    knobs: KnobsBody  # type: ignore[valid-type]
 
 
-@dataclass
-class ObjectRecord:
+class ObjectRecord(Record):
     """One entry of `GET /v1/sessions/{sid}/objects`: a confirmed object."""
 
     id: int
     version: int
     label: str
-    bbox: Sequence[float]
+    bbox: Box
     """[x0, y0, z0, x1, y1, z1] metres, world frame."""
-    centroid: Sequence[float]
+    centroid: Point
     n_obs: int
-    points: np.ndarray | None = None
-    """float [N, 3] metres at client resolution, or None when not asked for."""
-
-    def to_json(self) -> dict:
-        body = {
-            "id": self.id,
-            "version": self.version,
-            "label": self.label,
-            "bbox": _rounded(self.bbox),
-            "centroid": _rounded(self.centroid),
-            "n_obs": self.n_obs,
-        }
-        if self.points is not None:
-            body["points"] = np.asarray(self.points).round(4).tolist()
-        return body
+    """Frames the object was seen in."""
+    points: Points = None
+    """[[x, y, z], ...] metres at client resolution; left out when not asked for."""
 
 
-@dataclass
-class QueryHitRecord:
+class QueryHit(Record):
     """One result of a query: an object and how well it matches."""
 
     id: int
     label: str
-    score: float
+    score: Score
     """Cosine similarity of the query and the object's embedding."""
-    bbox: Sequence[float]
-    centroid: Sequence[float]
-    points: np.ndarray | list | None = None
-    """float [N, 3] metres, or None when not asked for."""
-
-    def to_json(self) -> dict:
-        body = {
-            "id": self.id,
-            "label": self.label,
-            "score": round(float(self.score), 5),
-            "bbox": _rounded(self.bbox),
-            "centroid": _rounded(self.centroid),
-        }
-        if self.points is not None:
-            body["points"] = np.asarray(self.points).round(4).tolist()
-        return body
+    bbox: Box
+    centroid: Point
+    points: Points = None
+    """[[x, y, z], ...] metres; left out when not asked for."""
 
 
-@dataclass
-class QueryResult:
+class QueryResult(Record):
     """`GET /v1/sessions/{sid}/query`: the best matches first."""
 
     text: str
-    results: list[QueryHitRecord] = field(default_factory=list)
-    latency_ms: float = 0.0
-
-    def to_json(self) -> dict:
-        return {
-            "text": self.text,
-            "results": [hit.to_json() for hit in self.results],
-            "latency_ms": self.latency_ms,
-        }
-
-
-def _require(body: Mapping, key: str, kind: type | tuple[type, ...], where: str = "") -> Any:
-    if key not in body:
-        raise InputError(f"{where}{key}", "is missing")
-    value = body[key]
-    if isinstance(value, bool) or not isinstance(value, kind):
-        raise InputError(f"{where}{key}", f"has the wrong type ({type(value).__name__})")
-    return value
-
-
-def _numbers(body: Mapping, key: str, count: int, where: str) -> list[float]:
-    values = _require(body, key, list, where)
-    if len(values) != count or not all(
-        isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in values
-    ):
-        raise InputError(f"{where}{key}", f"must be {count} finite numbers")
-    return [float(v) for v in values]
+    results: list[QueryHit]
+    latency_ms: float
 
 
 def parse_query_result(body: Any) -> QueryResult:
     """The `QueryResult` of a decoded JSON query answer; InputError naming the first wrong
-    field. Points, when present, become float32 [N, 3]."""
-    if not isinstance(body, Mapping):
+    field (e.g. `results[0].bbox`)."""
+    if not isinstance(body, dict):
         raise InputError("body", f"must be a JSON object, got {type(body).__name__}")
-    text = _require(body, "text", str)
-    latency_ms = float(_require(body, "latency_ms", int | float))
-    hits = []
-    for i, hit in enumerate(_require(body, "results", list)):
-        where = f"results[{i}]."
-        if not isinstance(hit, Mapping):
-            raise InputError(f"results[{i}]", "must be a JSON object")
-        points = hit.get("points")
-        if points is not None:
-            try:
-                points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
-            except (TypeError, ValueError) as exc:
-                raise InputError(f"{where}points", "must be [[x, y, z], ...]") from exc
-        hits.append(
-            QueryHitRecord(
-                id=_require(hit, "id", int, where),
-                label=_require(hit, "label", str, where),
-                score=float(_require(hit, "score", int | float, where)),
-                bbox=_numbers(hit, "bbox", 6, where),
-                centroid=_numbers(hit, "centroid", 3, where),
-                points=points,
-            )
-        )
-    return QueryResult(text=text, results=hits, latency_ms=latency_ms)
+    try:  # strict: a client takes no "3" for 3 and no true for a score
+        return QueryResult.model_validate(body, strict=True)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise InputError(_field_name(first["loc"]), first["msg"]) from None
+
+
+def _field_name(loc: tuple) -> str:
+    """('results', 0, 'bbox', 2) -> 'results[0].bbox': the field, not the item inside it."""
+    name = ""
+    for part in loc:
+        if isinstance(part, int):
+            if name != "results":
+                break
+            name += f"[{part}]"
+        else:
+            name += f".{part}" if name else str(part)
+    return name

@@ -9,12 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from app.config import Knobs, knobs_to_dict
 from app.errors import InputError
 from app.protocol import (
     PROTOCOL_VERSION,
     EmbeddingInfo,
     ObjectRecord,
-    QueryHitRecord,
+    QueryHit,
     QueryResult,
     SessionCreated,
     SessionStats,
@@ -25,7 +26,7 @@ from app.protocol import (
 FEW = settings(max_examples=40, deadline=None)
 coordinate = st.floats(-100, 100, allow_nan=False).map(lambda v: round(v, 4))
 hits = st.builds(
-    QueryHitRecord,
+    QueryHit,
     id=st.integers(0, 10**9),
     label=st.text(max_size=30),
     score=st.floats(-1, 1).map(lambda v: round(v, 5)),
@@ -56,12 +57,12 @@ def test_a_query_result_survives_to_json_json_parse(result):
         if sent.points is None:
             assert got.points is None
         else:
-            np.testing.assert_allclose(got.points, sent.points.round(4), atol=1e-6)
+            np.testing.assert_allclose(got.points, sent.points, atol=1e-6)
 
 
 def _answer() -> dict:
-    hit = QueryHitRecord(3, "mug", 0.5, [0, 0, 0, 1, 1, 1], [0.5, 0.5, 0.5])
-    return QueryResult("a mug", [hit], 1.0).to_json()
+    hit = QueryHit(id=3, label="mug", score=0.5, bbox=[0, 0, 0, 1, 1, 1], centroid=[0.5] * 3)
+    return QueryResult(text="a mug", results=[hit], latency_ms=1.0).to_json()
 
 
 def _hit(**changes) -> dict:
@@ -92,12 +93,15 @@ def test_a_malformed_query_answer_raises_one_error_naming_the_field(field, body)
 
 
 def test_session_records_answer_v1_bodies_with_the_protocol_version():
-    created = SessionCreated("s1", "tok", EmbeddingInfo("minilm", 384), {"k": 1}).to_json()
+    knobs = knobs_to_dict(Knobs())
+    created = SessionCreated(
+        session_id="s1", token="tok", embedding=EmbeddingInfo(model="minilm", dim=384), knobs=knobs
+    ).to_json()
     assert created == {
         "session_id": "s1",
         "token": "tok",
         "embedding": {"model": "minilm", "dim": 384},
-        "knobs": {"k": 1},
+        "knobs": knobs,
         "protocol": PROTOCOL_VERSION,
     }
     stats = {
@@ -117,13 +121,13 @@ def test_session_records_answer_v1_bodies_with_the_protocol_version():
         "update_seq": 7,
         "subscribers": 0,
         "embedding": {"model": "minilm", "dim": 384},
-        "knobs": {},
+        "knobs": knobs,
         "something_newer": 1,  # a stats key beyond the record is left out
     }
-    assert SessionStats.from_stats(stats).to_json() == {
+    assert SessionStats.model_validate(stats).to_json() == {
         k: v for k, v in stats.items() if k != "something_newer"
     }
-    assert SessionSummary.from_stats(stats).to_json() == {
+    assert SessionSummary.model_validate(stats).to_json() == {
         "session_id": "s1",
         "name": "n",
         "mode": "semanticxr",
@@ -136,7 +140,8 @@ def test_session_records_answer_v1_bodies_with_the_protocol_version():
 
 
 def test_an_object_record_rounds_geometry_and_leaves_out_points_not_asked_for():
-    record = ObjectRecord(1, 2, "cup", [0.123456, 0, 0, 1, 1, 1], [0.5, 0.5, 0.55557], 4)
+    geometry = dict(bbox=[0.123456, 0, 0, 1, 1, 1], centroid=[0.5, 0.5, 0.55557])
+    record = ObjectRecord(id=1, version=2, label="cup", n_obs=4, **geometry)
     assert record.to_json() == {
         "id": 1,
         "version": 2,
@@ -145,5 +150,6 @@ def test_an_object_record_rounds_geometry_and_leaves_out_points_not_asked_for():
         "centroid": [0.5, 0.5, 0.5556],
         "n_obs": 4,
     }
-    record.points = np.array([[0.123456, 1, 2]], np.float32)
-    assert len(record.to_json()["points"]) == 1
+    points = np.array([[0.123456, 1, 2]], np.float32)
+    with_points = ObjectRecord(id=1, version=2, label="cup", n_obs=4, points=points, **geometry)
+    assert with_points.to_json()["points"] == [[0.1235, 1.0, 2.0]]

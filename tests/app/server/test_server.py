@@ -307,7 +307,7 @@ def test_405_names_every_method_of_the_path_and_errors_are_documented(live_serve
     assert "GET" in r.json()["detail"] and "DELETE" in r.json()["detail"]
     ops = spec["paths"]["/v1/sessions/{sid}/query"]["get"]["responses"]
     assert {"401", "403", "404", "413", "422"} <= ops.keys()
-    assert ops["404"]["content"]["application/json"]["schema"]["$ref"].endswith("/ErrorOut")
+    assert ops["404"]["content"]["application/json"]["schema"]["$ref"].endswith("/ErrorBody")
     assert {"400", "503"} <= spec["paths"]["/v1/sessions"]["post"]["responses"].keys()
 
 
