@@ -490,11 +490,12 @@ class SessionManager:
                 except Exception:
                     log.exception("probing the store failed")
 
-    def _back_to_durable(self, session: Session) -> None:
+    def _back_to_durable(self, session: Session, last_pose: np.ndarray | None) -> None:
         """Under the map lock, after a keyframe failed to map or commit: rebuild the session's
-        engine from the store, exactly as a restart would. Keeps the knobs and the device's
-        last pose; loses what only memory held: unconfirmed candidates (they start again from
-        their next sighting) and the set of objects awaiting their next outlier pass. If the
+        engine from the store, exactly as a restart would. Keeps the knobs and `last_pose`
+        (the device pose before the keyframe, which the store does not hold); loses what only
+        memory held: unconfirmed candidates (they start again from their next sighting) and
+        the set of objects awaiting their next outlier pass. If the
         store cannot be read either, the session is closed (it comes back at restart) rather
         than left showing changes the store lacks."""
         old = session.engine
@@ -515,7 +516,7 @@ class SessionManager:
             return
         engine = self._engine(session.record, old.knobs)
         engine.restore(objects, delta_log, durable.keyframes, durable.next_object_id)
-        engine.last_pose = old.last_pose
+        engine.last_pose = last_pose
         session.engine = engine
         session.record.keyframes = engine.keyframes
         session.record.next_object_id = engine.next_object_id
@@ -616,7 +617,7 @@ class SessionManager:
             t_locked = time.perf_counter()  # waiting for a reader of the map is not mapping
             engine, frame = session.engine, pending.frame
             detections = engine.perceive(frame, pending.sent)  # changes nothing in the map
-            committing = False
+            committing, pose_before = False, engine.last_pose
             try:
                 stats = engine.map_keyframe(frame, detections)
                 rec = session.record
@@ -632,7 +633,7 @@ class SessionManager:
                     next_object_id=engine.next_object_id,
                 )
             except BaseException as exc:
-                self._back_to_durable(session)
+                self._back_to_durable(session, pose_before)
                 if not committing:
                     raise
                 if isinstance(exc, StoreUnavailableError):
