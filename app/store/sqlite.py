@@ -26,8 +26,8 @@ size limit, a read-only file) is rolled back; the store then checkpoints the WAL
 database, truncates it and tries once more, since a WAL that cannot grow is often all that
 is in the way (the database reuses its free pages). If that fails too the write raises
 `StoreUnavailableError`, having changed nothing. `probe` makes the same checkpoint and one
-small write: it succeeds only once the database can take every committed page, so a probe
-never reports a recovery that the next commit would contradict.
+small write: it succeeds only once the database has taken every committed page and the WAL
+starts empty, so a recovery it reports is room on the disk, not a gap left in an old WAL.
 """
 
 from __future__ import annotations
