@@ -561,6 +561,8 @@ class SessionManager:
                             pending.frame.seq, "storage_unavailable", STORAGE_UNAVAILABLE_MESSAGE
                         ).pack()
                     )
+                    if session.closed:  # its saved map could not be reloaded
+                        session.close()
                 except InputError as exc:
                     await pending.reply(ErrorReply(pending.frame.seq, "bad_frame", str(exc)).pack())
                 except Exception as exc:  # never lose the ack: report and go on
