@@ -63,6 +63,10 @@ ACK_TIMEOUT_S = 15.0
 """A full window with no ack for this long: the connection is treated as dead and reopened."""
 DRAIN_TIMEOUT_S = 30.0
 """At the end of `stream()`, how long to wait for the acks of frames in flight."""
+STORAGE_BACKOFF_FIRST_S = 1.0
+STORAGE_BACKOFF_MAX_S = 10.0
+"""After a `storage_unavailable` error the device sends nothing for 1 s, doubling up to 10 s
+while the errors go on (the server cannot save; its frames would only be refused)."""
 DEFAULT_EMBEDDING_DIM = 384
 """all-MiniLM-L6-v2, the default text encoder's dimension (sessions announce theirs)."""
 
@@ -88,7 +92,11 @@ class DeviceStats:
     keyframes_acked: int = 0
     """Acks with keyframe = true (the frame was mapped)."""
     dropped: int = 0
-    """Frames due while the stream socket was down: skipped, never sent."""
+    """Frames due while the stream socket was down (or the device backed off): skipped,
+    never sent."""
+    storage_backoff_skipped: int = 0
+    """Of `dropped`, frames skipped while backing off after the server answered
+    `storage_unavailable` (it could not save the map)."""
     bytes_up_by_kind: dict[str, int] = field(
         default_factory=lambda: {"rgb": 0, "depth": 0, "detections": 0, "pose": 0, "total": 0}
     )
@@ -453,6 +461,11 @@ class _StreamLink:
         self.closing = False
         self.attempted = asyncio.Event()
         """Set once the first connection attempt has succeeded or failed."""
+        self.storage_backoff = Backoff(STORAGE_BACKOFF_FIRST_S, STORAGE_BACKOFF_MAX_S)
+        self.storage_failing = False
+        """The server answered storage_unavailable and has not acked a keyframe since."""
+        self.hold_until_s = 0.0
+        """time.monotonic() before which nothing is sent (a storage back-off)."""
 
     async def notify(self) -> None:
         async with self.changed:
@@ -521,13 +534,20 @@ class _StreamLink:
             sent_s = self.in_flight.pop(seq, None) if seq is not None else None
         if isinstance(reply, ErrorReply):
             self.stats.errors += 1
-            self.client._problem(f"server error for frame {seq}: {reply.code}: {reply.message}")
+            if reply.code == "storage_unavailable":
+                self._storage_refused(reply)
+            else:
+                self.client._problem(f"server error for frame {seq}: {reply.code}: {reply.message}")
             return
         self.stats.acks += 1
         if reply.dropped:
             self.stats.superseded += 1
         elif reply.keyframe:
             self.stats.keyframes_acked += 1
+            if self.storage_failing:
+                self.storage_failing = False
+                self.storage_backoff.reset()
+                self.client._log("the server saves the map again; streaming resumes")
         if reply.update_seq is not None:
             self.stats.server_seq = max(self.stats.server_seq, reply.update_seq)
         if sent_s is not None and not reply.dropped:
@@ -536,12 +556,35 @@ class _StreamLink:
             map_ms = reply.map_ms if reply.keyframe else 0.0
             self.client._observe_rtt((received_s - sent_s) * 1e3 - map_ms)
 
+    def _storage_refused(self, reply: ErrorReply) -> None:
+        """The server cannot save: send nothing for a back-off period (1 s doubling to 10 s
+        while it lasts). Frames already in flight when the back-off began do not extend it.
+        Logged once per streak."""
+        now = time.monotonic()
+        if not self.storage_failing:
+            self.storage_failing = True
+            self.client._problem(
+                f"the server cannot save the map ({reply.message}); backing off, "
+                "frames due meanwhile are skipped"
+            )
+        if now >= self.hold_until_s:
+            self.hold_until_s = now + self.storage_backoff.next_delay()
+
     async def wait_for_slot(self, wait_for_link: bool) -> bool:
         """True once the socket is up with room in the window; False if stopped, or if the
-        socket is down and `wait_for_link` is False. A window stuck full for ACK_TIMEOUT_S
-        means a dead connection: it is aborted and reopened."""
+        socket is down (or a storage back-off runs) and `wait_for_link` is False (a frame
+        skipped in a back-off counts in `storage_backoff_skipped`). A window stuck full for
+        ACK_TIMEOUT_S means a dead connection: it is aborted and reopened."""
         async with self.changed:
             while not self._done():
+                backoff_s = self.hold_until_s - time.monotonic()
+                if backoff_s > 0:
+                    if not wait_for_link:
+                        self.stats.storage_backoff_skipped += 1
+                        return False
+                    with contextlib.suppress(TimeoutError):  # a back-off timer (or stop)
+                        await asyncio.wait_for(self.changed.wait(), backoff_s)
+                    continue
                 if self.ws is None:
                     if not wait_for_link:
                         return False

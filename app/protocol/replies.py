@@ -59,7 +59,8 @@ class ErrorReply:
     """The refused frame's seq, or None if the message had none (then it answers the oldest
     frame in flight: every frame gets exactly one reply)."""
     code: str
-    """"bad_frame", "bad_message", "too_big" or "internal"."""
+    """"bad_frame", "bad_message", "too_big", "internal", or "storage_unavailable" (the
+    server cannot save the map now and mapped nothing: retry later)."""
     message: str
 
     def pack(self) -> dict:

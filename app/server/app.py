@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import logging
 from contextlib import asynccontextmanager
 
@@ -21,6 +23,8 @@ from app.server.settings import ServerSettings
 from app.store import open_store
 
 log = logging.getLogger("semanticxr")
+HEALTH_RETRY_AFTER_S = 2
+"""Retry-After (seconds) of a 503 from /healthz; the store is probed every second meanwhile."""
 
 
 def create_app(
@@ -40,9 +44,13 @@ def create_app(
                 "no API key set: the server runs OPEN (anyone can create and read sessions)"
             )
         log.info("store %s; %d sessions restored", settings.store_url, restored)
+        storage_watch = asyncio.create_task(manager.watch_storage())
         try:
             yield
         finally:
+            storage_watch.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await storage_watch
             manager.close()
             store.close()
 
@@ -86,9 +94,21 @@ def create_app(
             headers={"Allow": ", ".join(allowed)},
         )
 
-    @app.get("/healthz", summary="Liveness")
-    def healthz() -> dict:
-        return {"status": "ok", "version": __version__}
+    @app.get(
+        "/healthz",
+        summary="Readiness: 200, or 503 with the reason while storage fails",
+        responses={503: {"description": "Not ready (e.g. the store refuses writes)"}},
+    )
+    def healthz(request: Request) -> JSONResponse:
+        manager: SessionManager = request.app.state.manager
+        reason = manager.storage.reason
+        if reason is not None:
+            return JSONResponse(
+                {"status": "unavailable", "reason": reason, "version": __version__},
+                503,
+                headers={"Retry-After": str(HEALTH_RETRY_AFTER_S)},
+            )
+        return JSONResponse({"status": "ok", "version": __version__})
 
     @app.get(
         "/metrics",

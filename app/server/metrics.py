@@ -64,6 +64,23 @@ def make_metrics() -> Metrics:
     m.describe("semanticxr_bytes_out_total", "counter", "Downstream update bytes, by kind")
     m.describe("semanticxr_dropped_frames_total", "counter", "Keyframes superseded by newer ones")
     m.describe(
+        "semanticxr_persist_failures_total",
+        "counter",
+        "Failed writes to the store (keyframe commits, counter saves); a keyframe whose "
+        "commit failed was undone and refused",
+    )
+    m.describe(
+        "semanticxr_mapping_failures_total",
+        "counter",
+        "Keyframes whose mapping raised an unexpected error (undone and refused as internal)",
+    )
+    for fault in (
+        "semanticxr_dropped_frames_total",
+        "semanticxr_persist_failures_total",
+        "semanticxr_mapping_failures_total",
+    ):
+        m.inc(fault, 0)  # present at 0 from the start: a dashboard can tell 0 from missing
+    m.describe(
         "semanticxr_mapping_latency_ms",
         "histogram",
         "Server time per mapped keyframe: decode + perception + mapping + delta "

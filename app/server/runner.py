@@ -83,7 +83,9 @@ class ServerProcess:
     it, on loopback: `url` and `ws_url` once `start()` returns (/healthz answered).
 
     port 0 picks a free port. extra_args: more `serve` flags. quiet: the child's stderr goes
-    to a temporary file (its tail is in the error if it dies at start) instead of ours.
+    to a temporary file (`output()`; its tail is in the error if it dies at start) instead of
+    ours. prefix: a command the server runs under, e.g. `["prlimit", "--fsize=N:unlimited",
+    "--"]` (it must exec the server, so `pid` is the server's).
     """
 
     def __init__(
@@ -94,11 +96,13 @@ class ServerProcess:
         extra_args: Sequence[str] = (),
         log_level: str = "warning",
         quiet: bool = True,
+        prefix: Sequence[str] = (),
     ):
         self.port = port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.ws_url = f"ws://127.0.0.1:{self.port}"
         self.argv = [
+            *prefix,
             sys.executable,
             "-m",
             "app.cli",
@@ -143,6 +147,19 @@ class ServerProcess:
                 raise RuntimeError(f"the server did not answer within {timeout_s:.0f} s")
             time.sleep(0.1)  # a polling period: the child offers nothing to wait on
 
+    @property
+    def pid(self) -> int:
+        assert self.proc is not None, "not started"
+        return self.proc.pid
+
+    def output(self) -> str:
+        """What the server wrote to stderr so far (its log), with quiet=True; "" otherwise."""
+        if self._stderr is None:
+            return ""
+        # pread: the child shares the file offset, which a seek here would move under it.
+        fd = self._stderr.fileno()
+        return os.pread(fd, os.fstat(fd).st_size, 0).decode(errors="replace")
+
     def kill9(self) -> None:
         """SIGKILL: a crash, no shutdown code runs."""
         assert self.proc is not None, "not started"
@@ -166,8 +183,7 @@ class ServerProcess:
     def _stderr_tail(self, n_chars: int = 2000) -> str:
         if self._stderr is None:
             return "(see its stderr above)"
-        self._stderr.seek(0)
-        return self._stderr.read().decode(errors="replace")[-n_chars:]
+        return self.output()[-n_chars:]
 
     def __enter__(self) -> ServerProcess:
         return self.start()

@@ -5,13 +5,24 @@ thread pool; each session maps one keyframe at a time (`_map_lock`), and readers
 (queries, object lists, delta building) take the same lock, so they see whole keyframes.
 If keyframes arrive faster than a session maps them, only the newest waits: an older
 waiting keyframe is acknowledged as dropped (frames are samples, not a log).
+
+Commit, then publish: a keyframe's changes are visible only once the store has them. The
+keyframe maps and commits inside one hold of `_map_lock`; if the commit (or the mapping)
+fails, the engine is put back to the store's durable state before the lock is released, so
+no reader ever sees a change the store lacks and no seq is reused for other contents.
+While the store refuses writes (disk full, I/O error) keyframes get `storage_unavailable`
+without being mapped, queries keep answering from the durable map, and the store is probed
+about once a second until it takes writes again (`StorageHealth`, `/healthz`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import hmac
+import logging
+import math
 import secrets
 import threading
 import time
@@ -36,11 +47,22 @@ from app.protocol import Ack, ErrorReply, FrameInput
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
 from app.server.settings import ServerSettings
-from app.store import SessionRecord, Store
+from app.store import SessionRecord, Store, StoreUnavailableError
 
 Reply = Callable[[dict], Awaitable[None]]
 FLUSH_AFTER_S = 1.0
 """Longest a confirmed change waits for its publication when keyframes stop coming."""
+STORAGE_PROBE_INTERVAL_S = 1.0
+"""While the store refuses writes, how often it is probed (by keyframes and a timer)."""
+COUNTERS_SAVE_INTERVAL_S = 1.0
+"""Most frames counted but not saved: a counters-only write follows a frame when the
+session's counters were last saved longer ago than this (kill -9 loses at most that)."""
+STORAGE_UNAVAILABLE_MESSAGE = (
+    "the server cannot save the map now (storage unavailable), so it did not map this "
+    "keyframe; the map so far is safe and queries still work; retry later"
+)
+
+log = logging.getLogger("semanticxr")
 
 
 T = TypeVar("T")
@@ -48,6 +70,67 @@ T = TypeVar("T")
 
 def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
+
+
+class StorageUnavailable(RuntimeError):
+    """A keyframe refused unmapped because the store cannot save now (`storage_unavailable`)."""
+
+
+class PersistFailed(RuntimeError):
+    """A keyframe mapped but not saved for a reason other than the storage (a bug); the map
+    was put back to its durable state."""
+
+
+class StorageHealth:
+    """Whether the store takes writes; a failure streak runs from the first failed write to
+    the next successful one (a commit or a probe). Thread-safe."""
+
+    REASON = "storage unavailable: the server cannot save changes (disk full or I/O error)"
+    """What /healthz says while a streak lasts (details, such as paths, go to the log only)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._failing_since: float | None = None
+        self._failures = 0
+        self._last_probe = -math.inf
+
+    @property
+    def failing(self) -> bool:
+        return self._failing_since is not None
+
+    @property
+    def reason(self) -> str | None:
+        """None while writes succeed."""
+        return self.REASON if self.failing else None
+
+    def failed(self) -> bool:
+        """Record a failed write; True when it starts a streak."""
+        with self._lock:
+            self._failures += 1
+            if self._failing_since is not None:
+                return False
+            self._failing_since = time.monotonic()
+            self._last_probe = self._failing_since
+            return True
+
+    def succeeded(self) -> tuple[float, int] | None:
+        """Record a successful write; (streak seconds, failed writes) when it ends a streak."""
+        with self._lock:
+            if self._failing_since is None:
+                return None
+            ended = (time.monotonic() - self._failing_since, self._failures)
+            self._failing_since, self._failures = None, 0
+            return ended
+
+    def probe_due(self) -> bool:
+        """True (and the probe clock restarts) when failing and the last probe is older than
+        STORAGE_PROBE_INTERVAL_S."""
+        with self._lock:
+            now = time.monotonic()
+            if self._failing_since is None or now - self._last_probe < STORAGE_PROBE_INTERVAL_S:
+                return False
+            self._last_probe = now
+            return True
 
 
 @dataclass
@@ -198,6 +281,10 @@ class SessionManager:
         )
         self.sessions: dict[str, Session] = {}
         self._lock = threading.Lock()
+        self.storage = StorageHealth()
+        self._store_io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="store")
+        """Counters-only writes and probes: off the event loop, out of the mapping pool."""
+        self._counters_saved_at: dict[str, float] = {}
         self.backends: dict[str, PerceptionBackend] = {}
         """Perception backends loaded (at start), by name: what sessions may choose."""
         for name in [*settings.perception_backends, DEFAULT_BACKEND]:
@@ -232,9 +319,14 @@ class SessionManager:
         return len(self.sessions)
 
     def close(self) -> None:
+        """Close every session, let keyframes in flight finish, then save every session's
+        counters (frames counted since the last keyframe are not lost to a shutdown)."""
         for session in self.sessions.values():
             session.close()
         self.pool.shutdown(wait=True, cancel_futures=True)
+        self._store_io.shutdown(wait=True, cancel_futures=True)
+        for session in list(self.sessions.values()):
+            self._save_counters(session, even_if_failing=True)
 
     # ------------------------------------------------------------------ lifecycle
     def create(
@@ -295,14 +387,142 @@ class SessionManager:
         return await asyncio.get_running_loop().run_in_executor(self.pool, decode)
 
     def count_frame(self, session: Session, frame_bytes: dict[str, int]) -> bool:
-        """Count a valid frame; True when it is a keyframe."""
+        """Count a valid frame; True when it is a keyframe. The counters reach the store with
+        each keyframe, or in a counters-only write when they were last saved more than
+        COUNTERS_SAVE_INTERVAL_S ago."""
         rec = session.record
         rec.frames += 1
-        session._fps_window.append(time.monotonic())
+        now = time.monotonic()
+        session._fps_window.append(now)
         for kind, n in frame_bytes.items():
             session.bytes_in[kind] = session.bytes_in.get(kind, 0) + n
             self.metrics.inc("semanticxr_bytes_in_total", n, kind=kind)
+        if now - self._counters_saved_at.get(session.id, 0.0) >= COUNTERS_SAVE_INTERVAL_S:
+            self.save_counters_soon(session)
         return (rec.frames - 1) % session.knobs.keyframe_interval == 0
+
+    # ------------------------------------------------------------------ counters and storage
+    def save_counters_soon(self, session: Session) -> None:
+        """Save the session's counters in the background (e.g. when its stream ends)."""
+        self._counters_saved_at[session.id] = time.monotonic()
+        with contextlib.suppress(RuntimeError):  # shutting down: close() saves them
+            self._store_io.submit(self._save_counters, session)
+
+    def _save_counters(self, session: Session, even_if_failing: bool = False) -> None:
+        """Write the session's frame and byte counters (not its map). Under the map lock, so
+        a keyframe commit's counters and these land in the order they were taken. Skipped
+        while the store refuses writes (unless `even_if_failing`): the next commit or save
+        after it recovers carries them."""
+        if self.storage.failing and not even_if_failing:
+            return
+        with session._map_lock:
+            if session.id not in self.sessions:
+                return  # deleted
+            try:
+                self.store.update_session(session.id, counters=self._counters(session, False))
+            except KeyError:
+                return  # deleted meanwhile
+            except StoreUnavailableError as exc:
+                self._store_failed("saving a session's counters", exc)
+                return
+            self._counters_saved_at[session.id] = time.monotonic()
+            self._store_succeeded()
+
+    @staticmethod
+    def _counters(session: Session, with_keyframes: bool = True) -> dict[str, int]:
+        """The counters a store keeps (absolute values); keyframes only with the map."""
+        rec = session.record
+        counters = {
+            "frames": rec.frames,
+            "bytes_in": sum(session.bytes_in.values()),
+            "bytes_out": sum(session.bytes_out.values()),
+        }
+        if with_keyframes:
+            counters["keyframes"] = rec.keyframes
+        return counters
+
+    def _store_failed(self, what: str, exc: BaseException) -> None:
+        """Count a failed write; log it if it starts a failure streak (one ERROR a streak)."""
+        self.metrics.inc("semanticxr_persist_failures_total")
+        if self.storage.failed():
+            log.error(
+                "storage failing: %s failed (%s); keyframes are refused with "
+                "storage_unavailable and /healthz answers 503 until a write succeeds "
+                "(probed every %g s)",
+                what,
+                exc,
+                STORAGE_PROBE_INTERVAL_S,
+            )
+
+    def _store_succeeded(self) -> None:
+        ended = self.storage.succeeded()
+        if ended is not None:
+            log.info(
+                "storage recovered: writes succeed again after %.1f s and %d failed writes",
+                *ended,
+            )
+
+    def probe_storage(self) -> bool:
+        """While the store refuses writes, probe it (at most every STORAGE_PROBE_INTERVAL_S);
+        True when writes work (a successful probe ends the failure streak)."""
+        if not self.storage.failing:
+            return True
+        if not self.storage.probe_due():
+            return False
+        try:
+            self.store.probe()
+        except StoreUnavailableError:
+            return False
+        self._store_succeeded()
+        return True
+
+    async def watch_storage(self) -> None:
+        """Until cancelled: probe a failing store every STORAGE_PROBE_INTERVAL_S, so /healthz
+        turns 200 again when the disk has room even if no keyframe comes."""
+        loop = asyncio.get_running_loop()
+        while True:
+            await asyncio.sleep(STORAGE_PROBE_INTERVAL_S)  # a timer, not synchronisation
+            if self.storage.failing:
+                try:
+                    await loop.run_in_executor(self._store_io, self.probe_storage)
+                except RuntimeError:
+                    return  # the executor shut down: the server is stopping
+                except Exception:
+                    log.exception("probing the store failed")
+
+    def _back_to_durable(self, session: Session, last_pose: np.ndarray | None) -> None:
+        """Under the map lock, after a keyframe failed to map or commit: rebuild the session's
+        engine from the store, exactly as a restart would. Keeps the knobs and `last_pose`
+        (the device pose before the keyframe, which the store does not hold); loses what only
+        memory held: unconfirmed candidates (they start again from their next sighting) and
+        the set of objects awaiting their next outlier pass. If the
+        store cannot be read either, the session is closed (it comes back at restart) rather
+        than left showing changes the store lacks."""
+        old = session.engine
+        try:
+            durable = self.store.load_session(session.id)
+            stored = self.store.load_delta_log(session.id)
+            delta_log = DeltaLog.from_state(stored.state(), self.settings.max_tombstones)
+            objects = self.store.load_objects(session.id)
+        except Exception:
+            log.exception(
+                "session %s: cannot reload its saved map after a failed keyframe; the session "
+                "is closed until the server restarts",
+                session.id,
+            )
+            with self._lock:
+                self.sessions.pop(session.id, None)
+            session._closed = True  # under the map lock; sockets see it and close
+            return
+        engine = self._engine(session.record, old.knobs)
+        engine.restore(objects, delta_log, durable.keyframes, durable.next_object_id)
+        engine.last_pose = last_pose
+        session.engine = engine
+        session.record.keyframes = engine.keyframes
+        session.record.next_object_id = engine.next_object_id
+        session._stored_floor = stored.floor
+        # A flush timer may have announced the rolled-back seq; the next one must go out.
+        session._published_seq = min(session._published_seq, delta_log.seq)
 
     async def submit_keyframe(
         self,
@@ -335,12 +555,30 @@ class SessionManager:
                     stats, latency_ms = await loop.run_in_executor(
                         self.pool, self._map_and_persist, session, pending
                     )
+                except StorageUnavailable:
+                    await pending.reply(
+                        ErrorReply(
+                            pending.frame.seq, "storage_unavailable", STORAGE_UNAVAILABLE_MESSAGE
+                        ).pack()
+                    )
+                    if session.closed:  # its saved map could not be reloaded
+                        session.close()
                 except InputError as exc:
                     await pending.reply(ErrorReply(pending.frame.seq, "bad_frame", str(exc)).pack())
                 except Exception as exc:  # never lose the ack: report and go on
+                    if not isinstance(exc, PersistFailed):  # that one was counted and logged
+                        self.metrics.inc("semanticxr_mapping_failures_total")
+                        log.error(
+                            "session %s: mapping keyframe %s failed; the map is unchanged",
+                            session.id,
+                            pending.frame.seq,
+                            exc_info=exc,
+                        )
                     await pending.reply(
                         ErrorReply(pending.frame.seq, "internal", f"mapping failed: {exc}").pack()
                     )
+                    if session.closed:  # its saved map could not be reloaded
+                        session.close()
                 else:
                     map_ms = (time.perf_counter() - pending.received_t) * 1e3
                     session.latencies_ms.append(latency_ms)
@@ -363,34 +601,63 @@ class SessionManager:
         self, session: Session, pending: _Pending
     ) -> tuple[IntegrationStats, float]:
         """In a worker thread: perceive and map the keyframe, then make the change durable
-        before the ack. Returns the stats and the keyframe's mapping latency in ms (the one
-        place it is measured: decode + perception + mapping + delta, see `Session.stats`)."""
+        before the ack, all in one hold of the map lock. Returns the stats and the keyframe's
+        mapping latency in ms (the one place it is measured: decode + perception + mapping +
+        delta, see `Session.stats`).
+
+        Raises StorageUnavailable, unmapped, while the store refuses writes (a probe first,
+        at most every STORAGE_PROBE_INTERVAL_S, rather than mapping and rolling back). If
+        mapping or the commit fails, the engine goes back to the store's durable state
+        (`_back_to_durable`) before the lock is released: StorageUnavailable when the disk
+        refused the commit, PersistFailed for another commit failure, the mapping's own
+        exception otherwise."""
         with session._map_lock:
             if session.closed:
                 raise InputError("session", "the session was deleted")
+            if not self.probe_storage():
+                raise StorageUnavailable(StorageHealth.REASON)
             t_locked = time.perf_counter()  # waiting for a reader of the map is not mapping
             engine, frame = session.engine, pending.frame
-            stats = engine.map_keyframe(frame, engine.perceive(frame, pending.sent))
-            rec = session.record
-            rec.keyframes = engine.keyframes
-            rec.next_object_id = engine.next_object_id
-            self.store.commit_keyframe(
-                session.id,
-                stats.seq,
-                [engine.objects[i] for i in stats.published_ids],
-                stats.removed_ids,
-                counters={
-                    "frames": rec.frames,
-                    "keyframes": rec.keyframes,
-                    "bytes_in": sum(session.bytes_in.values()),
-                    "bytes_out": sum(session.bytes_out.values()),
-                },
-                next_object_id=engine.next_object_id,
-            )
+            detections = engine.perceive(frame, pending.sent)  # changes nothing in the map
+            committing, pose_before = False, engine.last_pose
+            try:
+                stats = engine.map_keyframe(frame, detections)
+                rec = session.record
+                rec.keyframes = engine.keyframes
+                rec.next_object_id = engine.next_object_id
+                committing = True
+                self.store.commit_keyframe(
+                    session.id,
+                    stats.seq,
+                    [engine.objects[i] for i in stats.published_ids],
+                    stats.removed_ids,
+                    counters=self._counters(session),
+                    next_object_id=engine.next_object_id,
+                )
+            except BaseException as exc:
+                self._back_to_durable(session, pose_before)
+                if not committing:
+                    raise
+                if isinstance(exc, StoreUnavailableError):
+                    self._store_failed(f"saving keyframe {frame.seq} of session {session.id}", exc)
+                    raise StorageUnavailable(StorageHealth.REASON) from exc
+                self.metrics.inc("semanticxr_persist_failures_total")
+                log.error(
+                    "session %s: saving keyframe %s failed; its changes were undone",
+                    session.id,
+                    frame.seq,
+                    exc_info=exc,
+                )
+                raise PersistFailed(f"saving the keyframe failed: {exc}") from exc
+            self._counters_saved_at[session.id] = time.monotonic()
+            self._store_succeeded()
             if engine.log.floor > session._stored_floor:
                 # The log forgot its oldest removals: no subscriber can be sent them any
                 # more (it gets a full snapshot), so the store forgets them too.
-                self.store.trim_tombstones(session.id, engine.log.floor)
-                session._stored_floor = engine.log.floor
+                try:
+                    self.store.trim_tombstones(session.id, engine.log.floor)
+                    session._stored_floor = engine.log.floor
+                except StoreUnavailableError as exc:  # the keyframe is saved: retried next time
+                    self._store_failed(f"trimming the tombstones of session {session.id}", exc)
             latency_ms = pending.decode_ms + (time.perf_counter() - t_locked) * 1e3
             return stats, latency_ms

@@ -13,6 +13,7 @@ from app.store.base import (
     SessionRecord,
     Store,
     StoreError,
+    StoreUnavailableError,
     StoreVersionError,
 )
 
@@ -22,6 +23,7 @@ __all__ = [
     "Store",
     "StoreError",
     "StoreURLError",
+    "StoreUnavailableError",
     "StoreVersionError",
     "check_store_url",
     "open_store",

@@ -4,6 +4,9 @@ The contract every implementation keeps: `commit_keyframe` returns only once the
 changes are durable (the server acks after it), in one all-or-nothing step; after a restart
 `load_objects` and `load_delta_log` give back exactly the confirmed map and delta log last
 committed, so the update seq continues and a subscriber resuming with `since` loses nothing.
+
+When the storage cannot take a write (disk full, I/O error, read-only), a write raises
+`StoreUnavailableError` and changes nothing; `probe` tells when writes can land again.
 """
 
 from __future__ import annotations
@@ -26,6 +29,11 @@ class StoreError(RuntimeError):
 
 class StoreVersionError(StoreError):
     """The store was written by a newer SemanticXR (unknown schema version)."""
+
+
+class StoreUnavailableError(StoreError):
+    """The storage cannot take a write now (disk full, I/O error, read-only); the write
+    changed nothing. Transient: retry later (`Store.probe` says when)."""
 
 
 @dataclass
@@ -81,6 +89,13 @@ class Store(abc.ABC):
     def list_sessions(self) -> list[SessionRecord]:
         """Every session, oldest first."""
 
+    def load_session(self, session_id: str) -> SessionRecord:
+        """One session as last committed; KeyError if unknown."""
+        for rec in self.list_sessions():
+            if rec.session_id == session_id:
+                return rec
+        raise KeyError(f"unknown session {session_id!r}")
+
     # ------------------------------------------------------------------ the map
     @abc.abstractmethod
     def commit_keyframe(
@@ -101,7 +116,7 @@ class Store(abc.ABC):
         Raises ValueError (and changes nothing) on a seq older than the stored one, changes
         without a newer seq, an unconfirmed object, an id not below `next_object_id`, or
         arrays that are not float32 points [N, 3] / embedding [d]; KeyError on an unknown
-        session.
+        session; StoreUnavailableError (and changes nothing) when the storage cannot take it.
         """
 
     @abc.abstractmethod
@@ -120,6 +135,15 @@ class Store(abc.ABC):
         snapshot, so those tombstones can no longer reach anyone. A floor at or below the
         stored one changes nothing; ValueError on a floor beyond the stored seq.
         """
+
+    # ------------------------------------------------------------------ health
+    @abc.abstractmethod
+    def probe(self) -> None:
+        """Return once the storage can take a write now; StoreUnavailableError if it cannot.
+
+        Cheap enough to call about once a second while writes fail (to notice the disk has
+        room again without waiting for a keyframe); may use the call to make room (e.g.
+        fold a write-ahead log into the database). Changes nothing a reader can see."""
 
     # ------------------------------------------------------------------ lifecycle
     @abc.abstractmethod

@@ -20,29 +20,46 @@ pickle): points [n_points, 3], embedding_sum [embedding_dim]. Knobs and label co
 One connection, shared by all threads (mapping runs in a thread pool) and serialised by a lock:
 SQLite allows one writer at a time anyway, and one connection keeps the ordering of commits
 the ordering of calls.
+
+A full disk: a write the disk refuses (SQLITE_FULL, an I/O error such as EFBIG past a file
+size limit, a read-only file) is rolled back; the store then checkpoints the WAL into the
+database, truncates it and tries once more, since a WAL that cannot grow is often all that
+is in the way (the database reuses its free pages). If that fails too the write raises
+`StoreUnavailableError`, having changed nothing. `probe` makes the same checkpoint and one
+small write: it succeeds only once the database has taken every committed page and the WAL
+starts empty, so a recovery it reports is room on the disk, not a gap left in an old WAL.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sqlite3
 import threading
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from app.mapping.deltas import DeltaLog
 from app.mapping.object import MapObject
-from app.store.base import COUNTER_NAMES, SessionRecord, Store, StoreError, StoreVersionError
+from app.store.base import (
+    COUNTER_NAMES,
+    SessionRecord,
+    Store,
+    StoreError,
+    StoreUnavailableError,
+    StoreVersionError,
+)
 
 __all__ = ["SCHEMA_VERSION", "SqliteStore"]
 
 _FLOAT32_LE = np.dtype("<f4")
+T = TypeVar("T")
 
 _SCHEMA: tuple[str, ...] = (
     """
@@ -103,6 +120,17 @@ at version 1 (`_SCHEMA`) and migrated like any other, so there is one path to ea
 
 SCHEMA_VERSION = 1 + len(_MIGRATIONS)
 """Stored in `PRAGMA user_version`; a schema change is a new entry in _MIGRATIONS."""
+
+_STORAGE_ERROR_CODES = frozenset(
+    {
+        sqlite3.SQLITE_FULL,
+        sqlite3.SQLITE_IOERR,
+        sqlite3.SQLITE_READONLY,
+        sqlite3.SQLITE_CANTOPEN,
+        sqlite3.SQLITE_BUSY,
+    }
+)
+"""Primary result codes meaning "the storage cannot take this write now", not a bad write."""
 
 _SESSION_COLUMNS = (
     "session_id, name, mode, perception, knobs, token_hash, created_at, "
@@ -189,8 +217,53 @@ class SqliteStore(Store):
                 conn.execute("COMMIT")
             except BaseException:
                 if conn.in_transaction:
-                    conn.execute("ROLLBACK")
+                    # SQLite may have rolled back already (SQLITE_FULL); a failing ROLLBACK
+                    # must not hide why the transaction failed.
+                    with contextlib.suppress(sqlite3.Error):
+                        conn.execute("ROLLBACK")
                 raise
+
+    def _write(self, body: Callable[[sqlite3.Connection], T]) -> T:
+        """`body(conn)` in one write transaction. When the disk refuses it: checkpoint and
+        truncate the WAL, try once more, then StoreUnavailableError (nothing changed)."""
+        try:
+            with self._transaction() as conn:
+                return body(conn)
+        except sqlite3.OperationalError as exc:
+            if not _is_storage_error(exc):
+                raise
+        try:
+            self._checkpoint()
+            with self._transaction() as conn:
+                return body(conn)
+        except sqlite3.OperationalError as exc:
+            if not _is_storage_error(exc):
+                raise
+            raise StoreUnavailableError(f"{self.path}: the disk refused a write ({exc})") from exc
+
+    def _checkpoint(self) -> None:
+        """Copy every committed page of the WAL into the database and truncate the WAL to
+        zero bytes (raises sqlite3.OperationalError if the database cannot take them)."""
+        with self._lock:
+            if self._conn is None:
+                raise StoreError(f"{self.path}: the store is closed")
+            # Returns (busy, wal pages, pages checkpointed); busy only with other processes'
+            # readers, and then the write after it tells whether there is room.
+            self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+
+    # ------------------------------------------------------------------ health
+    def probe(self) -> None:
+        """Return once a write can land; StoreUnavailableError if not. Checkpoints the WAL
+        into the database (so the database must take every committed page: a recovery it
+        reports is real room, not a gap in an old WAL) and commits a one-page write."""
+        try:
+            self._checkpoint()
+            with self._transaction() as conn:
+                conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")  # rewrites page 1
+        except sqlite3.OperationalError as exc:
+            if not _is_storage_error(exc):
+                raise
+            raise StoreUnavailableError(f"{self.path}: the disk refuses writes ({exc})") from exc
 
     # ------------------------------------------------------------------ sessions
     def create_session(self, rec: SessionRecord) -> None:
@@ -210,12 +283,13 @@ class SqliteStore(Store):
             int(rec.next_object_id),
         )
         try:
-            with self._transaction() as conn:
-                conn.execute(
+            self._write(
+                lambda conn: conn.execute(
                     f"INSERT INTO sessions ({_SESSION_COLUMNS}, seq, delta_floor)"
                     " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
                     row,
                 )
+            )
         except sqlite3.IntegrityError:
             raise ValueError(f"session {rec.session_id!r} already exists") from None
 
@@ -233,7 +307,8 @@ class SqliteStore(Store):
             assignments["name"] = name
         if knobs is not None:
             assignments["knobs"] = _to_json(knobs)
-        with self._transaction() as conn:
+
+        def update(conn: sqlite3.Connection) -> None:
             _session_row(conn, session_id, "1")
             if assignments:
                 # Column names come from the fixed set above, never from the caller.
@@ -243,10 +318,13 @@ class SqliteStore(Store):
                     (*assignments.values(), session_id),
                 )
 
+        self._write(update)
+
     def delete_session(self, session_id: str) -> None:
         """Remove the session with its objects and tombstones (no-op if unknown)."""
-        with self._transaction() as conn:
-            conn.execute("DELETE FROM sessions WHERE session_id = ?", (session_id,))
+        self._write(
+            lambda conn: conn.execute("DELETE FROM sessions WHERE session_id = ?", (session_id,))
+        )
 
     def list_sessions(self) -> list[SessionRecord]:
         """Every session, oldest first."""
@@ -255,6 +333,11 @@ class SqliteStore(Store):
                 f"SELECT {_SESSION_COLUMNS} FROM sessions ORDER BY created_at, session_id"
             ).fetchall()
         return [_session_from_row(row) for row in rows]
+
+    def load_session(self, session_id: str) -> SessionRecord:
+        """One session as last committed; KeyError if unknown."""
+        with self._transaction(write=False) as conn:
+            return _session_from_row(_session_row(conn, session_id, _SESSION_COLUMNS))
 
     # ------------------------------------------------------------------ the map
     def commit_keyframe(
@@ -275,14 +358,15 @@ class SqliteStore(Store):
         Raises ValueError (and changes nothing) on a seq older than the stored one, changes
         without a newer seq, an unconfirmed object, an id not below `next_object_id`, or
         arrays that are not float32 points [N, 3] / embedding [d]; KeyError on an unknown
-        session.
+        session; StoreUnavailableError (and changes nothing) when the disk refuses it.
         """
         seq = int(seq)
         removed_ids = sorted({int(oid) for oid in removed})
         gone = set(removed_ids)
         kept = [obj for obj in upserts if int(obj.id) not in gone]
         assignments = _checked_counters(counters)
-        with self._transaction() as conn:
+
+        def commit(conn: sqlite3.Connection) -> None:
             stored_seq, stored_next_id = _session_row(conn, session_id, "seq, next_object_id")
             # Resuming subscribers rely on "changed after S" meaning "seq > S": a change
             # stored at a seq they may already have seen would never reach them.
@@ -321,6 +405,8 @@ class SqliteStore(Store):
                 ((session_id, seq, *_object_to_row(obj)) for obj in kept),
             )
 
+        self._write(commit)
+
     def load_objects(self, session_id: str) -> list[MapObject]:
         """The session's confirmed objects in id order, exactly as last committed."""
         with self._transaction(write=False) as conn:
@@ -348,7 +434,8 @@ class SqliteStore(Store):
     def trim_tombstones(self, session_id: str, floor: int) -> None:
         """Forget the removals at or before `floor`; raise the stored floor to it."""
         floor = int(floor)
-        with self._transaction() as conn:
+
+        def trim(conn: sqlite3.Connection) -> None:
             seq, stored_floor = _session_row(conn, session_id, "seq, delta_floor")
             if floor > seq:
                 raise ValueError(
@@ -363,11 +450,19 @@ class SqliteStore(Store):
                 "UPDATE sessions SET delta_floor = ? WHERE session_id = ?", (floor, session_id)
             )
 
+        self._write(trim)
+
 
 # ---------------------------------------------------------------------- rows <-> objects
 def _to_json(value: Any) -> str:
     # allow_nan=False: what is stored stays valid JSON for any reader.
     return json.dumps(value, allow_nan=False)
+
+
+def _is_storage_error(exc: sqlite3.Error) -> bool:
+    """True when SQLite says the storage refused the operation (full, I/O, read-only, busy)."""
+    code = getattr(exc, "sqlite_errorcode", None)
+    return code is not None and code & 0xFF in _STORAGE_ERROR_CODES
 
 
 def _session_row(conn: sqlite3.Connection, session_id: str, columns: str) -> tuple:

@@ -22,6 +22,7 @@ from helpers_device import FAST_KNOBS, assert_local_map_equals, server_state, wa
 from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
 from app.config import Knobs, updated_knobs
 from app.semantics import TextEncoder
+from app.store import StoreUnavailableError
 from client_sim.local_map import LocalMap
 from client_sim.netem import NetemProxy
 from client_sim.querying import QueryRouter
@@ -473,3 +474,43 @@ def test_the_device_command_streams_queries_and_writes_a_summary(live_server, tm
     assert result["local_map"]["seq"] == result["local_map"]["server_seq"] > 0
     (query,) = result["queries"]
     assert query["mode"] == "SQ" and query["results"]
+
+
+def test_a_server_that_cannot_save_makes_the_device_back_off_saying_so_once(
+    live_server, monkeypatch
+):
+    server = live_server()
+    store = server.app.state.manager.store
+    disk_full = True
+    real_commit, real_probe = store.commit_keyframe, store.probe
+
+    def commit_keyframe(*args, **kwargs):
+        if disk_full:
+            raise StoreUnavailableError("injected: the disk is full")
+        return real_commit(*args, **kwargs)
+
+    def probe():
+        if disk_full:
+            raise StoreUnavailableError("injected: the disk is full")
+        return real_probe()
+
+    monkeypatch.setattr(store, "commit_keyframe", commit_keyframe)
+    monkeypatch.setattr(store, "probe", probe)
+
+    async def scenario():
+        nonlocal disk_full
+        sid, token, knobs = await new_session(server.url)
+        logs: list[str] = []
+        device = DeviceClient(server.url, sid, token, knobs=knobs, on_log=logs.append)
+        streaming = asyncio.create_task(device.stream(RectSource(KITCHEN, 60), fps=10))
+        await asyncio.sleep(2.5)  # the disk stays full for 2.5 s of the 6 s walk
+        disk_full = False
+        return await streaming, logs
+
+    stats, logs = asyncio.run(scenario())
+    assert stats.storage_backoff_skipped > 0  # frames due during the back-off were not sent
+    assert stats.dropped >= stats.storage_backoff_skipped
+    assert stats.frames_sent + stats.dropped == 60
+    assert sum("cannot save" in line for line in logs) == 1  # once per streak
+    assert sum("saves the map again" in line for line in logs) == 1
+    assert stats.keyframes_acked > 0  # after the disk had room again

@@ -127,6 +127,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
         return
     finally:
         session.flush()  # the device stopped: its last changes go out now
+        manager.save_counters_soon(session)  # and its frame count is saved
     if session.closed:
         with contextlib.suppress(Exception):
             await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")
