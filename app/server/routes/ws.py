@@ -4,14 +4,24 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import time
+from dataclasses import dataclass
 
 import msgpack
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 
 from app.errors import InputError
 from app.perception.base import FrameDetections
-from app.protocol import Ack, ErrorReply, FrameInput, parse_frame, unpack_frame_message
+from app.protocol import (
+    Ack,
+    ErrorReply,
+    FrameBudget,
+    FrameInput,
+    LimitError,
+    parse_frame,
+    unpack_frame_message,
+)
 from app.server.auth import authorize_session, bearer
 from app.server.sessions import Session, SessionManager
 
@@ -39,19 +49,47 @@ def _payload_bytes(message: dict) -> dict[str, int]:
     return sizes
 
 
-def _decode_and_validate(
-    message: dict, session: Session
-) -> tuple[FrameInput, FrameDetections | None, float]:
-    """In a worker thread, once per frame: decode and validate it, so everything the engine
-    would refuse is refused here, keyframe or not. Perception runs later, on keyframes only.
+@dataclass
+class _Decoded:
+    frame: FrameInput
+    sent: FrameDetections | None
+    """The detections the device sent, validated (None if none)."""
+    decode_ms: float
+    """What unpacking, decoding and validating took (part of a keyframe's mapping latency)."""
+    payload_bytes: dict[str, int]
 
-    Returns the frame, the detections the device sent (validated; None if none) and the
-    milliseconds this took (part of a keyframe's mapping latency)."""
+
+class _Refused(Exception):
+    """A message refused while decoding: the reply it gets."""
+
+    def __init__(self, reply: ErrorReply, is_frame: bool):
+        super().__init__(reply.message)
+        self.reply = reply
+        self.is_frame = is_frame
+        """False for a message that is not even msgpack within the limits (no seq known)."""
+
+
+def _decode_and_validate(data: bytes, session: Session, budget: FrameBudget) -> _Decoded:
+    """In a decode thread, once per message, never on the event loop: unpack it within the
+    protocol's limits, check it against the server's budget before any pixel is decoded,
+    decode and validate it, so everything the engine would refuse is refused here, keyframe
+    or not. Perception runs later, on keyframes only. Raises _Refused with the reply."""
     t0 = time.perf_counter()
+    try:
+        message = unpack_frame_message(data)
+    except InputError as exc:
+        raise _Refused(ErrorReply(None, "bad_message", str(exc)), is_frame=False) from None
+    seq = message.get("seq") if isinstance(message, dict) else None
+    seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
     engine = session.engine
-    frame = parse_frame(message, rgb_pixels=engine.backend.needs_rgb)
-    sent = engine.validate_frame(frame)
-    return frame, sent, (time.perf_counter() - t0) * 1e3
+    try:
+        frame = parse_frame(message, rgb_pixels=engine.backend.needs_rgb, budget=budget)
+        sent = engine.validate_frame(frame)
+    except LimitError as exc:
+        raise _Refused(ErrorReply(seq, "over_limit", str(exc)), is_frame=True) from None
+    except InputError as exc:
+        raise _Refused(ErrorReply(seq, "bad_frame", str(exc)), is_frame=True) from None
+    return _Decoded(frame, sent, (time.perf_counter() - t0) * 1e3, _payload_bytes(message))
 
 
 @router.websocket("/sessions/{sid}/stream")
@@ -97,29 +135,24 @@ async def stream(ws: WebSocket, sid: str) -> None:
                 return
             else:
                 try:
-                    message = unpack_frame_message(data)
-                except InputError as exc:
-                    message = None
-                    await reply(ErrorReply(None, "bad_message", str(exc)).pack())
-                    bad_in_a_row += 1
-                if message is not None:
-                    seq = message.get("seq") if isinstance(message, dict) else None
-                    seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
-                    try:
-                        frame, sent, decode_ms = await manager.decode(
-                            lambda m=message: _decode_and_validate(m, session)
-                        )
-                    except InputError as exc:
+                    decoded = await manager.decode(
+                        functools.partial(_decode_and_validate, data, session, manager.frame_budget)
+                    )
+                except _Refused as refused:
+                    if refused.is_frame:
                         manager.metrics.inc("semanticxr_frames_total", outcome="bad")
-                        await reply(ErrorReply(seq, "bad_frame", str(exc)).pack())
-                        bad_in_a_row += 1
+                    await reply(refused.reply.pack())
+                    bad_in_a_row += 1
+                else:
+                    bad_in_a_row = 0
+                    manager.metrics.inc("semanticxr_frames_total", outcome="ok")
+                    frame = decoded.frame
+                    if manager.count_frame(session, decoded.payload_bytes):
+                        await manager.submit_keyframe(
+                            session, frame, reply, decoded.sent, decoded.decode_ms
+                        )
                     else:
-                        bad_in_a_row = 0
-                        manager.metrics.inc("semanticxr_frames_total", outcome="ok")
-                        if manager.count_frame(session, _payload_bytes(message)):
-                            await manager.submit_keyframe(session, frame, reply, sent, decode_ms)
-                        else:
-                            await reply(Ack(frame.seq, keyframe=False).pack())
+                        await reply(Ack(frame.seq, keyframe=False).pack())
             if bad_in_a_row >= settings.max_bad_frames:
                 await ws.close(code=CLOSE_POLICY, reason=f"{bad_in_a_row} bad messages in a row")
                 return
