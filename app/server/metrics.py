@@ -64,6 +64,12 @@ def make_metrics() -> Metrics:
     m.describe("semanticxr_bytes_out_total", "counter", "Downstream update bytes, by kind")
     m.describe("semanticxr_dropped_frames_total", "counter", "Keyframes superseded by newer ones")
     m.describe(
+        "semanticxr_slow_subscribers_closed_total",
+        "counter",
+        "Update subscribers closed (1013) because they could not keep up",
+    )
+    m.inc("semanticxr_slow_subscribers_closed_total", 0)  # present at 0 from the start
+    m.describe(
         "semanticxr_mapping_latency_ms",
         "histogram",
         "Server time per mapped keyframe: decode + perception + mapping + delta "
