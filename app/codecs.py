@@ -106,6 +106,12 @@ def validate_jpeg(data: bytes, field: str = "rgb") -> tuple[int, int]:
         return width, height
 
 
+def jpeg_size(data: bytes, field: str = "rgb") -> tuple[int, int]:
+    """(width, height) JPEG `data` declares in its header, without decoding any pixel."""
+    with _opened_jpeg(data, field) as image:
+        return image.size
+
+
 @contextlib.contextmanager
 def _opened_jpeg(data: bytes, field: str) -> Iterator[Image.Image]:
     """The opened (not yet decoded) JPEG, size-checked; pillow's errors become CodecError."""

@@ -17,6 +17,7 @@ detection and an object are compared or fused.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -38,6 +39,8 @@ from app.perception.base import (
 from app.perception.detections import detections_from_instance_image
 from app.protocol import MAX_INTRINSIC_PX, FrameInput
 from app.semantics import TextEncoder
+
+log = logging.getLogger(__name__)
 
 MERGE_OVERLAP = 0.7
 """Clean-up merges two objects when this fraction of the smaller one lies on the larger..."""
@@ -63,6 +66,8 @@ class IntegrationStats:
     skipped: int = 0
     deferred: int = 0
     too_small: int = 0
+    over_cap: int = 0
+    """New objects not created because the map holds max_objects (their matches still map)."""
     created: int = 0
     matched: int = 0
     removed: int = 0
@@ -101,7 +106,12 @@ class MappingEngine:
         knobs: Knobs | None = None,
         mode: Mode = "semanticxr",
         backend: PerceptionBackend | None = None,
+        max_objects: int | None = None,
     ):
+        """max_objects: most objects (candidates and confirmed) the map holds; at the cap a
+        keyframe's observations that match an object still map, new ones are not created
+        (refusing whole keyframes instead would also stop the pruning of transients that
+        frees room, so a full map could never change again). None: no cap."""
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         self.encoder = encoder
@@ -114,6 +124,8 @@ class MappingEngine:
         self.last_pose: np.ndarray | None = None
         """Camera-to-world [4, 4] of the newest mapped keyframe (where the device is)."""
         self.next_object_id = 1
+        self.max_objects = max_objects
+        self._at_cap = False
         self._changed_since_cleanup: set[int] = set()
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
         geo.preload_outlier_removal()
@@ -364,6 +376,10 @@ class MappingEngine:
         max_points = self.knobs.max_object_points_server if self.mode == "semanticxr" else 1 << 62
         return geo.cap_points(points, max_points, self._resolution_m, start_m)
 
+    @property
+    def _full(self) -> bool:
+        return self.max_objects is not None and len(self.objects) >= self.max_objects
+
     def _apply(
         self, observations: list[_Observation], matches: list[int | None], stats: IntegrationStats
     ) -> set[int]:
@@ -371,6 +387,9 @@ class MappingEngine:
         touched: set[int] = set()
         seen_this_frame: set[int] = set()
         for obs, match in zip(observations, matches, strict=True):
+            if match is None and self._full:
+                stats.over_cap += 1
+                continue
             if match is None:
                 obj = MapObject(id=self.next_object_id, first_seen=self.keyframes)
                 self.next_object_id += 1
@@ -394,6 +413,13 @@ class MappingEngine:
                 seen_this_frame.add(obj.id)
             touched.add(obj.id)
         self._changed_since_cleanup |= touched
+        if stats.over_cap and not self._at_cap:
+            log.warning(
+                "a map reached its cap of %d objects (server setting max_objects, "
+                "--max-objects): new objects are not created until transients are pruned",
+                self.max_objects,
+            )
+        self._at_cap = stats.over_cap > 0
         return touched
 
     def _merge_objects(self, keep: MapObject, gone: MapObject) -> None:

@@ -11,7 +11,8 @@ are raw bytes), JSON over HTTP.
     delta.py     server -> subscribers, updates socket: `UpsertEntry`, `DeltaMessage`,
                  `pack_delta`, `unpack_update`, `parse_delta` (raises `DeltaError`)
     rest.py      REST answers: session records, `ObjectRecord`, `QueryResult`
-    limits.py    `PROTOCOL_VERSION` and every limit, the bounded msgpack unpacking
+    limits.py    `PROTOCOL_VERSION` and every limit, the bounded msgpack unpacking, the
+                 server's per-frame `FrameBudget` (`LimitError`)
 
 This package imports only the codecs and the error type below it: never perception,
 mapping or the server.
@@ -42,6 +43,8 @@ from app.protocol.limits import (
     MAX_REMOVED_PER_DELTA,
     MAX_UPSERTS_PER_DELTA,
     PROTOCOL_VERSION,
+    FrameBudget,
+    LimitError,
 )
 from app.protocol.replies import Ack, ErrorReply, parse_reply, unpack_reply
 from app.protocol.rest import (
@@ -81,8 +84,10 @@ __all__ = [
     "DeltaMessage",
     "EmbeddingInfo",
     "ErrorReply",
+    "FrameBudget",
     "FrameInput",
     "InputError",
+    "LimitError",
     "ObjectRecord",
     "QueryHit",
     "QueryResult",

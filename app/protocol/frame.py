@@ -20,6 +20,7 @@ from app.protocol.limits import (
     FRAME_LIMITS,
     MAX_IMAGE_SIDE_PX,
     MAX_INTRINSIC_PX,
+    FrameBudget,
     unpack_limited,
 )
 
@@ -147,13 +148,22 @@ def _image_size(message: dict, where: str) -> tuple[int, int]:
     return w, h
 
 
-def parse_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
+_NO_BUDGET = FrameBudget()
+
+
+def parse_frame(
+    message: Any, rgb_pixels: bool = True, budget: FrameBudget = _NO_BUDGET
+) -> FrameInput:
     """A v1 `frame` message (already unpacked from msgpack) -> FrameInput.
 
     Validates every field and raises InputError naming the first bad one; does not check
     what only the engine knows (depth/RGB size ratio, detections vs labels).
     rgb_pixels=False: the JPEG is fully validated but its pixels are not kept (`rgb` is None),
     for perception backends that do not look at the image (`PerceptionBackend.needs_rgb`).
+    budget: the server's; each image's declared size (the JPEG's from its header) and the
+    instance count are checked against it before that part is decoded (`LimitError`).
+    Keys the protocol does not know are ignored (v1 extensions); what they may hold is
+    bounded by `FRAME_LIMITS` when the message is unpacked.
     """
     if not isinstance(message, dict):
         raise InputError("message", f"must be a map, got {type(message).__name__}")
@@ -180,6 +190,7 @@ def parse_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
     if rgb_msg.get("codec") != "jpeg":
         raise InputError("rgb.codec", f"must be 'jpeg', got {rgb_msg.get('codec')!r}")
     rgb_data = _require(rgb_msg, "data", bytes, "rgb.")
+    budget.check_pixels("rgb", *codecs.jpeg_size(rgb_data, field="rgb"))
     if rgb_pixels:
         rgb = codecs.decode_jpeg(rgb_data, field="rgb")
         height, width = rgb.shape[:2]
@@ -189,6 +200,7 @@ def parse_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
 
     depth_msg = _require(message, "depth", dict)
     dw, dh = _image_size(depth_msg, "depth.")
+    budget.check_pixels("depth", dw, dh)
     scale = float(_require(depth_msg, "scale", (int, float), "depth."))
     if not (math.isfinite(scale) and 0 < scale <= 1):
         raise InputError("depth.scale", f"must be metres per unit in (0, 1], got {scale!r}")
@@ -209,6 +221,8 @@ def parse_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
                 "detections",
                 f"instance image is {iw}x{ih}, RGB is {width}x{height}; they must match",
             )
+        instances = _require(det_msg, "instances", list, "detections.")
+        budget.check_instances("detections.instances", len(instances))
         instance_ids = codecs.decode_uint16_image(
             _require(det_msg, "data", bytes, "detections."),
             _require(det_msg, "codec", str, "detections."),
@@ -216,7 +230,6 @@ def parse_frame(message: Any, rgb_pixels: bool = True) -> FrameInput:
             ih,
             field="detections",
         )
-        instances = _require(det_msg, "instances", list, "detections.")
 
     return FrameInput(
         seq=seq,

@@ -20,6 +20,8 @@ from app.errors import InputError
 __all__ = [
     "DEFAULT_EMBEDDING_DIM",
     "FRAME_LIMITS",
+    "FrameBudget",
+    "LimitError",
     "MAX_IMAGE_SIDE_PX",
     "MAX_INSTANCES_PER_FRAME",
     "MAX_INTRINSIC_PX",
@@ -99,6 +101,45 @@ UPDATE_LIMITS = UnpackLimits(
     max_items=16 * MAX_UPSERTS_PER_DELTA + MAX_REMOVED_PER_DELTA + 1024,  # upsert: map + bbox
 )
 """Server -> subscribers on the updates socket (deltas)."""
+
+
+class LimitError(InputError):
+    """Valid input over a budget the server sets (not malformed): `setting` names the server
+    setting, whose flag the message names too (a device may resend it smaller)."""
+
+    def __init__(self, field: str, message: str, setting: str):
+        flag = "--" + setting.replace("_", "-")
+        super().__init__(field, f"{message} (server setting {setting}, {flag})")
+        self.setting = setting
+
+
+@dataclass(frozen=True)
+class FrameBudget:
+    """What one frame may cost the server, below the protocol's hard limits; the server sets
+    it from its settings of the same names. A frame over it gets a `LimitError`, checked
+    from declared sizes and counts before any pixel is decoded."""
+
+    max_frame_pixels: int = MAX_IMAGE_SIDE_PX * MAX_IMAGE_SIDE_PX
+    """Most pixels of each image of the frame (RGB, depth, instance ids)."""
+    max_instances_per_frame: int = MAX_INSTANCES_PER_FRAME
+    """Most `detections.instances` (at most MAX_INSTANCES_PER_FRAME)."""
+
+    def check_pixels(self, field: str, w: int, h: int) -> None:
+        if w * h > self.max_frame_pixels:
+            raise LimitError(
+                field,
+                f"{w}x{h} = {w * h} pixels is over the limit of {self.max_frame_pixels}",
+                "max_frame_pixels",
+            )
+
+    def check_instances(self, field: str, n: int) -> None:
+        if n > self.max_instances_per_frame:
+            raise LimitError(
+                field,
+                f"{n} instances is over the limit of {self.max_instances_per_frame}",
+                "max_instances_per_frame",
+            )
+
 
 _MSGPACK_LIMIT = re.compile(r"^(\d+) exceeds max_(str|bin|array|map)_len\((\d+)\)$")
 _KIND = {"str": "a string of {} bytes", "bin": "binary of {} bytes"}

@@ -74,10 +74,16 @@ def make_metrics() -> Metrics:
         "counter",
         "Keyframes whose mapping raised an unexpected error (undone and refused as internal)",
     )
+    m.describe(
+        "semanticxr_slow_subscribers_closed_total",
+        "counter",
+        "Update subscribers closed (1013) because they could not keep up",
+    )
     for fault in (
         "semanticxr_dropped_frames_total",
         "semanticxr_persist_failures_total",
         "semanticxr_mapping_failures_total",
+        "semanticxr_slow_subscribers_closed_total",
     ):
         m.inc(fault, 0)  # present at 0 from the start: a dashboard can tell 0 from missing
     m.describe(

@@ -1,10 +1,12 @@
 """Sessions: one mapping engine each, the keyframe pipeline, update fan-out, persistence.
 
-Threading model: the event loop only moves bytes. Decoding and mapping run in a shared
-thread pool; each session maps one keyframe at a time (`_map_lock`), and readers of the map
-(queries, object lists, delta building) take the same lock, so they see whole keyframes.
-If keyframes arrive faster than a session maps them, only the newest waits: an older
-waiting keyframe is acknowledged as dropped (frames are samples, not a log).
+Threading model: the event loop only moves bytes. Frames are unpacked, decoded and
+validated in a small decode pool; keyframes are mapped in the mapping pool, which sessions
+share round-robin (`RoundRobinScheduler`: no session waits behind more than one keyframe of
+each other session). Each session maps one keyframe at a time (`_map_lock`), and readers of
+the map (queries, object lists, delta building) take the same lock, so they see whole
+keyframes. If keyframes arrive faster than a session maps them, only the newest waits: an
+older waiting keyframe is acknowledged as dropped (frames are samples, not a log).
 
 Commit, then publish: a keyframe's changes are visible only once the store has them. The
 keyframe maps and commits inside one hold of `_map_lock`; if the commit (or the mapping)
@@ -43,9 +45,10 @@ from app.mapping.object import MapObject
 from app.mapping.publish import update_message
 from app.perception import DEFAULT_BACKEND, UnknownBackendError, make_backend
 from app.perception.base import FrameDetections, PerceptionBackend
-from app.protocol import Ack, ErrorReply, FrameInput
+from app.protocol import Ack, ErrorReply, FrameBudget, FrameInput
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
+from app.server.scheduler import RoundRobinScheduler
 from app.server.settings import ServerSettings
 from app.store import SessionRecord, Store, StoreUnavailableError
 
@@ -279,6 +282,15 @@ class SessionManager:
         self.pool = ThreadPoolExecutor(
             max_workers=settings.mapping_workers, thread_name_prefix="map"
         )
+        self.scheduler = RoundRobinScheduler(self.pool, settings.mapping_workers)
+        self._map_tasks: set[asyncio.Task] = set()
+        self.decode_pool = ThreadPoolExecutor(
+            max_workers=settings.decode_workers, thread_name_prefix="decode"
+        )
+        """Frames are decoded apart from mapping: a slow keyframe never delays the acks of
+        other frames, and a burst of frames never delays a keyframe's mapping."""
+        self.frame_budget = FrameBudget(settings.max_frame_pixels, settings.max_instances_per_frame)
+        """What a frame may cost, checked before its pixels are decoded."""
         self.sessions: dict[str, Session] = {}
         self._lock = threading.Lock()
         self.storage = StorageHealth()
@@ -297,7 +309,11 @@ class SessionManager:
 
     def _engine(self, rec: SessionRecord, knobs: Knobs) -> MappingEngine:
         return MappingEngine(
-            self.encoder, knobs, mode=rec.mode, backend=self._load_backend(rec.perception)
+            self.encoder,
+            knobs,
+            mode=rec.mode,
+            backend=self._load_backend(rec.perception),
+            max_objects=self.settings.max_objects,
         )
 
     def restore(self) -> int:
@@ -324,6 +340,7 @@ class SessionManager:
         for session in self.sessions.values():
             session.close()
         self.pool.shutdown(wait=True, cancel_futures=True)
+        self.decode_pool.shutdown(wait=True, cancel_futures=True)
         self._store_io.shutdown(wait=True, cancel_futures=True)
         for session in list(self.sessions.values()):
             self._save_counters(session, even_if_failing=True)
@@ -383,8 +400,9 @@ class SessionManager:
 
     # ------------------------------------------------------------------ ingest
     async def decode(self, decode: Callable[[], T]) -> T:
-        """Run a frame's decoding and validation in the worker pool."""
-        return await asyncio.get_running_loop().run_in_executor(self.pool, decode)
+        """Run a frame's unpacking, decoding and validation in the decode pool (never on the
+        event loop: a hostile message costs a decode thread, not every session's sockets)."""
+        return await asyncio.get_running_loop().run_in_executor(self.decode_pool, decode)
 
     def count_frame(self, session: Session, frame_bytes: dict[str, int]) -> bool:
         """Count a valid frame; True when it is a keyframe. The counters reach the store with
@@ -532,7 +550,8 @@ class SessionManager:
         sent: FrameDetections | None = None,
         decode_ms: float = 0.0,
     ) -> None:
-        """Map now, or wait as the newest keyframe (acknowledging any older one as dropped).
+        """Wait for the session's turn of a mapping worker as its newest keyframe (an older
+        one still waiting is acknowledged as dropped); see `RoundRobinScheduler`.
 
         frame: validated (`MappingEngine.validate_frame`), which returned `sent`;
         decode_ms: what decoding and validating it took."""
@@ -540,21 +559,36 @@ class SessionManager:
         if session._mapping:
             older, session._pending = session._pending, pending
             if older is not None:
-                session.dropped += 1
-                self.metrics.inc("semanticxr_dropped_frames_total")
-                await older.reply(Ack(older.frame.seq, keyframe=False, dropped=True).pack())
+                await self._drop(session, older)
             return
         session._mapping = True
-        asyncio.create_task(self._map_loop(session, pending))
+        task = asyncio.create_task(self._map_loop(session, pending))
+        self._map_tasks.add(task)  # a task nobody references may be collected mid-way
+        task.add_done_callback(self._map_tasks.discard)
+
+    async def _drop(self, session: Session, older: _Pending) -> None:
+        session.dropped += 1
+        self.metrics.inc("semanticxr_dropped_frames_total")
+        await older.reply(Ack(older.frame.seq, keyframe=False, dropped=True).pack())
+
+    @staticmethod
+    def _newest(session: Session, pending: _Pending) -> tuple[_Pending, _Pending | None]:
+        """The keyframe to map once the session's turn comes, and the one it replaces: a
+        newer keyframe that arrived while `pending` waited is mapped instead (frames are
+        samples: the freshest view is mapped; the stale one is acknowledged as dropped)."""
+        newer, session._pending = session._pending, None
+        return (pending, None) if newer is None else (newer, pending)
 
     async def _map_loop(self, session: Session, pending: _Pending | None) -> None:
-        loop = asyncio.get_running_loop()
         try:
             while pending is not None and not session.closed:
                 try:
-                    stats, latency_ms = await loop.run_in_executor(
-                        self.pool, self._map_and_persist, session, pending
-                    )
+                    async with self.scheduler.turn(session.id) as turn:
+                        pending, stale = self._newest(session, pending)
+                        mapped = turn.run(self._map_and_persist, session, pending)
+                        if stale is not None:  # answered while the worker maps, not before
+                            await self._drop(session, stale)
+                        stats, latency_ms = await mapped
                 except StorageUnavailable:
                     await pending.reply(
                         ErrorReply(

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from app.perception import BACKENDS, DEFAULT_BACKEND
+from app.protocol import MAX_INSTANCES_PER_FRAME
 from app.server.edges import default_allowed_hosts
 from app.store import StoreURLError, check_store_url, sqlite_url
 
@@ -39,7 +40,15 @@ class ServerSettings:
     perception: str = DEFAULT_BACKEND
     """Perception backends loaded at start, comma-separated; sessions use the first unless they choose."""
     mapping_workers: int = 2
-    """Threads that decode and map frames (sessions map one frame at a time each)."""
+    """Threads that map keyframes, shared round-robin by the sessions with one waiting (each maps one at a time)."""
+    decode_workers: int = 2
+    """Threads that unpack, decode and validate frames (apart from mapping, so neither queues behind the other)."""
+    max_frame_pixels: int = 1920 * 1440
+    """Most pixels of a frame's RGB, depth or instance image (refused from the declared size, before decoding)."""
+    max_instances_per_frame: int = 256
+    """Most detections.instances a frame may list (at most the protocol's 1024)."""
+    max_objects: int = 20_000
+    """Objects (candidates and confirmed) a session's map holds; at the cap only matches are mapped."""
     max_subscribers: int = 32
     """Update subscribers per session."""
     max_connections: int = 1000
@@ -73,6 +82,11 @@ class ServerSettings:
         for name in _POSITIVE:
             if getattr(self, name) < 1:
                 raise SettingsError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.max_instances_per_frame > MAX_INSTANCES_PER_FRAME:
+            raise SettingsError(
+                f"max_instances_per_frame must be at most {MAX_INSTANCES_PER_FRAME} (the wire "
+                f"protocol's limit), got {self.max_instances_per_frame}"
+            )
         if self.api_key is not None and not self.api_key.strip():
             raise SettingsError("api_key must not be empty (leave it unset to run open)")
         unknown = [name for name in self.perception_backends if name not in BACKENDS]
@@ -126,6 +140,10 @@ _POSITIVE = (
     "max_body_bytes",
     "max_sessions",
     "mapping_workers",
+    "decode_workers",
+    "max_frame_pixels",
+    "max_instances_per_frame",
+    "max_objects",
     "max_subscribers",
     "max_connections",
     "max_bad_frames",

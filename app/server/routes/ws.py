@@ -4,19 +4,38 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
+import logging
 import time
+from dataclasses import dataclass
 
 import msgpack
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
 
 from app.errors import InputError
 from app.perception.base import FrameDetections
-from app.protocol import Ack, ErrorReply, FrameInput, parse_frame, unpack_frame_message
+from app.protocol import (
+    Ack,
+    ErrorReply,
+    FrameBudget,
+    FrameInput,
+    LimitError,
+    parse_frame,
+    unpack_frame_message,
+)
 from app.server.auth import authorize_session, bearer
 from app.server.sessions import Session, SessionManager
 
+log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1")
 SEND_TIMEOUT_S = 30.0
+"""Longest a reply to a device may wait for room in its socket's write buffer."""
+SUBSCRIBER_QUEUE_UPDATES = 8
+"""Publications an update subscriber may fall behind (while one message waits to go out)
+before it is closed as too slow (1013); its backlog is a count, coalesced when it catches up."""
+SUBSCRIBER_STALL_S = 10.0
+"""Longest one update may wait to go out to a subscriber before it is closed as too slow: well
+before the ping timeout (20 s + 20 s) would close it silently."""
 CLOSE_POLICY, CLOSE_TOO_BIG, CLOSE_TRY_LATER, CLOSE_GOING_AWAY = 1008, 1009, 1013, 1001
 
 
@@ -39,19 +58,47 @@ def _payload_bytes(message: dict) -> dict[str, int]:
     return sizes
 
 
-def _decode_and_validate(
-    message: dict, session: Session
-) -> tuple[FrameInput, FrameDetections | None, float]:
-    """In a worker thread, once per frame: decode and validate it, so everything the engine
-    would refuse is refused here, keyframe or not. Perception runs later, on keyframes only.
+@dataclass
+class _Decoded:
+    frame: FrameInput
+    sent: FrameDetections | None
+    """The detections the device sent, validated (None if none)."""
+    decode_ms: float
+    """What unpacking, decoding and validating took (part of a keyframe's mapping latency)."""
+    payload_bytes: dict[str, int]
 
-    Returns the frame, the detections the device sent (validated; None if none) and the
-    milliseconds this took (part of a keyframe's mapping latency)."""
+
+class _Refused(Exception):
+    """A message refused while decoding: the reply it gets."""
+
+    def __init__(self, reply: ErrorReply, is_frame: bool):
+        super().__init__(reply.message)
+        self.reply = reply
+        self.is_frame = is_frame
+        """False for a message that is not even msgpack within the limits (no seq known)."""
+
+
+def _decode_and_validate(data: bytes, session: Session, budget: FrameBudget) -> _Decoded:
+    """In a decode thread, once per message, never on the event loop: unpack it within the
+    protocol's limits, check it against the server's budget before any pixel is decoded,
+    decode and validate it, so everything the engine would refuse is refused here, keyframe
+    or not. Perception runs later, on keyframes only. Raises _Refused with the reply."""
     t0 = time.perf_counter()
+    try:
+        message = unpack_frame_message(data)
+    except InputError as exc:
+        raise _Refused(ErrorReply(None, "bad_message", str(exc)), is_frame=False) from None
+    seq = message.get("seq") if isinstance(message, dict) else None
+    seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
     engine = session.engine
-    frame = parse_frame(message, rgb_pixels=engine.backend.needs_rgb)
-    sent = engine.validate_frame(frame)
-    return frame, sent, (time.perf_counter() - t0) * 1e3
+    try:
+        frame = parse_frame(message, rgb_pixels=engine.backend.needs_rgb, budget=budget)
+        sent = engine.validate_frame(frame)
+    except LimitError as exc:
+        raise _Refused(ErrorReply(seq, "over_limit", str(exc)), is_frame=True) from None
+    except InputError as exc:
+        raise _Refused(ErrorReply(seq, "bad_frame", str(exc)), is_frame=True) from None
+    return _Decoded(frame, sent, (time.perf_counter() - t0) * 1e3, _payload_bytes(message))
 
 
 @router.websocket("/sessions/{sid}/stream")
@@ -97,29 +144,24 @@ async def stream(ws: WebSocket, sid: str) -> None:
                 return
             else:
                 try:
-                    message = unpack_frame_message(data)
-                except InputError as exc:
-                    message = None
-                    await reply(ErrorReply(None, "bad_message", str(exc)).pack())
-                    bad_in_a_row += 1
-                if message is not None:
-                    seq = message.get("seq") if isinstance(message, dict) else None
-                    seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
-                    try:
-                        frame, sent, decode_ms = await manager.decode(
-                            lambda m=message: _decode_and_validate(m, session)
-                        )
-                    except InputError as exc:
+                    decoded = await manager.decode(
+                        functools.partial(_decode_and_validate, data, session, manager.frame_budget)
+                    )
+                except _Refused as refused:
+                    if refused.is_frame:
                         manager.metrics.inc("semanticxr_frames_total", outcome="bad")
-                        await reply(ErrorReply(seq, "bad_frame", str(exc)).pack())
-                        bad_in_a_row += 1
+                    await reply(refused.reply.pack())
+                    bad_in_a_row += 1
+                else:
+                    bad_in_a_row = 0
+                    manager.metrics.inc("semanticxr_frames_total", outcome="ok")
+                    frame = decoded.frame
+                    if manager.count_frame(session, decoded.payload_bytes):
+                        await manager.submit_keyframe(
+                            session, frame, reply, decoded.sent, decoded.decode_ms
+                        )
                     else:
-                        bad_in_a_row = 0
-                        manager.metrics.inc("semanticxr_frames_total", outcome="ok")
-                        if manager.count_frame(session, _payload_bytes(message)):
-                            await manager.submit_keyframe(session, frame, reply, sent, decode_ms)
-                        else:
-                            await reply(Ack(frame.seq, keyframe=False).pack())
+                        await reply(Ack(frame.seq, keyframe=False).pack())
             if bad_in_a_row >= settings.max_bad_frames:
                 await ws.close(code=CLOSE_POLICY, reason=f"{bad_in_a_row} bad messages in a row")
                 return
@@ -135,7 +177,12 @@ async def stream(ws: WebSocket, sid: str) -> None:
 
 @router.websocket("/sessions/{sid}/updates")
 async def updates(ws: WebSocket, sid: str) -> None:
-    """Per-object deltas since `since`, then one per publication, coalesced per object."""
+    """Per-object deltas since `since`, then one per publication, coalesced per object.
+
+    One message is in flight at a time; publications meanwhile wait as a count (the next
+    delta coalesces them). A subscriber more than SUBSCRIBER_QUEUE_UPDATES publications
+    behind, or whose send has not gone out within SUBSCRIBER_STALL_S, is closed with 1013:
+    it resumes with `since` = the last seq it applied."""
     session = await _authorize(ws, sid)
     if session is None:
         return
@@ -159,27 +206,71 @@ async def updates(ws: WebSocket, sid: str) -> None:
                 pass  # subscribers have nothing to say; ignore whatever they send
         gone.set()
 
+    async def send(data: bytes) -> None:
+        await ws.send_bytes(data)  # waits while the socket's write buffer is over its limit
+        session.bytes_out["updates"] += len(data)
+        manager.metrics.inc("semanticxr_bytes_out_total", len(data), kind="updates")
+
     watcher = asyncio.create_task(watch_disconnect())
+    sending: asyncio.Task | None = None
+    sending_since = 0.0
+    behind = 0
+    """Publications since the message in flight was handed to the socket."""
+    too_slow: str | None = None
     try:
         first = True
         while not session.closed and not gone.is_set():
             published = session.wait_published()  # taken before building: no publication is missed
-            message = await asyncio.to_thread(session.build_delta, since)
-            if first or message["full"] or message["upserts"] or message["removed"]:
-                data = msgpack.packb(message)
-                await asyncio.wait_for(ws.send_bytes(data), SEND_TIMEOUT_S)
-                session.bytes_out["updates"] += len(data)
-                manager.metrics.inc("semanticxr_bytes_out_total", len(data), kind="updates")
-                first = False
-            since = message["seq"]
+            if sending is not None and sending.done():
+                sending.result()  # a failed send (client gone) ends the subscription
+                sending = None
+            if sending is None:
+                message = await asyncio.to_thread(session.build_delta, since)
+                if first or message["full"] or message["upserts"] or message["removed"]:
+                    sending = asyncio.create_task(send(msgpack.packb(message)))
+                    sending_since = time.monotonic()
+                    first = False
+                since, behind = message["seq"], 0
             waiter = asyncio.create_task(published.wait())
-            await asyncio.wait({waiter, watcher}, return_when=asyncio.FIRST_COMPLETED)
+            waiting = {waiter, watcher} | ({sending} if sending is not None else set())
+            stall_left = (
+                None if sending is None else sending_since + SUBSCRIBER_STALL_S - time.monotonic()
+            )
+            await asyncio.wait(
+                waiting,
+                timeout=None if stall_left is None else max(stall_left, 0.0),
+                return_when=asyncio.FIRST_COMPLETED,
+            )
+            published_now = waiter.done()
             waiter.cancel()
-    except (TimeoutError, WebSocketDisconnect, RuntimeError):
+            if sending is None or sending.done():
+                continue
+            behind += published_now
+            if behind > SUBSCRIBER_QUEUE_UPDATES:
+                too_slow = f"{behind} updates unsent"
+            elif time.monotonic() - sending_since >= SUBSCRIBER_STALL_S:
+                too_slow = f"an update unsent for {SUBSCRIBER_STALL_S:g} s"
+            if too_slow is not None:
+                break
+    except (WebSocketDisconnect, RuntimeError, OSError):  # the client went away
         pass
     finally:
         session.subscribers -= 1
         watcher.cancel()
-        if session.closed:
-            with contextlib.suppress(Exception):
-                await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")
+        if sending is not None and not sending.done():
+            sending.cancel()  # not written yet: it waits for room in the write buffer
+    if too_slow is not None:
+        manager.metrics.inc("semanticxr_slow_subscribers_closed_total")
+        log.warning(
+            "session %s: closed an update subscriber that cannot keep up (%s); "
+            "it may resume with ?since=<its last seq>",
+            session.id,
+            too_slow,
+        )
+        # The close frame goes out once the client reads what is buffered (or the socket
+        # dies); waiting for that costs this coroutine only.
+        with contextlib.suppress(Exception):
+            await ws.close(code=CLOSE_TRY_LATER, reason=f"too slow: {too_slow}; resume with since")
+    elif session.closed:
+        with contextlib.suppress(Exception):
+            await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")

@@ -175,3 +175,23 @@ def test_bad_input_names_the_field_and_leaves_the_map_unchanged(encoder, field):
         engine.integrate(frame)
     assert err.value.field == field.strip()
     assert snapshot(engine) == before
+
+
+def test_at_max_objects_matches_still_map_and_new_objects_wait_for_room(encoder, caplog):
+    engine = make_engine(encoder, cleanup_interval=2, transient_max_age=2)
+    engine.max_objects = 1
+    engine.integrate(render_rects([CHAIR]))
+    stats = engine.integrate(render_rects([CHAIR, TABLE]))  # the map is full: no table
+    assert (stats.matched, stats.created, stats.over_cap) == (1, 0, 1)
+    assert [o.label for o in engine.objects.values()] == ["chair"]
+    assert engine.objects[1].n_obs == 2  # the chair's view was mapped
+    assert sum("--max-objects" in r.getMessage() for r in caplog.records) == 1
+    engine.integrate(render_rects([CHAIR, TABLE]))
+    assert sum("--max-objects" in r.getMessage() for r in caplog.records) == 1  # once a streak
+
+    engine = make_engine(encoder, cleanup_interval=1, transient_max_age=1, min_observations=5)
+    engine.max_objects = 1
+    engine.integrate(render_rects([TABLE]))  # a candidate that is never seen again
+    engine.integrate(render_rects([CHAIR]))  # no room yet; the table is pruned as a transient
+    stats = engine.integrate(render_rects([CHAIR]))  # room again
+    assert stats.created == 1 and [o.label for o in engine.objects.values()] == ["chair"]
