@@ -38,15 +38,20 @@ class TextEncoder(abc.ABC):
         if not texts:
             return np.zeros((0, self.dim), np.float32)
         with self._lock:
-            missing = list(dict.fromkeys(t for t in texts if t not in self._cache))
-            if missing:
-                for text, row in zip(missing, self._encode_uncached(missing), strict=True):
-                    self._cache[text] = row
-            out = np.stack([self._cache[t] for t in texts])
-            for text in texts:  # least-recently-used eviction
+            rows = {t: self._cache[t] for t in dict.fromkeys(texts) if t in self._cache}
+        missing = [t for t in dict.fromkeys(texts) if t not in rows]
+        if missing:
+            # Encoded outside the cache lock: a caller with new labels must not hold up
+            # callers whose labels are all cached (one session's new vocabulary would stall
+            # every other session's keyframes).
+            rows.update(zip(missing, self._encode_uncached(missing), strict=True))
+        with self._lock:
+            for text in rows:  # least-recently-used eviction
+                self._cache[text] = rows[text]
                 self._cache.move_to_end(text)
             while len(self._cache) > self._cache_size:
                 self._cache.popitem(last=False)
+        out = np.stack([rows[t] for t in texts])
         return out
 
     def encode_query(self, text: str) -> np.ndarray:
