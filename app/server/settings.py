@@ -38,6 +38,8 @@ class ServerSettings:
     """Sessions the server holds at once."""
     perception: str = DEFAULT_BACKEND
     """Perception backends loaded at start, comma-separated; sessions use the first unless they choose."""
+    models_dir: str | None = None
+    """Folder with one sub-folder per model for --perception models (load from it only, never the hub); default: Hugging Face ids."""
     mapping_workers: int = 2
     """Threads that decode and map frames (sessions map one frame at a time each)."""
     max_subscribers: int = 32
