@@ -8,6 +8,7 @@ when the backend is made (a model backend's libraries load with it).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -42,6 +43,7 @@ def _models(options: BackendOptions) -> PerceptionBackend:
     from app.perception.models.weights import CPU_PROFILE, resolve_models
 
     resolve_models(CPU_PROFILE, options.models_dir)  # a missing model fails before torch loads
+    os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")  # not its torchvision notices
     from app.perception.models.backend import load_models_backend
 
     return load_models_backend(options.models_dir)
