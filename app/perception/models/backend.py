@@ -176,8 +176,8 @@ def load_models_backend(models_dir: str | None, profile: Profile = CPU_PROFILE) 
         hf_logging.disable_progress_bar()
         hf_logging.set_verbosity_error()  # not the torchvision fallback notice at every load
         try:
-            detector = OwlViTDetector(det.source, det.local_only, device, dtype)
-            embedder = ClipEmbedder(emb.source, emb.local_only, device, dtype, emb.model_id)
+            detector = OwlViTDetector.load(det.source, det.local_only, device, dtype)
+            embedder = ClipEmbedder.load(emb.source, emb.local_only, device, dtype, emb.model_id)
         except OSError as exc:  # not on the hub, no network, or an incomplete folder
             raise MissingModelsError(
                 f"perception 'models' could not load its models: {exc}\n"

@@ -18,15 +18,28 @@ PROMPT = "a photo of a {}"
 class OwlViTDetector:
     """OWL-ViT with a fixed set of text queries. Thread-safe (one forward at a time)."""
 
-    def __init__(self, source: str, local_only: bool, device: str, dtype: torch.dtype):
-        self.processor = OwlViTProcessor.from_pretrained(source, local_files_only=local_only)
-        self.model = OwlViTForObjectDetection.from_pretrained(
-            source, local_files_only=local_only, dtype=dtype
-        )
-        self.model.to(device).eval()
+    def __init__(
+        self,
+        model: OwlViTForObjectDetection,
+        processor: OwlViTProcessor,
+        device: str,
+        dtype: torch.dtype,
+    ):
+        self.processor = processor
+        self.model = model.to(device, dtype).eval()
         self.device, self.dtype = device, dtype
         self._lock = threading.Lock()
         self._queries: torch.Tensor | None = None
+
+    @classmethod
+    def load(cls, source: str, local_only: bool, device: str, dtype: torch.dtype):
+        """From a folder or a hub id (`from_pretrained`)."""
+        return cls(
+            OwlViTForObjectDetection.from_pretrained(source, local_files_only=local_only),
+            OwlViTProcessor.from_pretrained(source, local_files_only=local_only),
+            device,
+            dtype,
+        )
 
     @torch.inference_mode()
     def set_vocabulary(self, tags: list[str]) -> None:

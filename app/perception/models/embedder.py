@@ -26,16 +26,31 @@ class ClipEmbedder:
     """CLIP's two towers. Thread-safe (one forward at a time)."""
 
     def __init__(
-        self, source: str, local_only: bool, device: str, dtype: torch.dtype, model_id: str
+        self,
+        model: CLIPModel,
+        processor: CLIPProcessor,
+        device: str,
+        dtype: torch.dtype,
+        model_id: str,
     ):
-        self.processor = CLIPProcessor.from_pretrained(source, local_files_only=local_only)
-        self.model = CLIPModel.from_pretrained(source, local_files_only=local_only, dtype=dtype)
-        self.model.to(device).eval()
+        self.processor = processor
+        self.model = model.to(device, dtype).eval()
         self.device, self.dtype = device, dtype
         self.model_id = model_id
         self.dim = int(self.model.config.projection_dim)
         self.logit_scale = float(self.model.logit_scale.detach().exp())
         self._lock = threading.Lock()
+
+    @classmethod
+    def load(cls, source: str, local_only: bool, device: str, dtype: torch.dtype, model_id: str):
+        """From a folder or a hub id (`from_pretrained`); announced as `model_id`."""
+        return cls(
+            CLIPModel.from_pretrained(source, local_files_only=local_only),
+            CLIPProcessor.from_pretrained(source, local_files_only=local_only),
+            device,
+            dtype,
+            model_id,
+        )
 
     def _pixels(self, crops: list[np.ndarray]) -> torch.Tensor:
         pixels = self.processor.image_processor(images=crops, return_tensors="pt")["pixel_values"]

@@ -22,7 +22,7 @@ TINY_PREFIX = "tiny-random/"
 """Tiny models announce `tiny-random/<folder>`, so they never pass for the real weights."""
 
 
-def _train_tokenizer(words: list[str], pad_token: str):
+def train_tokenizer(words: list[str], pad_token: str):
     """A CLIPTokenizer over a byte-level BPE trained on `words`; its specials get the
     highest ids (as in CLIP, where the text tower pools at the end-of-text token)."""
     from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, trainers
@@ -100,7 +100,7 @@ def write_tiny_models(out: str | Path, profile: Profile = CPU_PROFILE, seed: int
     words = [w for tag in tags for w in PROMPT.format(tag).split()] * 2
 
     # OWL-ViT pads with "!" (id 0 here too): a query whose first token is 0 counts as padding.
-    owl_tokenizer = _train_tokenizer(words, pad_token="!")
+    owl_tokenizer = train_tokenizer(words, pad_token="!")
     owl_config = OwlViTConfig(
         text_config=_text_config(owl_tokenizer),
         vision_config=_vision_config(patch_px=16),
@@ -118,7 +118,7 @@ def write_tiny_models(out: str | Path, profile: Profile = CPU_PROFILE, seed: int
         tokenizer=owl_tokenizer,
     ).save_pretrained(owl_dir)
 
-    clip_tokenizer = _train_tokenizer(words, pad_token="<|endoftext|>")
+    clip_tokenizer = train_tokenizer(words, pad_token="<|endoftext|>")
     clip_config = CLIPConfig(
         text_config=_text_config(clip_tokenizer),
         vision_config=_vision_config(patch_px=16),
