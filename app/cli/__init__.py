@@ -13,11 +13,11 @@ import argparse
 import os
 import sys
 
-from app.cli import demo, device, eval, serve, viewer
+from app.cli import demo, device, eval, models, serve, viewer
 from app.config import KnobError
 from app.server.settings import SettingsError
 
-COMMANDS = (eval, serve, device, demo, viewer)
+COMMANDS = (eval, serve, device, demo, viewer, models)
 """In the order `--help` lists them."""
 
 

@@ -30,11 +30,23 @@ def settings_from_args(args: argparse.Namespace) -> ServerSettings:
     return ServerSettings.from_env(**flags)
 
 
+def load_backends(settings: ServerSettings) -> None:
+    """Load the perception backends `settings` names before the server binds its port (they
+    are loaded once per process; the server's sessions then share them), so a missing model
+    stops `serve` with its fix, and the server never starts half-working."""
+    from app.perception import BackendOptions, make_backend
+
+    for name in settings.perception_backends:
+        make_backend(name, BackendOptions(models_dir=settings.models_dir))
+
+
 def run(args: argparse.Namespace) -> int:
     import logging
+    import sys
 
     from uvicorn import Server
 
+    from app.perception.models.weights import MissingModelsError
     from app.server.app import create_app
     from app.server.runner import uvicorn_config
 
@@ -42,6 +54,11 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(levelname)s %(name)s: %(message)s"
     )
+    try:
+        load_backends(settings)
+    except MissingModelsError as exc:
+        print(f"semanticxr serve: {exc}", file=sys.stderr)
+        return 2
     print(f"SemanticXR on http://{settings.host}:{settings.port}  (data in {settings.data_dir})")
     Server(uvicorn_config(create_app(settings), settings)).run()
     return 0

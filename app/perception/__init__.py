@@ -8,22 +8,51 @@ when the backend is made (a model backend's libraries load with it).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from app.perception.base import PerceptionBackend
 
-__all__ = ["BACKENDS", "DEFAULT_BACKEND", "UnknownBackendError", "make_backend"]
+__all__ = [
+    "BACKENDS",
+    "DEFAULT_BACKEND",
+    "BackendOptions",
+    "UnknownBackendError",
+    "make_backend",
+]
 
 
-def _detections() -> PerceptionBackend:
+@dataclass(frozen=True)
+class BackendOptions:
+    """What a backend may need from the server's settings to load."""
+
+    models_dir: str | None = None
+    """Folder of model sub-folders (`models` backend); None loads Hugging Face ids."""
+
+
+def _detections(options: BackendOptions) -> PerceptionBackend:
     from app.perception.detections import DetectionsBackend
 
     return DetectionsBackend()
 
 
-BACKENDS: dict[str, Callable[[], PerceptionBackend]] = {"detections": _detections}
+def _models(options: BackendOptions) -> PerceptionBackend:
+    from app.perception.models.weights import CPU_PROFILE, resolve_models
+
+    resolve_models(CPU_PROFILE, options.models_dir)  # a missing model fails before torch loads
+    os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")  # not its torchvision notices
+    from app.perception.models.backend import load_models_backend
+
+    return load_models_backend(options.models_dir)
+
+
+BACKENDS: dict[str, Callable[[BackendOptions], PerceptionBackend]] = {
+    "detections": _detections,
+    "models": _models,
+}
 """Backend name -> factory (called once per server: one instance serves every session)."""
 
 DEFAULT_BACKEND = "detections"
@@ -34,11 +63,14 @@ class UnknownBackendError(ValueError):
     """A perception backend name that is not registered."""
 
 
-def make_backend(name: str = DEFAULT_BACKEND) -> PerceptionBackend:
-    """The perception backend called `name`; UnknownBackendError if there is none."""
+def make_backend(
+    name: str = DEFAULT_BACKEND, options: BackendOptions | None = None
+) -> PerceptionBackend:
+    """The perception backend called `name`; UnknownBackendError if there is none (the
+    `models` backend raises MissingModelsError when its weights are not there)."""
     factory = BACKENDS.get(name)
     if factory is None:
         raise UnknownBackendError(
             f"unknown perception backend {name!r}; available: {', '.join(BACKENDS)}"
         )
-    return factory()
+    return factory(options or BackendOptions())

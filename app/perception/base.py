@@ -8,8 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.config import Mode
 from app.errors import InputError
 from app.protocol.frame import FrameInput
+from app.semantics import TextEncoder
 
 __all__ = ["Detection", "FrameDetections", "FrameInput", "InputError", "PerceptionBackend"]
 
@@ -60,6 +62,15 @@ class PerceptionBackend(abc.ABC):
     name: str = "abstract"
     needs_rgb: bool = True
     """Whether `detect` reads `FrameInput.rgb`; if not, frames skip decoding the pixels."""
+    text_encoder: TextEncoder | None = None
+    """The encoder whose space this backend's embeddings live in (sessions then embed labels
+    and queries with it), or None for the server's default text encoder."""
+
+    def for_mode(self, mode: Mode) -> PerceptionBackend:
+        """This backend as a session of organisation `mode` uses it. A backend whose work is
+        organised differently per mode (batched per keyframe or object by object) returns a
+        view sharing its models; the default is the backend itself."""
+        return self
 
     @abc.abstractmethod
     def detect(self, frame: FrameInput, sent: FrameDetections | None) -> FrameDetections:

@@ -43,7 +43,7 @@ from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
-from app.perception import DEFAULT_BACKEND, UnknownBackendError, make_backend
+from app.perception import DEFAULT_BACKEND, BackendOptions, UnknownBackendError, make_backend
 from app.perception.base import FrameDetections, PerceptionBackend
 from app.protocol import Ack, ErrorReply, FrameBudget, FrameInput
 from app.semantics import TextEncoder
@@ -304,16 +304,18 @@ class SessionManager:
 
     def _load_backend(self, name: str) -> PerceptionBackend:
         if name not in self.backends:
-            self.backends[name] = make_backend(name)
+            options = BackendOptions(models_dir=self.settings.models_dir)
+            self.backends[name] = make_backend(name, options)
         return self.backends[name]
 
     def _engine(self, rec: SessionRecord, knobs: Knobs) -> MappingEngine:
+        """The session's engine: its backend as its organisation uses it, and the backend's
+        text encoder when it has one (a `models` session embeds labels and queries with
+        CLIP's text tower, and announces that model), else the server's."""
+        backend = self._load_backend(rec.perception).for_mode(rec.mode)
+        encoder = backend.text_encoder or self.encoder
         return MappingEngine(
-            self.encoder,
-            knobs,
-            mode=rec.mode,
-            backend=self._load_backend(rec.perception),
-            max_objects=self.settings.max_objects,
+            encoder, knobs, mode=rec.mode, backend=backend, max_objects=self.settings.max_objects
         )
 
     def restore(self) -> int:

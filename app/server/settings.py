@@ -39,6 +39,8 @@ class ServerSettings:
     """Sessions the server holds at once."""
     perception: str = DEFAULT_BACKEND
     """Perception backends loaded at start, comma-separated; sessions use the first unless they choose."""
+    models_dir: str | None = None
+    """Folder with one sub-folder per model for --perception models (load from it only, never the hub); default: Hugging Face ids."""
     mapping_workers: int = 2
     """Threads that map keyframes, shared round-robin by the sessions with one waiting (each maps one at a time)."""
     decode_workers: int = 2

@@ -39,7 +39,7 @@ def counting(monkeypatch) -> list[CountingBackend]:
     """Registers the `counting` backend for this test; lists every instance made."""
     made: list[CountingBackend] = []
 
-    def factory() -> CountingBackend:
+    def factory(options) -> CountingBackend:
         made.append(CountingBackend())
         return made[-1]
 
