@@ -19,8 +19,8 @@ import websockets
 from analytic_world import BATHROOM, KITCHEN, Rect, RectSource
 from helpers_device import FAST_KNOBS, assert_local_map_equals, server_state, wait_until
 
-from app.codecs import float16_points_to_bytes, float16_vector_to_bytes
 from app.config import Knobs, updated_knobs
+from app.protocol import UpsertEntry, pack_delta
 from app.semantics import TextEncoder
 from app.store import StoreUnavailableError
 from client_sim.local_map import LocalMap
@@ -241,26 +241,24 @@ def test_latency_above_the_threshold_switches_to_local_queries_and_back(live_ser
 # --- a misbehaving server ----------------------------------------------------------------
 
 
-def _upsert(
-    encoder: TextEncoder, oid: int, label: str, version: int = 1, embedding: bytes | None = None
-) -> dict:
+def _upsert(encoder: TextEncoder, oid: int, label: str, version: int = 1) -> dict:
     """One wire upsert: 30 points around (oid, 0, 2), the label's real embedding."""
     points = np.random.default_rng(oid).uniform(-0.2, 0.2, (30, 3)) + [oid, 0.0, 2.0]
-    return {
-        "id": oid,
-        "version": version,
-        "label": label,
-        "embedding": embedding or float16_vector_to_bytes(encoder.encode([label])[0]),
-        "points": float16_points_to_bytes(points),
-        "bbox": [*points.min(axis=0).tolist(), *points.max(axis=0).tolist()],
-        "n_obs": 3,
-    }
+    return UpsertEntry(
+        id=oid,
+        version=version,
+        label=label,
+        embedding=encoder.encode([label])[0],
+        points=points,
+        bbox=(*points.min(axis=0).tolist(), *points.max(axis=0).tolist()),
+        n_obs=3,
+    ).pack()
 
 
 def _delta(seq: int, upserts: list[dict], full: bool, removed: tuple[int, ...] = ()) -> bytes:
-    """A packed v1 delta."""
-    message = {"type": "delta", "seq": seq, "full": full, "upserts": upserts}
-    return msgpack.packb(dict(message, removed=list(removed)))
+    """A packed v1 delta (upserts as packed entries, so a test can break one on purpose)."""
+    message = pack_delta(seq, removed=removed, full=full)
+    return msgpack.packb(dict(message, upserts=upserts))
 
 
 def test_garbage_on_the_updates_socket_is_logged_and_resynced_with_a_full_snapshot(encoder):
@@ -274,7 +272,7 @@ def test_garbage_on_the_updates_socket_is_logged_and_resynced_with_a_full_snapsh
         _upsert(encoder, 3, "sofa"),
     ]
     snapshot_c = [*snapshot_b, _upsert(encoder, 4, "bed")]
-    bad_embedding = _upsert(encoder, 5, "toilet", embedding=b"\x00" * 10)
+    bad_embedding = dict(_upsert(encoder, 5, "toilet"), embedding=b"\x00" * 10)
     script = [
         (_delta(5, snapshot_a, True), b"\xc1\xc1 not msgpack"),
         (_delta(8, snapshot_b, True), _delta(9, [bad_embedding], False, removed=(1,))),
