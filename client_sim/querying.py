@@ -15,6 +15,13 @@ and pings). `math.inf` from it means the link is known to be down, and LQ is use
 network call. When it is unknown (None: nothing streamed or followed yet, or just after
 reconnecting), one `GET /healthz` is timed and that round trip is the RTT for this query;
 a probe that fails or takes longer than `server_timeout_s` means LQ.
+
+LQ needs the session's own text encoder: the model and dimension the session announces in
+`embedding` (MiniLM, packaged, or CLIP's text tower on the `models` backend, read from
+`--models-dir`; `session_encoder_loader`). An encoder that differs is refused
+(`EncoderMismatchError`): its scores against the map would be noise. Without one, local
+queries are off: every query goes to the server while it answers, whatever the RTT, and a
+query it cannot answer gets mode "none" and no results.
 """
 
 from __future__ import annotations
@@ -26,10 +33,82 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from app.client import SessionApi
-from app.semantics import TextEncoder
+from app.semantics import DEFAULT_MODEL_ID, TextEncoder
 from client_sim.local_map import LocalMap
 
-SQ, LQ = "SQ", "LQ"
+SQ, LQ, NONE = "SQ", "LQ", "none"
+
+
+class LocalQueriesOff(Exception):
+    """This device has no text encoder for the session: it answers through the server only.
+    The message says why and what would turn local queries on."""
+
+
+class EncoderMismatchError(ValueError):
+    """The device's text encoder is not the one the session announces: LQ is refused."""
+
+
+def check_encoder(encoder: TextEncoder, embedding: dict) -> None:
+    """EncoderMismatchError unless `encoder` is the session's announced model and dimension."""
+    if (encoder.model_id, encoder.dim) != (embedding["model"], embedding["dim"]):
+        raise EncoderMismatchError(
+            f"refusing local queries: the session embeds with {embedding['model']} "
+            f"({embedding['dim']}-d) and this device's encoder is {encoder.model_id} "
+            f"({encoder.dim}-d); scores across two models' spaces mean nothing"
+        )
+
+
+def session_encoder_loader(embedding: dict, models_dir: str | None) -> Callable[[], TextEncoder]:
+    """A function that loads the session's text encoder (seconds: run it off the loop) and
+    checks it against the announcement. Quick checks first, here:
+
+    - the default MiniLM: packaged, always available;
+    - another model (CLIP's text tower on the `models` backend): from `models_dir`, found as
+      the server finds it (the folder whose model id is the announced one); LocalQueriesOff
+      without `models_dir` or when it holds no text tower, EncoderMismatchError when it holds
+      a different one.
+    """
+    model = embedding["model"]
+    if model == DEFAULT_MODEL_ID:
+
+        def load_default() -> TextEncoder:
+            from app.semantics import get_text_encoder
+
+            encoder = get_text_encoder()
+            check_encoder(encoder, embedding)
+            return encoder
+
+        return load_default
+    if models_dir is None:
+        raise LocalQueriesOff(
+            f"the session embeds with {model} ({embedding['dim']}-d); give --models-dir DIR "
+            f"(the folder the server's --models-dir holds) to answer queries on the device"
+        )
+    from app.perception.models.weights import text_towers_in
+
+    towers = text_towers_in(models_dir)
+    if not towers:
+        raise LocalQueriesOff(
+            f"the session embeds with {model} ({embedding['dim']}-d) and --models-dir "
+            f"{models_dir} holds no text tower (no CLIP model folder)"
+        )
+    matching = [t for t in towers if t.model_id == model]
+    if not matching:
+        held = ", ".join(f"{t.model_id} in {t.source}" for t in towers)
+        raise EncoderMismatchError(
+            f"refusing local queries: the session embeds with {model} ({embedding['dim']}-d) "
+            f"and --models-dir {models_dir} holds {held}"
+        )
+    tower = matching[0]
+
+    def load_tower() -> TextEncoder:
+        from app.perception.models.embedder import load_text_encoder
+
+        encoder = load_text_encoder(tower.source, tower.local_only, tower.model_id)
+        check_encoder(encoder, embedding)
+        return encoder
+
+    return load_tower
 
 
 def planned_mode(rtt_ms: float | None, threshold_ms: float) -> str:
@@ -46,7 +125,8 @@ class QueryAnswer:
 
     text: str
     mode: str
-    """Who answered: "SQ" (server query) or "LQ" (local query)."""
+    """Who answered: "SQ" (server query), "LQ" (local query), or "none" (local queries off
+    and the server did not answer)."""
     results: list[dict]
     """Best first: {"id", "label", "score", "bbox": [x0, y0, z0, x1, y1, z1], "centroid"}."""
     latency_ms: float
@@ -64,8 +144,11 @@ class QueryRouter:
     """Answers text queries by SQ or LQ (module docstring); one instance per device.
 
     local_map / encoder: the device's local map and the session's text encoder (same model
-    as the server). rtt_ms: the streaming client's smoothed RTT in ms (None unknown, inf
-    down). server_timeout_s: longest wait for the server (probe or SQ) before LQ.
+    as the server), or encoder None: local queries off (`local_off_reason` says why), every
+    query to the server. embedding: the session's announcement ({"model", "dim"}); when
+    given, an encoder that differs is refused (EncoderMismatchError). rtt_ms: the streaming
+    client's smoothed RTT in ms (None unknown, inf down). server_timeout_s: longest wait for
+    the server (probe or SQ) before LQ.
     """
 
     def __init__(
@@ -74,26 +157,36 @@ class QueryRouter:
         session_id: str,
         token: str | None,
         local_map: LocalMap,
-        encoder: TextEncoder,
+        encoder: TextEncoder | None,
         threshold_ms: float = 100.0,
         rtt_ms: Callable[[], float | None] = lambda: None,
         server_timeout_s: float = 1.0,
+        embedding: dict | None = None,
+        local_off_reason: str = "no text encoder on this device",
     ):
+        if encoder is not None and embedding is not None:
+            check_encoder(encoder, embedding)
         self.api = SessionApi(server_url, session_id, token, timeout_s=server_timeout_s)
         self.local_map = local_map
         self.encoder = encoder
+        self.local_off_reason = local_off_reason
         self.threshold_ms = float(threshold_ms)
         self.rtt_ms = rtt_ms
         self.server_timeout_s = float(server_timeout_s)
 
     def planned_mode(self) -> str:
         """The mode a query would take now from the streaming RTT alone ("?" if unknown)."""
+        if self.encoder is None:
+            return SQ
         return planned_mode(self.rtt_ms(), self.threshold_ms)
 
     async def query(self, text: str, k: int = 5) -> QueryAnswer:
-        """The k best matches for `text`, from the server or the local map."""
+        """The k best matches for `text`, from the server or the local map (mode "none" and
+        no results when local queries are off and the server does not answer)."""
         start_s = time.perf_counter()
         rtt = self.rtt_ms()
+        if self.encoder is None:
+            return await self._server_only(text, k, start_s, rtt)
         if rtt is None:
             rtt, probe_problem = await self._probe_rtt_ms()
             source = "probed RTT"
@@ -134,6 +227,41 @@ class QueryRouter:
         await self.aclose()
 
     # --- the two modes --------------------------------------------------------------------
+
+    async def _server_only(
+        self, text: str, k: int, start_s: float, rtt: float | None
+    ) -> QueryAnswer:
+        """Local queries off: SQ whatever the RTT (slow beats nothing), unless the link is
+        known to be down."""
+        off = "local queries off"  # why: said once by the caller (local_off_reason)
+        if rtt is not None and math.isinf(rtt):
+            problem = "link down (the streaming client is reconnecting)"
+        else:
+            try:
+                results = await self.api.query(text, k)
+            except Exception as exc:
+                problem = f"SQ failed ({type(exc).__name__}: {exc})"
+            else:
+                now_s = time.perf_counter()
+                return QueryAnswer(
+                    text=text,
+                    mode=SQ,
+                    results=results,
+                    latency_ms=(now_s - start_s) * 1e3,
+                    reason=off,
+                    total_ms=(now_s - start_s) * 1e3,
+                    rtt_ms=rtt,
+                )
+        now_s = time.perf_counter()
+        return QueryAnswer(
+            text=text,
+            mode=NONE,
+            results=[],
+            latency_ms=(now_s - start_s) * 1e3,
+            reason=f"{problem}; {off}",
+            total_ms=(now_s - start_s) * 1e3,
+            rtt_ms=rtt,
+        )
 
     async def _probe_rtt_ms(self) -> tuple[float | None, str | None]:
         """(RTT of one GET /healthz in ms, None) or (None, what went wrong)."""

@@ -8,6 +8,13 @@ frame), keeps a local copy of the map from the session's updates, prints progres
 about once a second, and at the end asks each --query (SQ or LQ, see client_sim/querying.py)
 and prints the answers. Ctrl-C stops it cleanly (the summary is still written).
 
+Local queries need the session's text encoder (the model the session announces in
+`embedding`): MiniLM is packaged; CLIP's text tower (sessions on `--perception models`)
+comes from `--models-dir DIR`, the folder the server's `--models-dir` holds (text tower
+only). Without it the device says once that local queries are off and asks the server.
+Exit status: 0 when streaming worked and every query got an answer, 1 when a query got none,
+2 on a set-up error, 130 on Ctrl-C.
+
 The device itself is client_sim (DeviceClient, QueryRouter, the local map); this module is
 the command around it: flags, progress line, answers and the summary.
 """
@@ -31,6 +38,8 @@ from app.flags import add_knob_flags, explicit_knobs, knobs_from_args, server_ur
 
 if TYPE_CHECKING:  # the real imports are in the functions: torch loads in ~1.5 s, and
     # app.cli builds this parser for every command, not only `device`
+    from collections.abc import Callable
+
     from app.semantics import TextEncoder
     from client_sim.querying import QueryAnswer
     from client_sim.sources.base import FrameSource
@@ -96,6 +105,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="ask this at the end (repeatable); prints mode, latency and top results",
     )
     parser.add_argument("-k", type=int, default=3, help="results per query")
+    parser.add_argument(
+        "--models-dir",
+        metavar="DIR",
+        help="where the text tower of a `--perception models` session is (the server's "
+        "--models-dir; only the text tower is loaded); without it such a session's queries "
+        "go to the server",
+    )
     parser.add_argument("--json", metavar="PATH", help="write a summary as JSON here")
     add_knob_flags(parser)
     parser.set_defaults(func=run)
@@ -166,7 +182,8 @@ def encoder_options_from_args(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the device command; 0 on success, 2 on a set-up error, 130 on Ctrl-C."""
+    """Run the device command; 0 on success, 1 when a query got no answer, 2 on a set-up
+    error, 130 on Ctrl-C."""
     from client_sim.streaming import DeviceError
 
     knobs_from_args(args)  # validates the knob flags (KnobError names the bad one)
@@ -230,8 +247,11 @@ async def _join_session(args: argparse.Namespace) -> tuple[str, str | None, dict
 class _Progress:
     """The once-a-second status line: frames, fps, upstream Mbps, local objects, RTT, mode."""
 
-    def __init__(self, client: DeviceClient, threshold_ms: float, n_frames: int):
+    def __init__(
+        self, client: DeviceClient, threshold_ms: float, n_frames: int, local_queries: bool
+    ):
         self.client, self.threshold_ms, self.n_frames = client, threshold_ms, n_frames
+        self.local_queries = local_queries
         self.start_s = self._last_s = time.monotonic()
         self._last_sent = 0
         self._last_bytes = 0
@@ -248,11 +268,12 @@ class _Progress:
         rtt = self.client.rtt_ms
         rtt_text = "?" if rtt is None else ("down" if math.isinf(rtt) else f"{rtt:.0f} ms")
         local = self.client.local_map
+        mode = planned_mode(rtt, self.threshold_ms) if self.local_queries else "SQ (LQ off)"
         return (
             f"[device] sent {sent}/{self.n_frames} ({fps:.1f} fps, {mbps:.2f} Mbps up) "
             f"acked {stats.acks} dropped {stats.dropped} | local {len(local)} objects "
             f"{local.memory_bytes() / 1e6:.2f} MB seq {local.seq} | RTT {rtt_text} "
-            f"query {planned_mode(rtt, self.threshold_ms)} | reconnects {stats.reconnects}"
+            f"query {mode} | reconnects {stats.reconnects}"
         )
 
     async def run(self) -> None:
@@ -273,8 +294,25 @@ def _print_answer(answer: QueryAnswer) -> None:
         print(f"  #{hit['id']:<5} {hit['label']:<24} score {hit['score']:.3f}  at ({centroid})")
 
 
+def _local_queries(
+    args: argparse.Namespace, embedding: dict
+) -> tuple[Callable[[], TextEncoder] | None, str | None]:
+    """(loader of the session's text encoder, None) or (None, why local queries are off);
+    says which, once, on stderr."""
+    from client_sim.querying import EncoderMismatchError, LocalQueriesOff, session_encoder_loader
+
+    try:
+        return session_encoder_loader(embedding, args.models_dir), None
+    except LocalQueriesOff as exc:
+        print(f"[device] local queries are off for this session: {exc}", file=sys.stderr)
+        return None, str(exc)
+    except EncoderMismatchError as exc:
+        print(f"semanticxr device: error: {exc}", file=sys.stderr)
+        return None, str(exc)
+
+
 async def _run(args: argparse.Namespace, source: FrameSource) -> int:
-    from client_sim.querying import QueryRouter
+    from client_sim.querying import NONE, EncoderMismatchError, QueryRouter
     from client_sim.streaming import DeviceClient, make_local_map
 
     sid, token, info = await _join_session(args)
@@ -291,10 +329,14 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
         local_map=make_local_map(knobs, embedding["dim"]),
         on_log=lambda message: print(f"[device] {message}", file=sys.stderr, flush=True),
     )
+    loader, local_off = _local_queries(args, embedding)
     # The text encoder takes seconds to load: in parallel with streaming, and only if needed.
-    encoder_task = _load_encoder_in_background(embedding) if args.query else None
+    load_it = args.query and loader is not None
+    encoder_task = _load_encoder_in_background(loader) if load_it else None
     threshold_ms = knobs.net_latency_switch_threshold_ms
-    progress = _Progress(client, threshold_ms, len(range(0, n_frames, args.send_every)))
+    progress = _Progress(
+        client, threshold_ms, len(range(0, n_frames, args.send_every)), local_off is None
+    )
     tasks = [asyncio.create_task(client.follow_updates()), asyncio.create_task(progress.run())]
     answers: list[QueryAnswer] = []
     start_s = time.monotonic()
@@ -311,15 +353,24 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
                 file=sys.stderr,
             )
         print(progress.line(), file=sys.stderr, flush=True)
+        encoder = None
         if encoder_task is not None:
+            try:
+                encoder = await encoder_task
+            except (EncoderMismatchError, OSError, ValueError) as exc:  # refused, or unreadable
+                local_off = f"{exc}"
+                print(f"semanticxr device: error: {exc}", file=sys.stderr)
+        if args.query:
             async with QueryRouter(
                 args.server,
                 sid,
                 token,
                 client.local_map,
-                await encoder_task,
+                encoder,
                 threshold_ms=threshold_ms,
                 rtt_ms=lambda: client.rtt_ms,
+                embedding=embedding,
+                local_off_reason=local_off or "",
             ) as router:
                 for text in args.query:
                     answers.append(await router.query(text, args.k))
@@ -336,11 +387,20 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
             tasks.append(encoder_task)
         await asyncio.gather(*tasks, return_exceptions=True)
         if args.json:
-            write_json(args.json, _summary(args, sid, client, answers, start_s, interrupted))
+            summary = _summary(args, sid, client, answers, start_s, interrupted)
+            summary["local_queries"] = {"on": local_off is None, "off_because": local_off}
+            write_json(args.json, summary)
+    unanswered = sum(answer.mode == NONE for answer in answers)
+    if unanswered:
+        print(
+            f"semanticxr device: {unanswered} of {len(answers)} queries got no answer",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
-def _load_encoder_in_background(embedding: dict) -> asyncio.Future[TextEncoder]:
+def _load_encoder_in_background(load: Callable[[], TextEncoder]) -> asyncio.Future[TextEncoder]:
     """The text encoder for LQ, loaded in a daemon thread: a Ctrl-C during the load exits at
     once instead of waiting for it (asyncio.to_thread's pool is joined at exit)."""
     loop = asyncio.get_running_loop()
@@ -354,18 +414,9 @@ def _load_encoder_in_background(embedding: dict) -> asyncio.Future[TextEncoder]:
         else:
             future.set_result(result)
 
-    def load() -> None:
-        from app.semantics import get_text_encoder
-        from client_sim.streaming import DeviceError
-
+    def run_load() -> None:
         try:
-            encoder = get_text_encoder()
-            if (encoder.model_id, encoder.dim) != (embedding["model"], embedding["dim"]):
-                # Different models embed into different spaces: local scores would be noise.
-                raise DeviceError(
-                    f"the session embeds with {embedding['model']} ({embedding['dim']}-d); this "
-                    f"device has {encoder.model_id} ({encoder.dim}-d)"
-                )
+            encoder = load()  # checks the encoder against the session's announcement
         except BaseException as exc:
             with contextlib.suppress(RuntimeError):  # the loop may be closed already
                 loop.call_soon_threadsafe(settle, None, exc)
@@ -373,7 +424,7 @@ def _load_encoder_in_background(embedding: dict) -> asyncio.Future[TextEncoder]:
             with contextlib.suppress(RuntimeError):
                 loop.call_soon_threadsafe(settle, encoder, None)
 
-    threading.Thread(target=load, name="load-text-encoder", daemon=True).start()
+    threading.Thread(target=run_load, name="load-text-encoder", daemon=True).start()
     return future
 
 

@@ -139,9 +139,9 @@ def resolve_models(profile: Profile, models_dir: str | None) -> dict[str, Resolv
             if not (folder / "config.json").is_file():
                 missing.append(spec)
                 continue
-            id_file = folder / MODEL_ID_FILE
-            model_id = id_file.read_text().strip() if id_file.is_file() else spec.hub_id
-            resolved[spec.role] = ResolvedModel(spec, str(folder), True, model_id)
+            resolved[spec.role] = ResolvedModel(
+                spec, str(folder), True, _folder_model_id(folder, spec)
+            )
         else:
             if _hub_offline() and not _in_hub_cache(spec.hub_id):
                 missing.append(spec)
@@ -150,6 +150,26 @@ def resolve_models(profile: Profile, models_dir: str | None) -> dict[str, Resolv
     if missing:
         raise MissingModelsError(missing_models_message(profile, models_dir, missing))
     return resolved
+
+
+def _folder_model_id(folder: Path, spec: ModelSpec) -> str:
+    """The id a model folder is announced as: its MODEL_ID_FILE, else the spec's hub id."""
+    id_file = folder / MODEL_ID_FILE
+    return id_file.read_text().strip() if id_file.is_file() else spec.hub_id
+
+
+def text_towers_in(models_dir: str) -> list[ResolvedModel]:
+    """The embedder folders of `models_dir` (one per profile whose embedder folder holds a
+    model), with the ids a session on them announces, found as `resolve_models` finds them."""
+    found: dict[str, ResolvedModel] = {}
+    for profile in PROFILES.values():
+        spec = profile.embedder
+        folder = Path(models_dir) / spec.folder
+        if spec.folder not in found and (folder / "config.json").is_file():
+            found[spec.folder] = ResolvedModel(
+                spec, str(folder), True, _folder_model_id(folder, spec)
+            )
+    return list(found.values())
 
 
 def load_settings(models_dir: str | None) -> ModelSettings:
