@@ -233,7 +233,10 @@ class QueryHit(Record):
     id: int
     label: str
     score: Score
-    """Cosine similarity of the query and the object's embedding."""
+    """Cosine similarity of the query and the object's embedding (raw, uncalibrated)."""
+    relevance: Annotated[Score, Field(ge=0.0, le=1.0)]
+    """Calibrated in [0, 1]: how well the object's label answers the query against every
+    other label it could mean (>= 0.5 is a confident match); what pages highlight by."""
     bbox: Box
     centroid: Point
     points: Points = None
@@ -244,6 +247,8 @@ class QueryResult(Record):
     """`GET /v1/sessions/{sid}/query`: the best matches first."""
 
     text: str
+    match: bool
+    """False when no hit is a confident match (the hits are still listed)."""
     results: list[QueryHit]
     latency_ms: float
 

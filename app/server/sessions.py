@@ -43,6 +43,7 @@ from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
+from app.mapping.relevance import Rating, rate_hits
 from app.perception import DEFAULT_BACKEND, BackendOptions, UnknownBackendError, make_backend
 from app.perception.base import FrameDetections, PerceptionBackend
 from app.protocol import Ack, ErrorReply, FrameBudget, FrameInput
@@ -228,9 +229,14 @@ class Session:
             return self.engine.confirmed_objects()
 
     def query(self, text: str, k: int) -> list[QueryHit]:
+        return self.rated_query(text, k)[0]
+
+    def rated_query(self, text: str, k: int) -> tuple[list[QueryHit], Rating]:
+        """The top-k hits, best first, and how well they answer (app.mapping.relevance)."""
         embedding = self.engine.encoder.encode_query(text)  # outside the lock: the slow part
         with self._map_lock:
-            return self.engine.query_embedding(embedding, k)
+            hits = self.engine.query_embedding(embedding, k)
+        return hits, rate_hits(self.engine.encoder, embedding, [h.object.label for h in hits])
 
     def build_delta(self, since: int | None) -> dict:
         """The update message for a subscriber whose last applied seq is `since`."""

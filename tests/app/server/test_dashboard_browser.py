@@ -166,7 +166,14 @@ def test_the_dashboard_lists_a_session_and_answers_a_query(live_server, page):
     expect(first_row.locator("td.label")).to_have_text("refrigerator")
     expect(card.locator(".results tbody tr")).to_have_count(2)  # k=5, two objects in the map
     expect(card.locator(".query-meta")).to_contain_text("2 results")
+    expect(card.locator(".query-meta")).not_to_contain_text("no confident match")
+    expect(first_row).not_to_have_class(re.compile(r"\bweak\b"))
     screenshot(page, "dashboard_query.png")
+
+    card.locator(".query-input").fill("xyzzy plugh")
+    card.locator(".query-button").click()
+    expect(card.locator(".query-meta")).to_contain_text("no confident match")
+    expect(card.locator(".results tbody tr.weak")).to_have_count(2)  # listed, but weak
 
 
 @pytest.mark.slow

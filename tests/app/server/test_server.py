@@ -103,6 +103,26 @@ def test_a_device_streams_and_a_query_finds_the_fridge(live_server):
         ).json()
         assert answer["results"][0]["label"] == "refrigerator" and answer["results"][0]["points"]
         assert answer["latency_ms"] >= 0
+        assert answer["match"] is True and answer["results"][0]["relevance"] >= 0.5
+
+
+def test_a_nonsense_query_or_an_absent_object_answers_no_confident_match(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+        frames = [frame_message(SCENE, i, cam_xy=(0.03 * i, 0.0)) for i in range(3)]
+        asyncio.run(stream_in_step(f"{server.ws_url}/v1/sessions/{sid}/stream", frames))
+        query = f"/v1/sessions/{sid}/query"
+        for text in ("xyzzy plugh", "keys"):  # the map holds a chair and a refrigerator
+            answer = c.get(query, params={"text": text, "k": 2, "points": False}).json()
+            assert answer["match"] is False, answer
+            hits = answer["results"]  # still listed, best first, each rated low
+            assert sorted(h["label"] for h in hits) == ["chair", "refrigerator"], answer
+            assert all(0.0 <= h["relevance"] < 0.5 for h in hits), answer
+        answer = c.get(query, params={"text": "a chair", "k": 2, "points": False}).json()
+        assert answer["match"] is True
+        assert answer["results"][0]["label"] == "chair"
+        assert answer["results"][0]["relevance"] > answer["results"][1]["relevance"]
 
 
 def test_session_creation_announces_the_protocol_and_queries_respect_max_query_k(live_server):
