@@ -311,6 +311,9 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
                 file=sys.stderr,
             )
         print(progress.line(), file=sys.stderr, flush=True)
+        with contextlib.suppress(ApiError):  # the session's warnings (said once), if reachable
+            for warning in (await client.fetch_session(args.server, sid, token))["warnings"]:
+                print(f"[device] server warns: {warning}", file=sys.stderr, flush=True)
         if encoder_task is not None:
             async with QueryRouter(
                 args.server,

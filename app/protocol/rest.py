@@ -210,6 +210,9 @@ class SessionStats(Record):
     subscribers: int
     embedding: EmbeddingInfo
     knobs: KnobsBody  # type: ignore[valid-type]
+    warnings: list[str] = Field(default_factory=list)
+    """Extension: problems with what the session is fed, each once, with the fix (e.g.
+    frames without detections on a backend that needs them)."""
 
 
 class ObjectRecord(Record):

@@ -54,6 +54,13 @@ from app.server.settings import ServerSettings
 from app.store import SessionRecord, Store, StoreUnavailableError
 
 Reply = Callable[[dict], Awaitable[None]]
+
+NO_DETECTIONS_WARNING = (
+    "frames arrive without detections, and this session's perception backend (detections) "
+    "maps only what the device detects: nothing will be mapped. Run the server with "
+    "--perception models (its sessions then detect objects in the pixels), or stream from a "
+    "device that sends detections."
+)
 FLUSH_AFTER_S = 1.0
 """Longest a confirmed change waits for its publication when keyframes stop coming."""
 STORAGE_PROBE_INTERVAL_S = 1.0
@@ -169,6 +176,8 @@ class Session:
     _fps_window: deque = field(default_factory=lambda: deque(maxlen=60))
     _stored_floor: int = 0
     """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
+    warnings: list[str] = field(default_factory=list)
+    """Problems worth a user's attention, each said once (in the log and in the stats)."""
 
     @property
     def closed(self) -> bool:
@@ -222,7 +231,14 @@ class Session:
             "subscribers": self.subscribers,
             "embedding": {"model": self.engine.encoder.model_id, "dim": self.engine.encoder.dim},
             "knobs": knobs_to_dict(self.knobs),
+            "warnings": list(self.warnings),
         }
+
+    def warn_once(self, warning: str) -> None:
+        """Say `warning` in the server log and the session's stats, unless already said."""
+        if warning not in self.warnings:
+            self.warnings.append(warning)
+            log.warning("session %s: %s", self.id, warning)
 
     def objects(self) -> list[MapObject]:
         with self._map_lock:
@@ -418,6 +434,8 @@ class SessionManager:
         COUNTERS_SAVE_INTERVAL_S ago."""
         rec = session.record
         rec.frames += 1
+        if "detections" not in frame_bytes and session.engine.backend.name == DEFAULT_BACKEND:
+            session.warn_once(NO_DETECTIONS_WARNING)
         now = time.monotonic()
         session._fps_window.append(now)
         for kind, n in frame_bytes.items():
