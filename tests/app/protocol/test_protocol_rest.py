@@ -130,6 +130,7 @@ def test_session_records_answer_v1_bodies_with_the_protocol_version():
         "subscribers": 0,
         "embedding": {"model": "minilm", "dim": 384},
         "knobs": knobs,
+        "warnings": ["frames arrive without detections"],
         "something_newer": 1,  # a stats key beyond the record is left out
     }
     assert SessionStats.model_validate(stats).to_json() == {
