@@ -8,7 +8,7 @@ import logging
 from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI, Request
-from fastapi.responses import JSONResponse, PlainTextResponse
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Match
 
 from app import __version__
@@ -16,7 +16,7 @@ from app.semantics import TextEncoder, get_text_encoder
 from app.server.auth import require_api_key
 from app.server.edges import HostOriginMiddleware
 from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware
-from app.server.metrics import make_metrics
+from app.server.metrics import HttpMetricsMiddleware, Metrics, make_metrics
 from app.server.routes import pages, rest, ws
 from app.server.sessions import SessionManager
 from app.server.settings import ServerSettings
@@ -61,6 +61,7 @@ def create_app(
         lifespan=lifespan,
     )
 
+    app.add_middleware(HttpMetricsMiddleware)  # innermost: it sees the matched route
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(SocketLimitMiddleware, max_sockets=settings.max_connections)
     allowed_hosts = settings.allowed_host_list()
@@ -116,15 +117,12 @@ def create_app(
         summary="Prometheus metrics (needs the API key where the server has one)",
         dependencies=[Depends(require_api_key)],
     )
-    def metrics(request: Request) -> str:
+    def metrics(request: Request) -> Response:
         manager: SessionManager = request.app.state.manager
         sessions = list(manager.sessions.values())
-        return manager.metrics.render(
-            {
-                "semanticxr_sessions": len(sessions),
-                "semanticxr_subscribers": sum(s.subscribers for s in sessions),
-            }
-        )
+        manager.metrics.sessions.set(len(sessions))
+        manager.metrics.subscribers.set(sum(s.subscribers for s in sessions))
+        return Response(manager.metrics.render(), media_type=Metrics.CONTENT_TYPE)
 
     app.include_router(rest.router)
     app.include_router(ws.router)

@@ -440,7 +440,7 @@ class SessionManager:
         session._fps_window.append(now)
         for kind, n in frame_bytes.items():
             session.bytes_in[kind] = session.bytes_in.get(kind, 0) + n
-            self.metrics.inc("semanticxr_bytes_in_total", n, kind=kind)
+            self.metrics.upstream_bytes.labels(kind=kind).inc(n)
         if now - self._counters_saved_at.get(session.id, 0.0) >= COUNTERS_SAVE_INTERVAL_S:
             self.save_counters_soon(session)
         return (rec.frames - 1) % session.knobs.keyframe_interval == 0
@@ -487,7 +487,7 @@ class SessionManager:
 
     def _store_failed(self, what: str, exc: BaseException) -> None:
         """Count a failed write; log it if it starts a failure streak (one ERROR a streak)."""
-        self.metrics.inc("semanticxr_persist_failures_total")
+        self.metrics.persist_failures.inc()
         if self.storage.failed():
             log.error(
                 "storage failing: %s failed (%s); keyframes are refused with "
@@ -594,7 +594,7 @@ class SessionManager:
 
     async def _drop(self, session: Session, older: _Pending) -> None:
         session.dropped += 1
-        self.metrics.inc("semanticxr_dropped_frames_total")
+        self.metrics.dropped_frames.inc()
         await older.reply(Ack(older.frame.seq, keyframe=False, dropped=True).pack())
 
     @staticmethod
@@ -627,7 +627,7 @@ class SessionManager:
                     await pending.reply(ErrorReply(pending.frame.seq, "bad_frame", str(exc)).pack())
                 except Exception as exc:  # never lose the ack: report and go on
                     if not isinstance(exc, PersistFailed):  # that one was counted and logged
-                        self.metrics.inc("semanticxr_mapping_failures_total")
+                        self.metrics.mapping_failures.inc()
                         log.error(
                             "session %s: mapping keyframe %s failed; the map is unchanged",
                             session.id,
@@ -642,7 +642,7 @@ class SessionManager:
                 else:
                     map_ms = (time.perf_counter() - pending.received_t) * 1e3
                     session.latencies_ms.append(latency_ms)
-                    self.metrics.observe_ms("semanticxr_mapping_latency_ms", latency_ms)
+                    self.metrics.mapping_latency.observe(latency_ms / 1e3)
                     await pending.reply(
                         Ack(
                             pending.frame.seq,
@@ -701,7 +701,7 @@ class SessionManager:
                 if isinstance(exc, StoreUnavailableError):
                     self._store_failed(f"saving keyframe {frame.seq} of session {session.id}", exc)
                     raise StorageUnavailable(StorageHealth.REASON) from exc
-                self.metrics.inc("semanticxr_persist_failures_total")
+                self.metrics.persist_failures.inc()
                 log.error(
                     "session %s: saving keyframe %s failed; its changes were undone",
                     session.id,

@@ -191,7 +191,7 @@ def query(
         for hit, relevance in zip(hits, rating.relevance, strict=True)
     ]
     latency_ms = (time.perf_counter() - t0) * 1e3
-    manager(request).metrics.observe_ms("semanticxr_query_latency_ms", latency_ms)
+    manager(request).metrics.query_latency.observe(latency_ms / 1e3)
     return protocol.QueryResult(
         text=text, match=rating.match, results=results, latency_ms=latency_ms
     )
