@@ -14,6 +14,7 @@ from starlette.routing import Match
 from app import __version__
 from app.semantics import TextEncoder, get_text_encoder
 from app.server.auth import require_api_key
+from app.server.docs import install_docs
 from app.server.edges import HostOriginMiddleware
 from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware
 from app.server.metrics import HttpMetricsMiddleware, Metrics, make_metrics
@@ -59,7 +60,10 @@ def create_app(
         version=__version__,
         description="Real-time, open-vocabulary 3D semantic mapping for XR devices (wire protocol v1).",
         lifespan=lifespan,
+        docs_url=None,  # install_docs serves /docs from local assets: no CDN
+        redoc_url=None,
     )
+    install_docs(app)
 
     app.add_middleware(HttpMetricsMiddleware)  # innermost: it sees the matched route
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)

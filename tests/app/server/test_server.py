@@ -56,6 +56,12 @@ def test_health_metrics_and_openapi_describe_the_service(live_server):
             if method != "delete" and path != "/metrics":
                 assert "schema" in ok.get("content", {}).get("application/json", {}), (method, path)
     assert "min_observations" in spec["components"]["schemas"]["Knobs"]["properties"]
+    # the Authorize button of /docs: the API key, or a session's token under a session
+    assert set(spec["components"]["securitySchemes"]) == {"apiKey", "sessionToken"}
+    assert paths["/v1/sessions"]["post"]["security"] == [{"apiKey": []}]
+    query_security = paths["/v1/sessions/{sid}/query"]["get"]["security"]
+    assert query_security == [{"sessionToken": []}, {"apiKey": []}]
+    assert "security" not in paths["/healthz"]["get"]
 
 
 def test_session_lifecycle_and_knobs(live_server):
