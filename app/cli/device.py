@@ -19,6 +19,7 @@ import asyncio
 import contextlib
 import dataclasses
 import math
+import os
 import sys
 import threading
 import time
@@ -65,7 +66,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     session.add_argument(
         "--mode", default="semanticxr", choices=("semanticxr", "baseline"), help="of --create"
     )
-    session.add_argument("--api-key", help="server API key (needed by --create when set)")
+    session.add_argument(
+        "--api-key",
+        default=os.environ.get("SEMANTICXR_API_KEY"),
+        help="server API key, needed by --create when set (default: env SEMANTICXR_API_KEY)",
+    )
     parser.add_argument(
         "--source",
         default="synthetic:apartment",
