@@ -12,6 +12,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Match
 
 from app import __version__
+from app.mapping.relevance import rater_for
 from app.semantics import TextEncoder, get_text_encoder
 from app.server.auth import require_api_key
 from app.server.docs import install_docs
@@ -46,12 +47,16 @@ def create_app(
             )
         log.info("store %s; %d sessions restored", settings.store_url, restored)
         storage_watch = asyncio.create_task(manager.watch_storage())
+        # Embed the query rater's label vocabulary now (~1 s), not in the first query.
+        rater_warm_up = asyncio.create_task(asyncio.to_thread(rater_for, manager.encoder))
         try:
             yield
         finally:
             storage_watch.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await storage_watch
+            with contextlib.suppress(Exception):  # a broken encoder fails its queries instead
+                await rater_warm_up
             manager.close()
             store.close()
 
