@@ -33,6 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from app.client import SessionApi
+from app.mapping.relevance import is_match, rate_hits
 from app.semantics import DEFAULT_MODEL_ID, TextEncoder
 from client_sim.local_map import LocalMap
 
@@ -128,7 +129,8 @@ class QueryAnswer:
     """Who answered: "SQ" (server query), "LQ" (local query), or "none" (local queries off
     and the server did not answer)."""
     results: list[dict]
-    """Best first: {"id", "label", "score", "bbox": [x0, y0, z0, x1, y1, z1], "centroid"}."""
+    """Best first: {"id", "label", "score", "relevance", "bbox": [x0, y0, z0, x1, y1, z1],
+    "centroid"}; relevance in [0, 1] as app.mapping.relevance rates it."""
     latency_ms: float
     """End to end for the mode that answered: the HTTP round trip of SQ, or embedding plus
     search of LQ."""
@@ -138,6 +140,11 @@ class QueryAnswer:
     """The whole call, including an RTT probe or a failed SQ before the fallback."""
     rtt_ms: float | None = field(default=None)
     """The RTT the decision used (None: unknown, inf: link down)."""
+
+    @property
+    def match(self) -> bool:
+        """Whether a hit is a confident match (False: "no confident match", hits listed)."""
+        return is_match([hit["relevance"] for hit in self.results])
 
 
 class QueryRouter:
@@ -280,6 +287,9 @@ class QueryRouter:
         # The search runs on the loop, the only place the local map is touched.
         embedding = await asyncio.to_thread(self.encoder.encode_query, text)
         hits = self.local_map.query_embedding(embedding, k)
+        labels = [hit.label for hit in hits]
+        # Rated as the server rates SQ hits; off the loop (the first one embeds the vocabulary).
+        rating = await asyncio.to_thread(rate_hits, self.encoder, embedding, labels)
         now_s = time.perf_counter()
         return QueryAnswer(
             text=text,
@@ -289,10 +299,11 @@ class QueryRouter:
                     "id": hit.id,
                     "label": hit.label,
                     "score": hit.score,
+                    "relevance": relevance,
                     "bbox": hit.bbox,
                     "centroid": hit.centroid,
                 }
-                for hit in hits
+                for hit, relevance in zip(hits, rating.relevance, strict=True)
             ],
             latency_ms=(now_s - lq_start_s) * 1e3,
             reason=reason,

@@ -9,6 +9,7 @@
 (() => {
   const POLL_MS = 2000; // the list and stats refresh period (the brief's "about 2 s")
   const QUERY_K = 5;
+  const CONFIDENT_RELEVANCE = 0.5; // app.mapping.relevance.CONFIDENT: a confident match from here
   const STORE_API_KEY = "semanticxr.apiKey";
   const STORE_TOKENS = "semanticxr.tokens"; // {session id: token}
 
@@ -153,7 +154,8 @@
   }
 
   // Objects' footprints (bbox x/y extents) and centroids seen from above (the synthetic world
-  // and the mapping engine are z-up); query hits drawn on top, numbered by rank.
+  // and the mapping engine are z-up); query hits drawn on top, numbered by rank, each as
+  // strong as its relevance (a weak hit is a faint outline, a confident one a bold box).
   function drawPlot(canvas, objects, hits) {
     const dpr = window.devicePixelRatio || 1;
     const widthPx = canvas.clientWidth || 320;
@@ -227,18 +229,20 @@
       const rank = hits.length - reversedIndex;
       const [left, top] = [sx(h.bbox[0]), sy(h.bbox[4])];
       const [w, hgt] = [(h.bbox[3] - h.bbox[0]) * scale, (h.bbox[4] - h.bbox[1]) * scale];
-      ctx.globalAlpha = rank === 1 ? 0.3 : 0.14;
+      const relevance = Math.min(Math.max(h.relevance ?? 1, 0), 1);
+      ctx.globalAlpha = 0.04 + 0.3 * relevance;
       ctx.fillStyle = colors.hit;
       ctx.fillRect(left, top, w, hgt);
-      ctx.globalAlpha = 1;
+      ctx.globalAlpha = 0.3 + 0.7 * relevance;
       ctx.strokeStyle = colors.hit;
-      ctx.lineWidth = rank === 1 ? 2.5 : 1.5;
+      ctx.lineWidth = 1 + 2 * relevance;
       ctx.strokeRect(left, top, w, hgt);
       const [px, py] = [sx(h.centroid[0]), sy(h.centroid[1])];
       ctx.beginPath();
-      ctx.arc(px, py, rank === 1 ? 5 : 3.5, 0, 2 * Math.PI);
+      ctx.arc(px, py, 2.5 + 3 * relevance, 0, 2 * Math.PI);
       ctx.fillStyle = colors.hit;
       ctx.fill();
+      ctx.globalAlpha = 1;
       ctx.textAlign = px > widthPx - 110 ? "right" : "left";
       const [tx, ty, caption] = [px + (ctx.textAlign === "right" ? -8 : 8), py - 6, `${rank} ${h.label}`];
       ctx.lineWidth = 3; // a halo in the background colour keeps labels readable over boxes
@@ -351,10 +355,14 @@
         this.hits = answer.results;
         this.renderResults();
         const n = answer.results.length;
-        meta.textContent = `${n} result${n === 1 ? "" : "s"} for “${answer.text}” in ${formatMs(answer.latency_ms)}`;
+        const found = `${n} result${n === 1 ? "" : "s"} for “${answer.text}” in ${formatMs(answer.latency_ms)}`;
+        // The hits of a query nothing answers are still listed, but said to be weak.
+        meta.classList.toggle("no-match", !answer.match);
+        meta.textContent = answer.match ? found : `no confident match · ${found}`;
       } catch (err) {
         this.hits = [];
         this.renderResults();
+        meta.classList.remove("no-match");
         meta.classList.add("error");
         meta.textContent = err.message;
       } finally {
@@ -371,6 +379,7 @@
           [String(i + 1), "num"],
           [String(hit.id), "num"],
           [hit.label, "label"],
+          [hit.relevance.toFixed(2), "num relevance"],
           [hit.score.toFixed(3), "num"],
         ]) {
           const td = document.createElement("td");
@@ -378,6 +387,7 @@
           td.textContent = value;
           tr.append(td);
         }
+        tr.classList.toggle("weak", hit.relevance < CONFIDENT_RELEVANCE);
         return tr;
       });
       $("tbody", table).replaceChildren(...rows);

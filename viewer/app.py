@@ -33,6 +33,7 @@ import viser.transforms as vtf
 from app.client import ApiError, Disconnect, SessionApi, UpdatesSubscriber
 from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
+from app.mapping.relevance import is_match
 from app.protocol import unpack_update
 from viewer.scene import HIT_BOXES_NODE, HITS_GROUP, DeltaError, Rgb, SceneModel
 
@@ -197,6 +198,8 @@ class ViewerApp:
         self.host = host
         self.stats_period_s = stats_period_s
         self.status = ViewerStatus()
+        self.last_match: bool | None = None
+        """Whether the last query had a confident match (None before the first query)."""
         self.up = _up_vector(up_direction)
         self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
         self.server.scene.set_up_direction(up_direction)
@@ -355,14 +358,17 @@ class ViewerApp:
             results = self.api.query_blocking(text, k)  # no points: hits are drawn from the model
         except ApiError as exc:
             raise ViewerError(f"query failed: {exc}") from exc
-        with self._lock:
-            self.model.highlight((r["id"], r["score"]) for r in results)
+        with self._lock:  # as bright as relevant: a weak hit is barely lifted from the rest
+            self.model.highlight((r["id"], r["relevance"]) for r in results)
             held = set(self.model.objects)
-        lines = [f"**{len(results)} hits** for *{html.escape(text)}*:", ""]
+        self.last_match = is_match([r["relevance"] for r in results])
+        verdict = "" if self.last_match else " — **no confident match**"
+        lines = [f"**{len(results)} hits** for *{html.escape(text)}*{verdict}:", ""]
         for rank, r in enumerate(results, 1):
             missing = "" if r["id"] in held else " (not received yet)"
             lines.append(
-                f"{rank}. {html.escape(r['label'])} — `{r['score']:.3f}` (#{r['id']}){missing}"
+                f"{rank}. {html.escape(r['label'])} — relevance `{r['relevance']:.2f}`, "
+                f"score `{r['score']:.3f}` (#{r['id']}){missing}"
             )
         self.gui.results.content = "\n".join(lines)
         return results

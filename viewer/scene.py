@@ -161,6 +161,22 @@ def dimmed(color: Rgb) -> Rgb:
     )
 
 
+def blend(start: Rgb, end: Rgb, t: float) -> Rgb:
+    """The colour a share `t` in [0, 1] of the way from `start` to `end`."""
+    t = min(max(float(t), 0.0), 1.0)
+    return tuple(round(a + t * (b - a)) for a, b in zip(start, end, strict=True))  # type: ignore[return-value]
+
+
+def hit_color(color: Rgb, relevance: float) -> Rgb:
+    """A hit's colour: as dimmed as a non-hit at relevance 0, its own colour at 1."""
+    return blend(dimmed(color), color, relevance)
+
+
+def hit_box_color(relevance: float) -> Rgb:
+    """A hit's box colour: grey at relevance 0, bright HIT_BOX_RGB at 1."""
+    return blend(DIM_GREY_RGB, HIT_BOX_RGB, relevance)
+
+
 def box_segments(bboxes: np.ndarray) -> np.ndarray:
     """float32 [12 * N, 2, 3]: the edges of N axis-aligned boxes [N, 6] (x0 y0 z0 x1 y1 z1)."""
     bboxes = np.asarray(bboxes, np.float32).reshape(-1, 6)
@@ -219,7 +235,7 @@ class SceneModel:
 
     @property
     def hits(self) -> Mapping[int, float]:
-        """The highlighted hits (id -> score); empty when nothing is highlighted."""
+        """The highlighted hits (id -> relevance); empty when nothing is highlighted."""
         return dict(self._hits)
 
     @property
@@ -334,9 +350,11 @@ class SceneModel:
     # --- query highlighting -----------------------------------------------------------------
 
     def highlight(self, hits: Iterable[tuple[int, float]]) -> None:
-        """Highlight query hits (id, score), best first: bright boxes and labels with scores;
-        everything else dimmed. Replaces any earlier highlight."""
-        new_hits = {int(oid): float(score) for oid, score in hits}
+        """Highlight query hits (id, relevance in [0, 1]), best first: boxes and colours as
+        bright as their relevance (a 0.3 hit stays near the dimmed rest, a 0.8 one stands
+        out), labels with the relevance; everything else dimmed. Replaces any earlier
+        highlight."""
+        new_hits = {int(oid): float(relevance) for oid, relevance in hits}
         for oid in [o for o in self._hit_labels if o not in new_hits]:
             self.sink.remove(hit_label_node(oid))
             del self._hit_labels[oid]
@@ -369,7 +387,11 @@ class SceneModel:
 
     def _color_of(self, obj: ViewObject) -> Rgb:
         color = self._base_color(obj)
-        return dimmed(color) if self._highlighting and obj.id not in self._hits else color
+        if not self._highlighting:
+            return color
+        if obj.id in self._hits:
+            return hit_color(color, self._hits[obj.id])
+        return dimmed(color)
 
     def _recolor(self) -> None:
         """Recolour the point clouds whose colour changed (the caller redraws the boxes)."""
@@ -380,7 +402,7 @@ class SceneModel:
                 self._point_colors[oid] = color
 
     def _draw_hit_label(self, obj: ViewObject) -> None:
-        """A hit's label with its score (sent only if its text or place changed)."""
+        """A hit's label with its relevance (sent only if its text or place changed)."""
         drawn = (f"{obj.label} {self._hits[obj.id]:.2f}", obj.center)
         if self._hit_labels.get(obj.id) != drawn:
             self.sink.add_label(hit_label_node(obj.id), *drawn)
@@ -416,7 +438,7 @@ class SceneModel:
                 self.sink.set_boxes(
                     HIT_BOXES_NODE,
                     box_segments(np.array([o.bbox for o in held_hits], np.float32)),
-                    _segment_colors([HIT_BOX_RGB] * len(held_hits)),
+                    _segment_colors([hit_box_color(self._hits[o.id]) for o in held_hits]),
                 )
                 self._hit_boxes_shown = True
             elif self._hit_boxes_shown:

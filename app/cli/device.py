@@ -26,6 +26,7 @@ import asyncio
 import contextlib
 import dataclasses
 import math
+import os
 import sys
 import threading
 import time
@@ -74,7 +75,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     session.add_argument(
         "--mode", default="semanticxr", choices=("semanticxr", "baseline"), help="of --create"
     )
-    session.add_argument("--api-key", help="server API key (needed by --create when set)")
+    session.add_argument(
+        "--api-key",
+        default=os.environ.get("SEMANTICXR_API_KEY"),
+        help="server API key, needed by --create when set (default: env SEMANTICXR_API_KEY)",
+    )
     parser.add_argument(
         "--source",
         default="synthetic:apartment",
@@ -353,6 +358,9 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
                 file=sys.stderr,
             )
         print(progress.line(), file=sys.stderr, flush=True)
+        with contextlib.suppress(ApiError):  # the session's warnings (said once), if reachable
+            for warning in (await client.fetch_session(args.server, sid, token))["warnings"]:
+                print(f"[device] server warns: {warning}", file=sys.stderr, flush=True)
         encoder = None
         if encoder_task is not None:
             try:

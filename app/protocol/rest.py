@@ -210,6 +210,9 @@ class SessionStats(Record):
     subscribers: int
     embedding: EmbeddingInfo
     knobs: KnobsBody  # type: ignore[valid-type]
+    warnings: list[str] = Field(default_factory=list)
+    """Extension: problems with what the session is fed, each once, with the fix (e.g.
+    frames without detections on a backend that needs them)."""
 
 
 class ObjectRecord(Record):
@@ -233,7 +236,10 @@ class QueryHit(Record):
     id: int
     label: str
     score: Score
-    """Cosine similarity of the query and the object's embedding."""
+    """Cosine similarity of the query and the object's embedding (raw, uncalibrated)."""
+    relevance: Annotated[Score, Field(ge=0.0, le=1.0)]
+    """Calibrated in [0, 1]: how well the object's label answers the query against every
+    other label it could mean (>= 0.5 is a confident match); what pages highlight by."""
     bbox: Box
     centroid: Point
     points: Points = None
@@ -244,6 +250,8 @@ class QueryResult(Record):
     """`GET /v1/sessions/{sid}/query`: the best matches first."""
 
     text: str
+    match: bool
+    """False when no hit is a confident match (the hits are still listed)."""
     results: list[QueryHit]
     latency_ms: float
 

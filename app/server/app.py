@@ -8,15 +8,17 @@ import logging
 from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI, Request
-from fastapi.responses import JSONResponse, PlainTextResponse
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Match
 
 from app import __version__
+from app.mapping.relevance import rater_for
 from app.semantics import TextEncoder, get_text_encoder
 from app.server.auth import require_api_key
+from app.server.docs import install_docs
 from app.server.edges import HostOriginMiddleware
 from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware
-from app.server.metrics import make_metrics
+from app.server.metrics import HttpMetricsMiddleware, Metrics, make_metrics
 from app.server.routes import pages, rest, ws
 from app.server.sessions import SessionManager
 from app.server.settings import ServerSettings
@@ -45,12 +47,16 @@ def create_app(
             )
         log.info("store %s; %d sessions restored", settings.store_url, restored)
         storage_watch = asyncio.create_task(manager.watch_storage())
+        # Embed the query rater's label vocabulary now (~1 s), not in the first query.
+        rater_warm_up = asyncio.create_task(asyncio.to_thread(rater_for, manager.encoder))
         try:
             yield
         finally:
             storage_watch.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await storage_watch
+            with contextlib.suppress(Exception):  # a broken encoder fails its queries instead
+                await rater_warm_up
             manager.close()
             store.close()
 
@@ -59,8 +65,12 @@ def create_app(
         version=__version__,
         description="Real-time, open-vocabulary 3D semantic mapping for XR devices (wire protocol v1).",
         lifespan=lifespan,
+        docs_url=None,  # install_docs serves /docs from local assets: no CDN
+        redoc_url=None,
     )
+    install_docs(app)
 
+    app.add_middleware(HttpMetricsMiddleware)  # innermost: it sees the matched route
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(SocketLimitMiddleware, max_sockets=settings.max_connections)
     allowed_hosts = settings.allowed_host_list()
@@ -116,15 +126,12 @@ def create_app(
         summary="Prometheus metrics (needs the API key where the server has one)",
         dependencies=[Depends(require_api_key)],
     )
-    def metrics(request: Request) -> str:
+    def metrics(request: Request) -> Response:
         manager: SessionManager = request.app.state.manager
         sessions = list(manager.sessions.values())
-        return manager.metrics.render(
-            {
-                "semanticxr_sessions": len(sessions),
-                "semanticxr_subscribers": sum(s.subscribers for s in sessions),
-            }
-        )
+        manager.metrics.sessions.set(len(sessions))
+        manager.metrics.subscribers.set(sum(s.subscribers for s in sessions))
+        return Response(manager.metrics.render(), media_type=Metrics.CONTENT_TYPE)
 
     app.include_router(rest.router)
     app.include_router(ws.router)

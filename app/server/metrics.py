@@ -1,98 +1,154 @@
-"""Prometheus text exposition, without a client library: counters, gauges, histograms."""
+"""The server's Prometheus series, made with `prometheus_client`, one registry per app.
+
+Every series exists from the start (counters at 0, each label value the server uses
+pre-created), so a dashboard can tell "none yet" from "not exported". Units follow
+Prometheus' naming: seconds and bytes, counters ending in `_total`. Besides the service's
+own series: the process (CPU seconds, resident memory, open fds), Python's GC and version,
+and every HTTP request by method, route template and status with its duration.
+"""
 
 from __future__ import annotations
 
-import bisect
-import threading
-from collections import defaultdict
+import time
+from typing import Any
 
-LATENCY_BUCKETS_MS = (1, 2.5, 5, 10, 20, 40, 80, 160, 320, 640, 1280, 2560)
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    Counter,
+    Gauge,
+    Histogram,
+    gc_collector,
+    generate_latest,
+    platform_collector,
+    process_collector,
+)
+
+LATENCY_BUCKETS_S = (0.001, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32, 0.64, 1.28, 2.56)
+"""Histogram bounds of the latencies, seconds (1 ms to 2.56 s, doubling)."""
+FRAME_OUTCOMES = ("ok", "bad")
+UPSTREAM_KINDS = ("rgb", "depth", "detections")
+DOWNSTREAM_KINDS = ("updates",)
 
 
 class Metrics:
+    """The series of one server; `render()` is the /metrics body (CONTENT_TYPE)."""
+
+    CONTENT_TYPE = CONTENT_TYPE_LATEST
+
     def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._counters: dict[tuple[str, tuple], float] = defaultdict(float)
-        self._hist: dict[str, list] = {}
-        self._help: dict[str, tuple[str, str]] = {}
+        # A registry of its own: several apps in one process (the tests) never share series.
+        self.registry = registry = CollectorRegistry()
+        process_collector.ProcessCollector(registry=registry)
+        platform_collector.PlatformCollector(registry=registry)
+        gc_collector.GCCollector(registry=registry)
 
-    def describe(self, name: str, kind: str, text: str) -> None:
-        self._help[name] = (kind, text)
+        self.frames = Counter(
+            "semanticxr_frames", "Frames received, by outcome", ["outcome"], registry=registry
+        )
+        self.upstream_bytes = Counter(
+            "semanticxr_upstream_bytes", "Upstream payload bytes, by kind", ["kind"],
+            registry=registry,
+        )  # fmt: skip
+        self.downstream_bytes = Counter(
+            "semanticxr_downstream_bytes", "Downstream update bytes, by kind", ["kind"],
+            registry=registry,
+        )  # fmt: skip
+        self.dropped_frames = Counter(
+            "semanticxr_dropped_frames", "Keyframes superseded by newer ones", registry=registry
+        )
+        self.persist_failures = Counter(
+            "semanticxr_persist_failures",
+            "Failed writes to the store (keyframe commits, counter saves); a keyframe whose "
+            "commit failed was undone and refused",
+            registry=registry,
+        )
+        self.mapping_failures = Counter(
+            "semanticxr_mapping_failures",
+            "Keyframes whose mapping raised an unexpected error (undone and refused as internal)",
+            registry=registry,
+        )
+        self.slow_subscribers_closed = Counter(
+            "semanticxr_slow_subscribers_closed",
+            "Update subscribers closed (1013) because they could not keep up",
+            registry=registry,
+        )
+        self.mapping_latency = Histogram(
+            "semanticxr_mapping_latency_seconds",
+            "Server time per mapped keyframe: decode + perception + mapping + delta "
+            "(committed to the delta log and the store), without queueing",
+            buckets=LATENCY_BUCKETS_S,
+            registry=registry,
+        )
+        self.query_latency = Histogram(
+            "semanticxr_query_latency_seconds",
+            "Server query latency: embedding the text, the search and rating the hits",
+            buckets=LATENCY_BUCKETS_S,
+            registry=registry,
+        )
+        self.http_requests = Counter(
+            "semanticxr_http_requests",
+            "HTTP requests answered, by method, route template and status",
+            ["method", "route", "status"],
+            registry=registry,
+        )
+        self.http_request_duration = Histogram(
+            "semanticxr_http_request_duration_seconds",
+            "Time to answer an HTTP request, by method and route template",
+            ["method", "route"],
+            buckets=LATENCY_BUCKETS_S,
+            registry=registry,
+        )
+        self.sessions = Gauge("semanticxr_sessions", "Sessions held", registry=registry)
+        self.subscribers = Gauge(
+            "semanticxr_subscribers", "Update subscribers connected", registry=registry
+        )
+        for outcome in FRAME_OUTCOMES:  # labelled series present at 0 too
+            self.frames.labels(outcome=outcome)
+        for kind in UPSTREAM_KINDS:
+            self.upstream_bytes.labels(kind=kind)
+        for kind in DOWNSTREAM_KINDS:
+            self.downstream_bytes.labels(kind=kind)
 
-    def inc(self, name: str, value: float = 1.0, **labels: str) -> None:
-        with self._lock:
-            self._counters[(name, tuple(sorted(labels.items())))] += value
-
-    def observe_ms(self, name: str, value_ms: float) -> None:
-        with self._lock:
-            counts, total = self._hist.setdefault(
-                name, [[0] * (len(LATENCY_BUCKETS_MS) + 1), [0.0, 0]]
-            )
-            counts[bisect.bisect_left(LATENCY_BUCKETS_MS, value_ms)] += 1
-            total[0] += value_ms
-            total[1] += 1
-
-    def render(self, gauges: dict[str, float]) -> str:
-        lines: list[str] = []
-        with self._lock:
-            names = sorted({n for n, _ in self._counters} | set(self._hist) | set(gauges))
-            for name in names:
-                kind, text = self._help.get(name, ("untyped", name))
-                lines += [f"# HELP {name} {text}", f"# TYPE {name} {kind}"]
-                if name in gauges:
-                    lines.append(f"{name} {gauges[name]:g}")
-                for (cname, labels), value in sorted(self._counters.items()):
-                    if cname == name:
-                        label_text = ",".join(f'{k}="{v}"' for k, v in labels)
-                        lines.append(
-                            f"{name}{{{label_text}}} {value:g}" if labels else f"{name} {value:g}"
-                        )
-                if name in self._hist:
-                    counts, (total, n) = self._hist[name]
-                    cumulative = 0
-                    for bound, count in zip((*LATENCY_BUCKETS_MS, "+Inf"), counts, strict=True):
-                        cumulative += count
-                        lines.append(f'{name}_bucket{{le="{bound}"}} {cumulative}')
-                    lines += [f"{name}_sum {total:g}", f"{name}_count {n}"]
-        return "\n".join(lines) + "\n"
+    def render(self) -> bytes:
+        """The Prometheus text exposition of every series."""
+        return generate_latest(self.registry)
 
 
 def make_metrics() -> Metrics:
-    m = Metrics()
-    m.describe("semanticxr_frames_total", "counter", "Frames received, by outcome")
-    m.describe("semanticxr_bytes_in_total", "counter", "Upstream payload bytes, by kind")
-    m.describe("semanticxr_bytes_out_total", "counter", "Downstream update bytes, by kind")
-    m.describe("semanticxr_dropped_frames_total", "counter", "Keyframes superseded by newer ones")
-    m.describe(
-        "semanticxr_persist_failures_total",
-        "counter",
-        "Failed writes to the store (keyframe commits, counter saves); a keyframe whose "
-        "commit failed was undone and refused",
-    )
-    m.describe(
-        "semanticxr_mapping_failures_total",
-        "counter",
-        "Keyframes whose mapping raised an unexpected error (undone and refused as internal)",
-    )
-    m.describe(
-        "semanticxr_slow_subscribers_closed_total",
-        "counter",
-        "Update subscribers closed (1013) because they could not keep up",
-    )
-    for fault in (
-        "semanticxr_dropped_frames_total",
-        "semanticxr_persist_failures_total",
-        "semanticxr_mapping_failures_total",
-        "semanticxr_slow_subscribers_closed_total",
-    ):
-        m.inc(fault, 0)  # present at 0 from the start: a dashboard can tell 0 from missing
-    m.describe(
-        "semanticxr_mapping_latency_ms",
-        "histogram",
-        "Server time per mapped keyframe: decode + perception + mapping + delta "
-        "(committed to the delta log and the store), without queueing",
-    )
-    m.describe("semanticxr_query_latency_ms", "histogram", "Server query latency")
-    m.describe("semanticxr_sessions", "gauge", "Sessions held")
-    m.describe("semanticxr_subscribers", "gauge", "Update subscribers connected")
-    return m
+    return Metrics()
+
+
+class HttpMetricsMiddleware:
+    """ASGI middleware counting and timing HTTP requests by route template (never the raw
+    path: ids in paths would make a series per session). Series go to the app's manager's
+    Metrics once the lifespan has made it."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        status = 500  # what a request that raised before answering counts as
+        start_s = time.perf_counter()
+
+        async def send_noting_status(message: dict) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_noting_status)
+        finally:
+            manager = getattr(getattr(scope.get("app"), "state", None), "manager", None)
+            if manager is not None:
+                route = getattr(scope.get("route"), "path", None) or "unmatched"
+                method = scope["method"]
+                metrics: Metrics = manager.metrics
+                metrics.http_requests.labels(method=method, route=route, status=str(status)).inc()
+                metrics.http_request_duration.labels(method=method, route=route).observe(
+                    time.perf_counter() - start_s
+                )

@@ -43,6 +43,7 @@ from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
+from app.mapping.relevance import Rating, rate_hits
 from app.perception import DEFAULT_BACKEND, BackendOptions, UnknownBackendError, make_backend
 from app.perception.base import FrameDetections, PerceptionBackend
 from app.protocol import Ack, ErrorReply, FrameBudget, FrameInput
@@ -53,6 +54,13 @@ from app.server.settings import ServerSettings
 from app.store import SessionRecord, Store, StoreUnavailableError
 
 Reply = Callable[[dict], Awaitable[None]]
+
+NO_DETECTIONS_WARNING = (
+    "frames arrive without detections, and this session's perception backend (detections) "
+    "maps only what the device detects: nothing will be mapped. Run the server with "
+    "--perception models (its sessions then detect objects in the pixels), or stream from a "
+    "device that sends detections."
+)
 FLUSH_AFTER_S = 1.0
 """Longest a confirmed change waits for its publication when keyframes stop coming."""
 STORAGE_PROBE_INTERVAL_S = 1.0
@@ -168,6 +176,8 @@ class Session:
     _fps_window: deque = field(default_factory=lambda: deque(maxlen=60))
     _stored_floor: int = 0
     """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
+    warnings: list[str] = field(default_factory=list)
+    """Problems worth a user's attention, each said once (in the log and in the stats)."""
 
     @property
     def closed(self) -> bool:
@@ -221,16 +231,28 @@ class Session:
             "subscribers": self.subscribers,
             "embedding": {"model": self.engine.encoder.model_id, "dim": self.engine.encoder.dim},
             "knobs": knobs_to_dict(self.knobs),
+            "warnings": list(self.warnings),
         }
+
+    def warn_once(self, warning: str) -> None:
+        """Say `warning` in the server log and the session's stats, unless already said."""
+        if warning not in self.warnings:
+            self.warnings.append(warning)
+            log.warning("session %s: %s", self.id, warning)
 
     def objects(self) -> list[MapObject]:
         with self._map_lock:
             return self.engine.confirmed_objects()
 
     def query(self, text: str, k: int) -> list[QueryHit]:
+        return self.rated_query(text, k)[0]
+
+    def rated_query(self, text: str, k: int) -> tuple[list[QueryHit], Rating]:
+        """The top-k hits, best first, and how well they answer (app.mapping.relevance)."""
         embedding = self.engine.encoder.encode_query(text)  # outside the lock: the slow part
         with self._map_lock:
-            return self.engine.query_embedding(embedding, k)
+            hits = self.engine.query_embedding(embedding, k)
+        return hits, rate_hits(self.engine.encoder, embedding, [h.object.label for h in hits])
 
     def build_delta(self, since: int | None) -> dict:
         """The update message for a subscriber whose last applied seq is `since`."""
@@ -412,11 +434,13 @@ class SessionManager:
         COUNTERS_SAVE_INTERVAL_S ago."""
         rec = session.record
         rec.frames += 1
+        if "detections" not in frame_bytes and session.engine.backend.name == DEFAULT_BACKEND:
+            session.warn_once(NO_DETECTIONS_WARNING)
         now = time.monotonic()
         session._fps_window.append(now)
         for kind, n in frame_bytes.items():
             session.bytes_in[kind] = session.bytes_in.get(kind, 0) + n
-            self.metrics.inc("semanticxr_bytes_in_total", n, kind=kind)
+            self.metrics.upstream_bytes.labels(kind=kind).inc(n)
         if now - self._counters_saved_at.get(session.id, 0.0) >= COUNTERS_SAVE_INTERVAL_S:
             self.save_counters_soon(session)
         return (rec.frames - 1) % session.knobs.keyframe_interval == 0
@@ -463,7 +487,7 @@ class SessionManager:
 
     def _store_failed(self, what: str, exc: BaseException) -> None:
         """Count a failed write; log it if it starts a failure streak (one ERROR a streak)."""
-        self.metrics.inc("semanticxr_persist_failures_total")
+        self.metrics.persist_failures.inc()
         if self.storage.failed():
             log.error(
                 "storage failing: %s failed (%s); keyframes are refused with "
@@ -570,7 +594,7 @@ class SessionManager:
 
     async def _drop(self, session: Session, older: _Pending) -> None:
         session.dropped += 1
-        self.metrics.inc("semanticxr_dropped_frames_total")
+        self.metrics.dropped_frames.inc()
         await older.reply(Ack(older.frame.seq, keyframe=False, dropped=True).pack())
 
     @staticmethod
@@ -603,7 +627,7 @@ class SessionManager:
                     await pending.reply(ErrorReply(pending.frame.seq, "bad_frame", str(exc)).pack())
                 except Exception as exc:  # never lose the ack: report and go on
                     if not isinstance(exc, PersistFailed):  # that one was counted and logged
-                        self.metrics.inc("semanticxr_mapping_failures_total")
+                        self.metrics.mapping_failures.inc()
                         log.error(
                             "session %s: mapping keyframe %s failed; the map is unchanged",
                             session.id,
@@ -618,7 +642,7 @@ class SessionManager:
                 else:
                     map_ms = (time.perf_counter() - pending.received_t) * 1e3
                     session.latencies_ms.append(latency_ms)
-                    self.metrics.observe_ms("semanticxr_mapping_latency_ms", latency_ms)
+                    self.metrics.mapping_latency.observe(latency_ms / 1e3)
                     await pending.reply(
                         Ack(
                             pending.frame.seq,
@@ -677,7 +701,7 @@ class SessionManager:
                 if isinstance(exc, StoreUnavailableError):
                     self._store_failed(f"saving keyframe {frame.seq} of session {session.id}", exc)
                     raise StorageUnavailable(StorageHealth.REASON) from exc
-                self.metrics.inc("semanticxr_persist_failures_total")
+                self.metrics.persist_failures.inc()
                 log.error(
                     "session %s: saving keyframe %s failed; its changes were undone",
                     session.id,

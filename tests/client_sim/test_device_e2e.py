@@ -149,6 +149,7 @@ def test_an_outage_switches_queries_to_local_and_the_device_catches_up_without_l
             await wait_until(lambda: not device.connected, what="the device to notice the cut")
 
             offline = await router.query(MILK, k=1)
+            offline_nothing = [await router.query(t, k=2) for t in ("xyzzy plugh", "keys")]
 
             # Meanwhile the map changes: another device maps the bathroom, straight to the server.
             writer = DeviceClient(server.url, sid, token, knobs=knobs)
@@ -162,7 +163,10 @@ def test_an_outage_switches_queries_to_local_and_the_device_catches_up_without_l
             _, objects = await assert_synced_with_server(device, server.url, sid, token)
             await wait_until(lambda: device.rtt_ms is not None, what="an RTT after the outage")
             online = await router.query(MILK, k=1)
+            online_nothing = [await router.query(t, k=2) for t in ("xyzzy plugh", "keys")]
         return {
+            "offline_nothing": offline_nothing,
+            "online_nothing": online_nothing,
             "stats": stats,
             "before": before,
             "seq_before": seq_before,
@@ -179,6 +183,13 @@ def test_an_outage_switches_queries_to_local_and_the_device_catches_up_without_l
     stats, before = r["stats"], r["before"]
     assert r["offline"].mode == "LQ", r["offline"].reason
     assert r["offline"].results[0]["label"] == "refrigerator"
+    assert r["offline"].match and r["offline"].results[0]["relevance"] >= 0.5
+    # Nonsense, and keys the kitchen does not hold: hits listed, none a confident match,
+    # rated the same by the device (LQ) as by the server (SQ).
+    for offline, online in zip(r["offline_nothing"], r["online_nothing"], strict=True):
+        assert (offline.mode, online.mode) == ("LQ", "SQ")
+        assert not offline.match and not online.match, (offline.results, online.results)
+        assert offline.results and all(h["relevance"] < 0.5 for h in offline.results)
     assert {"bathtub", "toilet"} <= {o["label"] for o in r["objects"]}  # made during the outage
     # Resumed from its last seq, not resynced: no full snapshot after the first one.
     subscriptions = r["subscriptions"]
@@ -192,6 +203,7 @@ def test_an_outage_switches_queries_to_local_and_the_device_catches_up_without_l
     assert stats.reconnects >= 2  # both sockets
     assert any("lost" in line for line in r["logs"])
     assert r["online"].mode == "SQ" and r["online"].results[0]["label"] == "refrigerator"
+    assert r["online"].match
 
 
 def test_latency_above_the_threshold_switches_to_local_queries_and_back(live_server, encoder):

@@ -16,6 +16,7 @@ import pytest
 from app.protocol import UpsertEntry, pack_delta
 from viewer.scene import (
     BOXES_NODE,
+    DIM_GREY_RGB,
     HIT_BOX_RGB,
     HIT_BOXES_NODE,
     LABELS_GROUP,
@@ -24,6 +25,8 @@ from viewer.scene import (
     box_segments,
     class_color,
     dimmed,
+    hit_box_color,
+    hit_color,
     hit_label_node,
     label_node,
     object_color,
@@ -234,12 +237,29 @@ def test_highlight_brightens_hits_labels_them_with_scores_and_dims_the_rest(scen
     assert sink.nodes[hit_label_node(1)]["text"] == "chair 0.41"
     hit_boxes = sink.nodes[HIT_BOXES_NODE]
     assert hit_boxes["segments"].shape == (2 * 12, 2, 3)
-    assert (hit_boxes["colors"] == HIT_BOX_RGB).all()
+    assert (hit_boxes["colors"][:12] == hit_box_color(0.8123)).all()
     assert sink.nodes[points_node(2)]["color"] == dimmed(object_color(2))
-    assert sink.nodes[points_node(3)]["color"] == object_color(3)
+    assert sink.nodes[points_node(3)]["color"] == hit_color(object_color(3), 0.8123)
     assert sink.nodes[LABELS_GROUP]["visible"] is False  # plain labels make way for the hits
     # Recolouring sends colours only: no cloud is sent again.
     assert not [op for op in sink.take() if op[0] == "add_point_cloud"]
+
+
+def test_hits_are_highlighted_in_proportion_to_their_relevance(scene):
+    model, sink = scene
+    model.highlight([(3, 1.0), (1, 0.3), (2, 0.0)])
+
+    def brightness(rgb) -> float:  # distance from the grey that dimmed colours fade to
+        return float(np.linalg.norm(np.subtract(rgb, DIM_GREY_RGB)))
+
+    colors = {oid: sink.nodes[points_node(oid)]["color"] for oid in (1, 2, 3)}
+    assert colors[3] == object_color(3)  # fully relevant: its own colour
+    assert colors[2] == dimmed(object_color(2))  # irrelevant: as dim as a non-hit
+    assert brightness(dimmed(object_color(1))) < brightness(colors[1])
+    assert brightness(colors[1]) < brightness(object_color(1))
+    box_colors = sink.nodes[HIT_BOXES_NODE]["colors"].reshape(3, 12, -1, 3)[:, 0, 0]
+    assert tuple(box_colors[0]) == HIT_BOX_RGB and tuple(box_colors[2]) == DIM_GREY_RGB
+    assert brightness(box_colors[1]) < brightness(box_colors[0])
 
 
 def test_clear_highlight_restores_the_plain_view(scene):
@@ -267,7 +287,7 @@ def test_a_hit_not_held_yet_is_highlighted_when_it_arrives(scene):
     model.apply_delta(delta(2, [upsert(7, 1, "mug")]))
 
     assert sink.nodes[hit_label_node(7)]["text"] == "mug 0.90"
-    assert sink.nodes[points_node(7)]["color"] == object_color(7)  # a hit: not dimmed
+    assert sink.nodes[points_node(7)]["color"] == hit_color(object_color(7), 0.9)  # a hit
     assert ("set_boxes", HIT_BOXES_NODE) in sink.take()
 
 

@@ -164,12 +164,18 @@ def test_the_browser_shows_one_point_cloud_per_confirmed_object_and_the_query_hi
 
             results = app.run_query("refrigerator", k=1)
             assert results[0]["label"] == "refrigerator"
+            assert app.last_match is True
+            assert "no confident match" not in app.gui.results.content
             wait_for(
                 lambda: HIT_BOXES_NODE in (page.evaluate(MOUNTED_NODES_JS) or []),
                 "the hit's box in the page",
             )
             ARTIFACTS.mkdir(parents=True, exist_ok=True)
             page.screenshot(path=str(ARTIFACTS / "viewer_kitchen_query.png"))
+
+            nothing = app.run_query("xyzzy plugh", k=2)  # hits listed, none confident
+            assert len(nothing) == 2 and app.last_match is False
+            assert "no confident match" in app.gui.results.content
 
             app.clear_query()
             wait_for(

@@ -176,22 +176,25 @@ def query(
     if k > max_k:
         raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
     t0 = time.perf_counter()
-    hits = session.query(text, k)
+    hits, rating = session.rated_query(text, k)
     max_points = session.knobs.max_object_points_client
     results = [
         protocol.QueryHit(
             id=hit.object.id,
             label=hit.object.label,
             score=hit.score,
+            relevance=relevance,
             bbox=hit.object.bbox,
             centroid=hit.object.centroid,
             points=client_points(hit.object, max_points) if points else None,
         )
-        for hit in hits
+        for hit, relevance in zip(hits, rating.relevance, strict=True)
     ]
     latency_ms = (time.perf_counter() - t0) * 1e3
-    manager(request).metrics.observe_ms("semanticxr_query_latency_ms", latency_ms)
-    return protocol.QueryResult(text=text, results=results, latency_ms=latency_ms)
+    manager(request).metrics.query_latency.observe(latency_ms / 1e3)
+    return protocol.QueryResult(
+        text=text, match=rating.match, results=results, latency_ms=latency_ms
+    )
 
 
 @router.delete(

@@ -125,7 +125,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
                 break
             data = event.get("bytes")
             if data is None:
-                manager.metrics.inc("semanticxr_frames_total", outcome="bad")
+                manager.metrics.frames.labels(outcome="bad").inc()
                 await reply(
                     ErrorReply(
                         None, "bad_message", "frames must be binary msgpack messages, got text"
@@ -149,12 +149,12 @@ async def stream(ws: WebSocket, sid: str) -> None:
                     )
                 except _Refused as refused:
                     if refused.is_frame:
-                        manager.metrics.inc("semanticxr_frames_total", outcome="bad")
+                        manager.metrics.frames.labels(outcome="bad").inc()
                     await reply(refused.reply.pack())
                     bad_in_a_row += 1
                 else:
                     bad_in_a_row = 0
-                    manager.metrics.inc("semanticxr_frames_total", outcome="ok")
+                    manager.metrics.frames.labels(outcome="ok").inc()
                     frame = decoded.frame
                     if manager.count_frame(session, decoded.payload_bytes):
                         await manager.submit_keyframe(
@@ -209,7 +209,7 @@ async def updates(ws: WebSocket, sid: str) -> None:
     async def send(data: bytes) -> None:
         await ws.send_bytes(data)  # waits while the socket's write buffer is over its limit
         session.bytes_out["updates"] += len(data)
-        manager.metrics.inc("semanticxr_bytes_out_total", len(data), kind="updates")
+        manager.metrics.downstream_bytes.labels(kind="updates").inc(len(data))
 
     watcher = asyncio.create_task(watch_disconnect())
     sending: asyncio.Task | None = None
@@ -260,7 +260,7 @@ async def updates(ws: WebSocket, sid: str) -> None:
         if sending is not None and not sending.done():
             sending.cancel()  # not written yet: it waits for room in the write buffer
     if too_slow is not None:
-        manager.metrics.inc("semanticxr_slow_subscribers_closed_total")
+        manager.metrics.slow_subscribers_closed.inc()
         log.warning(
             "session %s: closed an update subscriber that cannot keep up (%s); "
             "it may resume with ?since=<its last seq>",

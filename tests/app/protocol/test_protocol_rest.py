@@ -30,6 +30,7 @@ hits = st.builds(
     id=st.integers(0, 10**9),
     label=st.text(max_size=30),
     score=st.floats(-1, 1).map(lambda v: round(v, 5)),
+    relevance=st.floats(0, 1).map(lambda v: round(v, 5)),
     bbox=st.lists(coordinate, min_size=6, max_size=6),
     centroid=st.lists(coordinate, min_size=3, max_size=3),
     points=st.none()
@@ -40,6 +41,7 @@ hits = st.builds(
 results = st.builds(
     QueryResult,
     text=st.text(min_size=1, max_size=50),
+    match=st.booleans(),
     results=st.lists(hits, max_size=4),
     latency_ms=st.floats(0, 1e4),
 )
@@ -50,9 +52,11 @@ results = st.builds(
 def test_a_query_result_survives_to_json_json_parse(result):
     parsed = parse_query_result(json.loads(json.dumps(result.to_json())))
     assert parsed.text == result.text and parsed.latency_ms == result.latency_ms
+    assert parsed.match == result.match
     assert len(parsed.results) == len(result.results)
     for got, sent in zip(parsed.results, result.results, strict=True):
         assert (got.id, got.label, got.score) == (sent.id, sent.label, sent.score)
+        assert got.relevance == sent.relevance
         assert got.bbox == list(sent.bbox) and got.centroid == list(sent.centroid)
         if sent.points is None:
             assert got.points is None
@@ -61,8 +65,10 @@ def test_a_query_result_survives_to_json_json_parse(result):
 
 
 def _answer() -> dict:
-    hit = QueryHit(id=3, label="mug", score=0.5, bbox=[0, 0, 0, 1, 1, 1], centroid=[0.5] * 3)
-    return QueryResult(text="a mug", results=[hit], latency_ms=1.0).to_json()
+    hit = QueryHit(
+        id=3, label="mug", score=0.5, relevance=0.9, bbox=[0, 0, 0, 1, 1, 1], centroid=[0.5] * 3
+    )
+    return QueryResult(text="a mug", match=True, results=[hit], latency_ms=1.0).to_json()
 
 
 def _hit(**changes) -> dict:
@@ -79,6 +85,8 @@ MALFORMED = [
     ("results[0]", {**_answer(), "results": [3]}),
     ("results[0].id", _hit(id="3")),
     ("results[0].score", _hit(score=True)),
+    ("match", {**_answer(), "match": "yes"}),
+    ("results[0].relevance", _hit(relevance=1.5)),
     ("results[0].bbox", _hit(bbox=[0, 0, 0])),
     ("results[0].centroid", _hit(centroid=[0, "x", 0])),
     ("results[0].points", _hit(points=[[0, 1]])),
@@ -122,6 +130,7 @@ def test_session_records_answer_v1_bodies_with_the_protocol_version():
         "subscribers": 0,
         "embedding": {"model": "minilm", "dim": 384},
         "knobs": knobs,
+        "warnings": ["frames arrive without detections"],
         "something_newer": 1,  # a stats key beyond the record is left out
     }
     assert SessionStats.model_validate(stats).to_json() == {

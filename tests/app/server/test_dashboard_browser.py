@@ -166,7 +166,14 @@ def test_the_dashboard_lists_a_session_and_answers_a_query(live_server, page):
     expect(first_row.locator("td.label")).to_have_text("refrigerator")
     expect(card.locator(".results tbody tr")).to_have_count(2)  # k=5, two objects in the map
     expect(card.locator(".query-meta")).to_contain_text("2 results")
+    expect(card.locator(".query-meta")).not_to_contain_text("no confident match")
+    expect(first_row).not_to_have_class(re.compile(r"\bweak\b"))
     screenshot(page, "dashboard_query.png")
+
+    card.locator(".query-input").fill("xyzzy plugh")
+    card.locator(".query-button").click()
+    expect(card.locator(".query-meta")).to_contain_text("no confident match")
+    expect(card.locator(".results tbody tr.weak")).to_have_count(2)  # listed, but weak
 
 
 @pytest.mark.slow
@@ -207,3 +214,40 @@ def test_with_an_api_key_the_page_asks_for_it_and_shows_names_as_text(live_serve
     expect(page.locator("#status")).to_have_attribute("data-state", "live")
     screenshot(page, "dashboard_api_key.png")
     assert page.title() != "pwned"
+
+
+@pytest.mark.timeout(120)
+def test_the_api_docs_render_offline_and_offer_authorize(live_server, page):
+    server = live_server(api_key="sesame")
+    elsewhere: list[str] = []
+
+    def only_this_server(route) -> None:  # no network: anything not ours fails
+        if route.request.url.startswith(server.url):
+            route.continue_()
+        else:
+            elsewhere.append(route.request.url)
+            route.abort()
+
+    page.route("**/*", only_this_server)
+    page.goto(f"{server.url}/docs")
+    operations = page.locator(".opblock")
+    expect(operations.first).to_be_visible()
+    expect(
+        page.locator(".opblock-summary-path", has_text="/v1/sessions/{sid}/query")
+    ).to_have_count(1)
+    assert operations.count() >= 8
+    page.locator(".auth-wrapper .authorize").click()
+    dialog = page.locator(".dialog-ux .modal-ux")
+    expect(dialog).to_contain_text("apiKey")
+    expect(dialog).to_contain_text("sessionToken")
+    # Authorize with the API key, then list sessions from the page: the key goes along.
+    dialog.locator("input").first.fill("sesame")
+    dialog.locator("button.authorize").first.click()
+    dialog.locator("button.close-modal").click()
+    listing = page.locator(".opblock-get", has=page.locator('[data-path="/v1/sessions"]'))
+    listing.locator(".opblock-summary").click()
+    listing.locator(".try-out__btn").click()
+    listing.locator(".execute").click()
+    expect(listing.locator(".live-responses-table tbody .response-col_status")).to_have_text("200")
+    screenshot(page, "api_docs.png")
+    assert not elsewhere, f"/docs reached outside the server: {elsewhere}"

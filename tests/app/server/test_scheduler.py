@@ -120,7 +120,7 @@ class PacedBackend(DetectionsBackend):
 def paced(monkeypatch) -> list[PacedBackend]:
     made: list[PacedBackend] = []
 
-    def factory() -> PacedBackend:
+    def factory(options=None) -> PacedBackend:
         made.append(PacedBackend())
         return made[-1]
 

@@ -56,6 +56,12 @@ def test_health_metrics_and_openapi_describe_the_service(live_server):
             if method != "delete" and path != "/metrics":
                 assert "schema" in ok.get("content", {}).get("application/json", {}), (method, path)
     assert "min_observations" in spec["components"]["schemas"]["Knobs"]["properties"]
+    # the Authorize button of /docs: the API key, or a session's token under a session
+    assert set(spec["components"]["securitySchemes"]) == {"apiKey", "sessionToken"}
+    assert paths["/v1/sessions"]["post"]["security"] == [{"apiKey": []}]
+    query_security = paths["/v1/sessions/{sid}/query"]["get"]["security"]
+    assert query_security == [{"sessionToken": []}, {"apiKey": []}]
+    assert "security" not in paths["/healthz"]["get"]
 
 
 def test_session_lifecycle_and_knobs(live_server):
@@ -103,6 +109,26 @@ def test_a_device_streams_and_a_query_finds_the_fridge(live_server):
         ).json()
         assert answer["results"][0]["label"] == "refrigerator" and answer["results"][0]["points"]
         assert answer["latency_ms"] >= 0
+        assert answer["match"] is True and answer["results"][0]["relevance"] >= 0.5
+
+
+def test_a_nonsense_query_or_an_absent_object_answers_no_confident_match(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+        frames = [frame_message(SCENE, i, cam_xy=(0.03 * i, 0.0)) for i in range(3)]
+        asyncio.run(stream_in_step(f"{server.ws_url}/v1/sessions/{sid}/stream", frames))
+        query = f"/v1/sessions/{sid}/query"
+        for text in ("xyzzy plugh", "keys"):  # the map holds a chair and a refrigerator
+            answer = c.get(query, params={"text": text, "k": 2, "points": False}).json()
+            assert answer["match"] is False, answer
+            hits = answer["results"]  # still listed, best first, each rated low
+            assert sorted(h["label"] for h in hits) == ["chair", "refrigerator"], answer
+            assert all(0.0 <= h["relevance"] < 0.5 for h in hits), answer
+        answer = c.get(query, params={"text": "a chair", "k": 2, "points": False}).json()
+        assert answer["match"] is True
+        assert answer["results"][0]["label"] == "chair"
+        assert answer["results"][0]["relevance"] > answer["results"][1]["relevance"]
 
 
 def test_session_creation_announces_the_protocol_and_queries_respect_max_query_k(live_server):
