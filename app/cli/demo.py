@@ -55,7 +55,9 @@ def _say(message: str) -> None:
 
 
 def _show(answer) -> None:
-    top = ", ".join(f"{r['label']} ({r['score']:.2f})" for r in answer.results[:3]) or "nothing"
+    top = ", ".join(f"{r['label']} ({r['relevance']:.2f})" for r in answer.results[:3]) or "nothing"
+    if answer.results and not answer.match:
+        top = f"no confident match (nearest: {top})"
     _say(
         f"  [{answer.mode}] {answer.text!r}: {top}   {answer.latency_ms:.1f} ms  ({answer.reason})"
     )

@@ -294,9 +294,14 @@ def _print_answer(answer: QueryAnswer) -> None:
     )
     if not answer.results:
         print("  (no objects)")
+    elif not answer.match:
+        print("  no confident match; the nearest objects:")
     for hit in answer.results:
         centroid = ", ".join(f"{v:.2f}" for v in hit["centroid"])
-        print(f"  #{hit['id']:<5} {hit['label']:<24} score {hit['score']:.3f}  at ({centroid})")
+        print(
+            f"  #{hit['id']:<5} {hit['label']:<24} relevance {hit['relevance']:.2f} "
+            f"(score {hit['score']:.3f})  at ({centroid})"
+        )
 
 
 def _local_queries(
