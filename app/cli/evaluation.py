@@ -3,10 +3,17 @@
 world -> device encoder (JPEG, depth ÷ratio, detections) -> server decode -> mapping engine
 -> map, once per system organisation on identical input, then semantic quality (DESIGN.md
 "Evaluation definitions"), per-keyframe mapping latency and paraphrase-query accuracy.
+
+"In view": a category is in view on a frame of the walk when the noise-free detector
+(noise profile "none": every visible non-background object with at least its minimum pixel
+count) reports an object of that category on that frame. Every frame of the walk counts,
+keyframe or not. `query_top1_observed` is the query top-1 over the categories in view for at
+least IN_VIEW_MIN_FRAMES frames; the others are `unobserved_categories`.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Callable
@@ -25,9 +32,18 @@ from client_sim.encoder import FrameEncoder
 from client_sim.sources.synthetic import SyntheticSource
 from client_sim.world.categories import BACKGROUND_CLASSES, CATEGORIES
 from client_sim.world.gt import gt_point_cloud
+from client_sim.world.noise import DetectionModel
 from client_sim.world.render import default_camera
 
 Progress = Callable[[str], None]
+
+IN_VIEW_MIN_FRAMES = 8
+"""A category counts as observed when the noise-free detector reports it on at least this
+many frames of the walk (1.6 s at 5 fps)."""
+IN_VIEW_DEFINITION = (
+    f"the noise-free detector reports an object of the category in at least "
+    f"{IN_VIEW_MIN_FRAMES} frames of the walk (every frame counts, keyframe or not)"
+)
 
 
 def _stderr(message: str) -> None:
@@ -51,6 +67,41 @@ class EvalConfig:
     encoder_options: dict = field(default_factory=dict)
     """FrameEncoder options besides the depth ratio (which comes from the knobs); unset
     ones keep the device's defaults."""
+    queries: dict[str, list[str]] | None = None
+    """{category: [phrase, ...]} replacing the built-in paraphrases (`load_queries`); None:
+    each category's `paraphrases`. Categories of the scene missing here are not asked."""
+
+
+def load_queries(path: str) -> dict[str, list[str]]:
+    """A query file for `semanticxr eval --queries`: JSON `{category: [phrase, ...]}`.
+
+    Raises ValueError with a message naming the file and what is wrong: not JSON, not an
+    object, an unknown category, or a value that is not a non-empty list of non-empty
+    strings."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the query file ({exc.strerror or exc})") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict) or not data:
+        raise ValueError(
+            f'{path}: expected a non-empty JSON object {{"category": ["phrase", ...]}}'
+        )
+    unknown = sorted(k for k in data if k not in CATEGORIES)
+    if unknown:
+        raise ValueError(
+            f"{path}: unknown categories {unknown}; known ones: {', '.join(sorted(CATEGORIES))}"
+        )
+    for name, phrases in data.items():
+        if (
+            not isinstance(phrases, list)
+            or not phrases
+            or not all(isinstance(p, str) and p.strip() for p in phrases)
+        ):
+            raise ValueError(f"{path}: {name!r} must map to a non-empty list of non-empty strings")
+    return {name: [p.strip() for p in phrases] for name, phrases in data.items()}
 
 
 def _percentiles(values: list[float]) -> dict[str, float]:
@@ -62,12 +113,19 @@ def _percentiles(values: list[float]) -> dict[str, float]:
     }
 
 
+def _in_view(detector: DetectionModel, view, frame_index: int) -> set[str]:
+    """The categories the noise-free detector reports on one rendered view."""
+    found = detector.detect(view, frame_index)
+    return {inst["label"] for inst in found.instances}
+
+
 def _encode_keyframes(
     cfg: EvalConfig, ratios: list[int], progress: Progress
-) -> tuple[dict[int, list], object, dict]:
+) -> tuple[dict[int, list], object, dict, dict[str, int]]:
     """Render the keyframes once and encode them at each depth ratio; every organisation at
-    one ratio maps the same bytes. Returns (messages by ratio, scene, upstream bytes at the
-    configured ratio)."""
+    one ratio maps the same bytes. Every other frame of the walk is ray cast for the
+    visibility count only. Returns (messages by ratio, scene, upstream bytes at the
+    configured ratio, frames in view by category: see the module docstring)."""
     source = SyntheticSource(
         cfg.scene,
         n_frames=cfg.frames,
@@ -80,7 +138,16 @@ def _encode_keyframes(
     upstream = {"rgb": 0, "depth": 0, "detections": 0, "total": 0}
     interval = cfg.knobs.keyframe_interval
     n_keyframes = len(range(0, cfg.frames, interval))
+    noise_free = DetectionModel(source.scene, "none", cfg.seed)
+    in_view: dict[str, int] = dict.fromkeys(source.scene.categories_present, 0)
+    for index in range(cfg.frames):
+        if index % interval:
+            view = source.renderer.render(source.poses[index], source.camera)
+            for name in _in_view(noise_free, view, index):
+                in_view[name] = in_view.get(name, 0) + 1
     for i, frame in enumerate(source.frames(every=interval)):
+        for name in _in_view(noise_free, frame.view, frame.index):
+            in_view[name] = in_view.get(name, 0) + 1
         for ratio, encoder in encoders.items():
             encoded = encoder.encode_source_frame(frame)
             messages[ratio].append(encoded.message)
@@ -89,7 +156,7 @@ def _encode_keyframes(
                     upstream[kind] += encoded.bytes_by_kind.get(kind, 0)
         if (i + 1) % 20 == 0 or i + 1 == n_keyframes:
             progress(f"[eval] rendered and encoded {i + 1}/{n_keyframes} keyframes")
-    return messages, source.scene, upstream
+    return messages, source.scene, upstream, in_view
 
 
 def _labels_of(messages: list[dict]) -> list[str]:
@@ -156,8 +223,20 @@ def map_keyframes(
     return runs
 
 
-def score_map(engine: MappingEngine, gt, encoder: TextEncoder, categories: list[str]) -> dict:
-    """mAcc / F-mIoU of the confirmed map, and paraphrase top-1 accuracy."""
+def score_map(
+    engine: MappingEngine,
+    gt,
+    encoder: TextEncoder,
+    categories: list[str],
+    observed: set[str] | None = None,
+    queries: dict[str, list[str]] | None = None,
+) -> dict:
+    """mAcc / F-mIoU of the confirmed map, and paraphrase top-1 accuracy.
+
+    observed: the categories in view (module docstring); query_top1_observed is over their
+    queries only (None: every category). queries: phrases by category replacing the
+    built-in paraphrases."""
+    observed = set(categories) if observed is None else observed
     objects = engine.confirmed_objects()
     class_names = gt.class_names
     if objects:
@@ -178,11 +257,15 @@ def score_map(engine: MappingEngine, gt, encoder: TextEncoder, categories: list[
 
     true_class = majority_gt_class([o.points for o in objects], gt.points, gt.class_idx)
     by_id = {o.id: c for o, c in zip(objects, true_class, strict=True)}
-    asked = correct = 0
+    asked = correct = asked_observed = correct_observed = 0
     failures = []
+    per_category: dict[str, float] = {}
     for name in categories:
-        for text in CATEGORIES[name].paraphrases:
+        phrases = CATEGORIES[name].paraphrases if queries is None else queries.get(name, [])
+        hits_here = 0
+        for text in phrases:
             asked += 1
+            asked_observed += name in observed
             hits = engine.query(text, k=1)
             got = (
                 class_names[by_id[hits[0].object.id]]
@@ -191,13 +274,22 @@ def score_map(engine: MappingEngine, gt, encoder: TextEncoder, categories: list[
             )
             if got == name:
                 correct += 1
+                correct_observed += name in observed
+                hits_here += 1
             else:
                 failures.append({"query": text, "expected": name, "got": got})
+        if phrases:
+            per_category[name] = 100.0 * hits_here / len(phrases)
     return {
         "mAcc": scores.mAcc,
         "F_mIoU": scores.F_mIoU,
         "objects": len(objects),
         "query_top1": 100.0 * correct / max(asked, 1),
+        "query_top1_observed": 100.0 * correct_observed / max(asked_observed, 1),
+        "queries_asked": asked,
+        "queries_asked_observed": asked_observed,
+        "query_top1_per_category": per_category,
+        "categories_mapped": sorted({class_names[c] for c in true_class if c >= 0}),
         "query_failures": failures,
         "per_class": scores.per_class,
     }
@@ -224,10 +316,11 @@ def run_eval(
     knobs_of = {mode: (mode, cfg.knobs) for mode in cfg.modes} | variants
     ratio = cfg.knobs.depth_downsampling_ratio
     ratios = sorted({ratio, *(knobs.depth_downsampling_ratio for _, knobs in knobs_of.values())})
-    by_ratio, scene, upstream = _encode_keyframes(cfg, ratios, progress)
+    by_ratio, scene, upstream, in_view = _encode_keyframes(cfg, ratios, progress)
     n_keyframes = len(by_ratio[ratio])
     gt = gt_point_cloud(scene)
     categories = scene.categories_present
+    observed = {name for name in categories if in_view.get(name, 0) >= IN_VIEW_MIN_FRAMES}
     # Label embeddings are computed once per process and cached (a long-running server has
     # them all): warm the cache with every label the keyframes carry, outside the timed loop.
     encoder.encode([*gt.class_names, *_labels_of(by_ratio[ratio])])
@@ -241,6 +334,10 @@ def run_eval(
         "resolution": [cfg.width, cfg.height],
         "depth_downsampling_ratio": cfg.knobs.depth_downsampling_ratio,
         "upstream_bytes_per_keyframe": {k: v / max(n_keyframes, 1) for k, v in upstream.items()},
+        "queries": "built-in paraphrases" if cfg.queries is None else "file",
+        "in_view_definition": IN_VIEW_DEFINITION,
+        "frames_in_view": {name: in_view.get(name, 0) for name in categories},
+        "unobserved_categories": sorted(set(categories) - observed),
         "modes": {},
     }
     engines = {
@@ -256,8 +353,9 @@ def run_eval(
     for mode, engine in engines.items():
         run = mapped[mode]
         latencies, update_bytes = run.latencies_ms, run.update_bytes
-        scored = score_map(engine, gt, encoder, categories)
+        scored = score_map(engine, gt, encoder, categories, observed, cfg.queries)
         scored["latency_ms"] = _percentiles(latencies)
+        scored["mapping_total_ms"] = float(sum(latencies))
         scored["stages_ms"] = {stage: _percentiles(ms) for stage, ms in run.stages_ms.items()}
         scored["downstream_bytes_per_update"] = _percentiles(update_bytes) if update_bytes else None
         scored["downstream_bytes_total"] = int(sum(update_bytes))
@@ -267,7 +365,8 @@ def run_eval(
         progress(
             f"[eval] {mode}: mAcc {scored['mAcc']:.1f}  F-mIoU {scored['F_mIoU']:.1f}  "
             f"objects {scored['objects']}  p50 {scored['latency_ms']['p50']:.1f} ms  "
-            f"query top-1 {scored['query_top1']:.1f}%"
+            f"query top-1 {scored['query_top1']:.1f}% "
+            f"({scored['query_top1_observed']:.1f}% over observed categories)"
         )
     if {"semanticxr", "baseline"} <= result["modes"].keys():
         result["speedup_p50"] = result["modes"]["baseline"]["latency_ms"]["p50"] / max(
