@@ -138,6 +138,7 @@ class MappingEngine:
         self.log = log
         self.keyframes = keyframes
         self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
+        self._changed_since_cleanup = set(self.objects)  # compared again at their clean-up
         self._confirmed_matrix = None
 
     # ------------------------------------------------------------------ validation
@@ -228,8 +229,9 @@ class MappingEngine:
 
         touched = self._apply(observations, matches, stats)
         removed: set[int] = set()
-        if self.keyframes % self.knobs.cleanup_interval == 0:
-            removed = self._cleanup(touched)
+        due = self._cleanup_due()
+        if due or self.keyframes % self.knobs.cleanup_interval == 0:
+            removed = self._cleanup(touched, due or [])
             stats.cleanup = True
         t4 = time.perf_counter()
 
@@ -438,34 +440,60 @@ class MappingEngine:
         keep.version += 1
         del self.objects[gone.id]
 
-    def _cleanup(self, touched: set[int]) -> set[int]:
-        """Outlier removal on changed objects, merge of duplicates, pruning of transients.
+    def _cleanup_due(self) -> list[int] | None:
+        """The objects this keyframe cleans up, in id order; None: no clean-up work at all.
+
+        semanticxr spreads the clean-up over keyframes: an object changed since its last
+        clean-up is due on the keyframes where `keyframes % cleanup_interval` equals
+        `id % cleanup_interval`, so each one is cleaned within `cleanup_interval` keyframes
+        of changing and each keyframe carries about 1/cleanup_interval of the changed
+        objects, never the whole map. The baseline keeps the per-scene organisation: every
+        `cleanup_interval` keyframes, every changed object at once.
+        """
+        interval = self.knobs.cleanup_interval
+        if self.mode == "baseline":
+            return sorted(self._changed_since_cleanup) if self.keyframes % interval == 0 else None
+        slot = self.keyframes % interval
+        return sorted(oid for oid in self._changed_since_cleanup if oid % interval == slot)
+
+    def _cleanup(self, touched: set[int], due: list[int]) -> set[int]:
+        """Outlier removal on the `due` objects (changed since their last clean-up), merge of
+        duplicates among the pairs one of them is in, then every `cleanup_interval`
+        keyframes pruning of transients. Both organisations run this; they differ only in
+        which objects are due (`_cleanup_due`): a pair of objects neither of which changed
+        since it was last compared cannot have started to qualify for a merge, so it is not
+        compared again.
 
         Adds the objects it changes to `touched`; returns the ids of published objects it
         removed (others were never sent downstream).
         """
         removed: set[int] = set()
-        for oid in sorted(self._changed_since_cleanup):
-            obj = self.objects.get(oid)
-            if obj is not None:
-                kept = geo.remove_outliers(obj.points, OUTLIER_EPS_M)
-                if len(kept) < len(obj.points):
-                    obj.set_points(kept, obj.resolution_m)
-                    obj.version += 1
-                    touched.add(oid)
-        self._changed_since_cleanup.clear()
+        due_objects = [self.objects[oid] for oid in due if oid in self.objects]
+        self._changed_since_cleanup.difference_update(due)
+        for obj in due_objects:
+            kept = geo.remove_outliers(obj.points, OUTLIER_EPS_M)
+            if len(kept) < len(obj.points):
+                obj.set_points(kept, obj.resolution_m)
+                obj.version += 1
+                touched.add(obj.id)
 
-        objects = sorted(self.objects.values(), key=lambda o: o.id)
-        if objects:
+        merged: set[int] = set()
+        if due_objects:
+            objects = sorted(self.objects.values(), key=lambda o: o.id)
+            due_ids = {o.id for o in due_objects}
             boxes = np.stack([o.bbox for o in objects])
-            overlapping = geo.bbox_intersects_matrix(boxes, boxes, 0.0)
-            semantic = np.stack([o.embedding for o in objects])
-            semantic = semantic @ semantic.T
-            for i, j in zip(*np.nonzero(np.triu(overlapping, 1)), strict=True):
+            rows = [k for k, o in enumerate(objects) if o.id in due_ids]
+            overlapping = geo.bbox_intersects_matrix(boxes[rows], boxes, 0.0)
+            embeddings = np.stack([o.embedding for o in objects])
+            semantic = embeddings[rows] @ embeddings.T
+            pairs = set()
+            for r, j in zip(*np.nonzero(overlapping & (semantic >= MERGE_SEMANTIC)), strict=True):
+                i = rows[r]
+                if i != j:
+                    pairs.add((min(i, j), max(i, j)))  # a pair of two due objects once
+            for i, j in sorted(pairs):  # id order, as a scan of the upper triangle
                 a, b = objects[i], objects[j]
                 if a.id not in self.objects or b.id not in self.objects:
-                    continue
-                if semantic[i, j] < MERGE_SEMANTIC:
                     continue
                 small, large = (a, b) if len(a.points) <= len(b.points) else (b, a)
                 if (
@@ -475,15 +503,24 @@ class MappingEngine:
                     continue
                 keep, gone = (a, b) if a.id < b.id else (b, a)  # the older id survives
                 self._merge_objects(keep, gone)
+                merged.add(keep.id)
                 touched.add(keep.id)
                 touched.discard(gone.id)
+                self._changed_since_cleanup.discard(gone.id)
                 if gone.confirmed:
                     removed.add(gone.id)
+        # a merged object grew: it is compared again at its next clean-up
+        self._changed_since_cleanup |= merged & self.objects.keys()
 
-        for obj in list(self.objects.values()):
-            if not obj.confirmed and self.keyframes - obj.last_seen >= self.knobs.transient_max_age:
-                del self.objects[obj.id]
-                touched.discard(obj.id)
+        if self.keyframes % self.knobs.cleanup_interval == 0:
+            for obj in list(self.objects.values()):
+                if (
+                    not obj.confirmed
+                    and self.keyframes - obj.last_seen >= self.knobs.transient_max_age
+                ):
+                    del self.objects[obj.id]
+                    self._changed_since_cleanup.discard(obj.id)
+                    touched.discard(obj.id)
         return removed
 
     def _confirm(self, touched: set[int]) -> set[int]:
