@@ -4,6 +4,8 @@ keyframes instead of paying for every changed object on one."""
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 from analytic_world import Rect, render_rects
 
@@ -101,7 +103,7 @@ def test_semanticxr_spreads_the_clean_up_over_keyframes(encoder, monkeypatch):
     # no keyframe cleans every changed object; each one is cleaned every other keyframe
     assert all(len(ids) < len(engine.objects) for ids in per_keyframe)
     for oid in engine.objects:
-        assert all(oid in a or oid in b for a, b in zip(per_keyframe, per_keyframe[1:]))
+        assert all(oid in a or oid in b for a, b in itertools.pairwise(per_keyframe))
 
 
 def test_the_baseline_cleans_up_the_whole_scene_every_interval(encoder, monkeypatch):
