@@ -37,6 +37,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", default="standard")
     parser.add_argument("--out", default="out", help="folder for mapping.json and mapping.png")
     parser.add_argument(
+        "--no-sightings",
+        dest="sightings",
+        action="store_false",
+        help="map the keyframes only (no non-keyframe detections counting towards "
+        "confirmation): the behaviour before issue 13 target 4",
+    )
+    parser.add_argument(
         "--queries",
         metavar="FILE",
         help='JSON {"category": ["phrase", ...]} replacing the built-in paraphrases',
@@ -65,7 +72,12 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(f"--queries {exc}")
     cfg = EvalConfig(
-        scene=args.scene, seed=args.seed, frames=args.frames, noise=args.noise, queries=queries
+        scene=args.scene,
+        seed=args.seed,
+        frames=args.frames,
+        noise=args.noise,
+        queries=queries,
+        sightings=args.sightings,
     )
     caps = [int(c) for c in args.caps.split(",") if c.strip()]
     variants = {f"cap {cap}": ("semanticxr", Knobs(max_object_points_server=cap)) for cap in caps}

@@ -36,6 +36,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     parser.add_argument("--json", metavar="PATH", help="write the results as JSON here")
     parser.add_argument(
+        "--no-sightings",
+        dest="sightings",
+        action="store_false",
+        help="map keyframes only; by default the other frames' detections count towards "
+        "confirmation, as when a device sends every frame",
+    )
+    parser.add_argument(
         "--queries",
         metavar="FILE",
         help='JSON {"category": ["phrase", ...]} replacing the built-in paraphrases for '
@@ -67,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         modes=tuple(MODES) if args.mode == "both" else (args.mode,),
         knobs=knobs_from_args(args),
         queries=queries,
+        sightings=args.sightings,
     )
     print(
         f"[eval] scene {cfg.scene} (seed {cfg.seed}), {cfg.frames} frames at "

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -26,9 +27,9 @@ from app.config import MODES, Knobs, Mode
 from app.mapping.engine import MappingEngine
 from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
 from app.mapping.publish import update_message
-from app.protocol import parse_frame
+from app.protocol import FrameInput, parse_frame
 from app.semantics import TextEncoder
-from client_sim.encoder import FrameEncoder
+from client_sim.encoder import FrameEncoder, downsample_depth
 from client_sim.sources.synthetic import SyntheticSource
 from client_sim.world.categories import BACKGROUND_CLASSES, CATEGORIES
 from client_sim.world.gt import gt_point_cloud
@@ -67,6 +68,9 @@ class EvalConfig:
     encoder_options: dict = field(default_factory=dict)
     """FrameEncoder options besides the depth ratio (which comes from the knobs); unset
     ones keep the device's defaults."""
+    sightings: bool = True
+    """Also hand the engines every non-keyframe's detections as sightings (a v1 device
+    sends every frame whole; DESIGN.md "Keyframes"), so they count towards confirmation."""
     queries: dict[str, list[str]] | None = None
     """{category: [phrase, ...]} replacing the built-in paraphrases (`load_queries`); None:
     each category's `paraphrases`. Categories of the scene missing here are not asked."""
@@ -119,13 +123,42 @@ def _in_view(detector: DetectionModel, view, frame_index: int) -> set[str]:
     return {inst["label"] for inst in found.instances}
 
 
+@dataclass
+class _Sighting:
+    """A non-keyframe, kept compact between rendering and mapping (instance ids compressed)."""
+
+    seq: int
+    t: float
+    pose: np.ndarray
+    intrinsics: tuple
+    rgb_size: tuple[int, int]
+    depth_by_ratio: dict[int, np.ndarray]
+    instance_ids_z: bytes
+    instances: list[dict]
+
+    def frame(self, ratio: int) -> FrameInput:
+        w, h = self.rgb_size
+        ids = np.frombuffer(zlib.decompress(self.instance_ids_z), np.uint16).reshape(h, w)
+        return FrameInput(
+            seq=self.seq,
+            t=self.t,
+            pose=self.pose,
+            intrinsics=self.intrinsics,
+            rgb_size=self.rgb_size,
+            depth_m=self.depth_by_ratio[ratio],
+            instance_ids=ids,
+            instances=self.instances,
+        )
+
+
 def _encode_keyframes(
     cfg: EvalConfig, ratios: list[int], progress: Progress
-) -> tuple[dict[int, list], object, dict, dict[str, int]]:
+) -> tuple[dict[int, list], object, dict, dict[str, int], dict[int, list[_Sighting]]]:
     """Render the keyframes once and encode them at each depth ratio; every organisation at
     one ratio maps the same bytes. Every other frame of the walk is ray cast for the
-    visibility count only. Returns (messages by ratio, scene, upstream bytes at the
-    configured ratio, frames in view by category: see the module docstring)."""
+    visibility count and, with `cfg.sightings`, its detections. Returns (messages by ratio,
+    scene, upstream bytes at the configured ratio, frames in view by category: see the
+    module docstring, the non-keyframes by the keyframe they follow)."""
     source = SyntheticSource(
         cfg.scene,
         n_frames=cfg.frames,
@@ -140,11 +173,35 @@ def _encode_keyframes(
     n_keyframes = len(range(0, cfg.frames, interval))
     noise_free = DetectionModel(source.scene, "none", cfg.seed)
     in_view: dict[str, int] = dict.fromkeys(source.scene.categories_present, 0)
+    sightings: dict[int, list[_Sighting]] = {}
+    """By the keyframe (its position) they follow."""
     for index in range(cfg.frames):
-        if index % interval:
+        if index % interval == 0:
+            continue
+        if cfg.sightings:
+            frame = source.frame(index)
+            view = frame.view
+            sightings.setdefault(index // interval, []).append(
+                _Sighting(
+                    seq=index,
+                    t=frame.t,
+                    pose=frame.pose,
+                    intrinsics=frame.intrinsics,
+                    rgb_size=(cfg.width, cfg.height),
+                    depth_by_ratio={
+                        ratio: downsample_depth(frame.depth_m, ratio, encoder.depth_method)
+                        for ratio, encoder in encoders.items()
+                    },
+                    instance_ids_z=zlib.compress(
+                        np.ascontiguousarray(frame.instance_ids, np.uint16).tobytes(), 1
+                    ),
+                    instances=frame.instances,
+                )
+            )
+        else:
             view = source.renderer.render(source.poses[index], source.camera)
-            for name in _in_view(noise_free, view, index):
-                in_view[name] = in_view.get(name, 0) + 1
+        for name in _in_view(noise_free, view, index):
+            in_view[name] = in_view.get(name, 0) + 1
     for i, frame in enumerate(source.frames(every=interval)):
         for name in _in_view(noise_free, frame.view, frame.index):
             in_view[name] = in_view.get(name, 0) + 1
@@ -156,7 +213,7 @@ def _encode_keyframes(
                     upstream[kind] += encoded.bytes_by_kind.get(kind, 0)
         if (i + 1) % 20 == 0 or i + 1 == n_keyframes:
             progress(f"[eval] rendered and encoded {i + 1}/{n_keyframes} keyframes")
-    return messages, source.scene, upstream, in_view
+    return messages, source.scene, upstream, in_view, sightings
 
 
 def _labels_of(messages: list[dict]) -> list[str]:
@@ -181,16 +238,28 @@ class MappedRun:
     """Per keyframe, by stage: "decode", the engine's own stages (IntegrationStats.timings_ms
     but its "total") and "update" (0 on keyframes without one)."""
 
+    sightings_ms: list[float] = field(default_factory=list)
+    """Per non-keyframe handed over as sightings: validate + `MappingEngine.sight`."""
+
     def add_stage(self, stage: str, ms: float) -> None:
         self.stages_ms.setdefault(stage, []).append(ms)
 
 
 def map_keyframes(
-    messages: dict[str, list[dict]], engines: dict[str, MappingEngine], progress: Progress
+    messages: dict[str, list[dict]],
+    engines: dict[str, MappingEngine],
+    progress: Progress,
+    sightings: dict[int, list[_Sighting]] | None = None,
+    ratios: dict[str, int] | None = None,
 ) -> dict[str, MappedRun]:
     """Feed each engine its wire messages through decode + mapping + the downstream update
     (DESIGN.md "Mapping latency"). The engines take turns keyframe by keyframe, so a change
-    in machine load during the run affects every organisation alike."""
+    in machine load during the run affects every organisation alike.
+
+    sightings: the non-keyframes after each keyframe (by its position), handed to each
+    engine's `sight` after that keyframe at its depth ratio (`ratios`, by engine name,
+    required with sightings)."""
+    sightings = sightings or {}
     n_keyframes = len(next(iter(messages.values()), []))
     runs = {name: MappedRun() for name in engines}
     published = dict.fromkeys(engines, 0)
@@ -213,6 +282,11 @@ def map_keyframes(
                 if stage != "total":
                     run.add_stage(stage, ms)
             run.add_stage("update", (t3 - t2) * 1e3)
+            for sighting in sightings.get(i, []):
+                frame = sighting.frame(ratios[name])  # type: ignore[index]
+                t4 = time.perf_counter()
+                engine.sight(frame, engine.validate_frame(frame))
+                run.sightings_ms.append((time.perf_counter() - t4) * 1e3)
         if (i + 1) % 20 == 0 or i + 1 == n_keyframes:
             progress(
                 f"[eval] mapped {i + 1}/{n_keyframes} keyframes: "
@@ -316,7 +390,7 @@ def run_eval(
     knobs_of = {mode: (mode, cfg.knobs) for mode in cfg.modes} | variants
     ratio = cfg.knobs.depth_downsampling_ratio
     ratios = sorted({ratio, *(knobs.depth_downsampling_ratio for _, knobs in knobs_of.values())})
-    by_ratio, scene, upstream, in_view = _encode_keyframes(cfg, ratios, progress)
+    by_ratio, scene, upstream, in_view, sightings = _encode_keyframes(cfg, ratios, progress)
     n_keyframes = len(by_ratio[ratio])
     gt = gt_point_cloud(scene)
     categories = scene.categories_present
@@ -335,6 +409,7 @@ def run_eval(
         "depth_downsampling_ratio": cfg.knobs.depth_downsampling_ratio,
         "upstream_bytes_per_keyframe": {k: v / max(n_keyframes, 1) for k, v in upstream.items()},
         "queries": "built-in paraphrases" if cfg.queries is None else "file",
+        "sightings": cfg.sightings,
         "in_view_definition": IN_VIEW_DEFINITION,
         "frames_in_view": {name: in_view.get(name, 0) for name in categories},
         "unobserved_categories": sorted(set(categories) - observed),
@@ -347,6 +422,8 @@ def run_eval(
         {name: by_ratio[knobs.depth_downsampling_ratio] for name, (_, knobs) in knobs_of.items()},
         engines,
         progress,
+        sightings,
+        {name: knobs.depth_downsampling_ratio for name, (_, knobs) in knobs_of.items()},
     )
     if variants:
         result["variants"] = {}
@@ -356,6 +433,7 @@ def run_eval(
         scored = score_map(engine, gt, encoder, categories, observed, cfg.queries)
         scored["latency_ms"] = _percentiles(latencies)
         scored["mapping_total_ms"] = float(sum(latencies))
+        scored["sightings_ms"] = _percentiles(run.sightings_ms) if run.sightings_ms else None
         scored["stages_ms"] = {stage: _percentiles(ms) for stage, ms in run.stages_ms.items()}
         scored["downstream_bytes_per_update"] = _percentiles(update_bytes) if update_bytes else None
         scored["downstream_bytes_total"] = int(sum(update_bytes))

@@ -51,6 +51,13 @@ OUTLIER_EPS_M = 0.1
 MAX_WORLD_M = 10_000.0
 """A camera farther than this from the map's origin (per axis) is refused: no XR map is that
 big, and it keeps lifted points finite whatever the pose bytes say."""
+SIGHTING_MIN_POINTS = 5
+"""A candidate object is sighted on a non-keyframe only if at least this many of its points
+are visible there (in the image, in front of the camera, not hidden behind nearer depth)..."""
+SIGHTING_COVER = 0.5
+"""...and at least this fraction of those fall in one detection carrying one of its labels."""
+SIGHTING_DEPTH_TOLERANCE_M = 0.1
+"""A projected point is visible when its depth is within this (plus 5 %) of the sensed depth."""
 BASELINE_RESOLUTION_M = 0.01
 """The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
 a depth pixel at mapping range, so repeated views do not stack identical points."""
@@ -127,6 +134,11 @@ class MappingEngine:
         self.max_objects = max_objects
         self._at_cap = False
         self._changed_since_cleanup: set[int] = set()
+        self._sightings: dict[int, set[int]] = {}
+        """Candidate (unconfirmed) object id -> the frame seqs it was seen on, keyframes
+        (observations) and non-keyframes (`sight`) alike."""
+        self._sighted: set[int] = set()
+        """Candidates sighted since the last keyframe: `_confirm` considers them there."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
         geo.preload_outlier_removal()
 
@@ -139,6 +151,8 @@ class MappingEngine:
         self.keyframes = keyframes
         self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
         self._changed_since_cleanup = set(self.objects)  # compared again at their clean-up
+        self._sightings.clear()
+        self._sighted.clear()
         self._confirmed_matrix = None
 
     # ------------------------------------------------------------------ validation
@@ -228,6 +242,9 @@ class MappingEngine:
         t3 = time.perf_counter()
 
         touched = self._apply(observations, matches, stats)
+        for oid in touched:
+            if not self.objects[oid].confirmed:
+                self._sightings.setdefault(oid, set()).add(int(frame.seq))
         removed: set[int] = set()
         due = self._cleanup_due()
         if due or self.keyframes % self.knobs.cleanup_interval == 0:
@@ -235,7 +252,8 @@ class MappingEngine:
             stats.cleanup = True
         t4 = time.perf_counter()
 
-        published = self._confirm(touched - removed)
+        published = self._confirm((touched | self._sighted) - removed)
+        self._sighted.clear()
         stats.removed = len(removed)
         stats.seq = self.log.commit(published, removed)
         stats.published_ids, stats.removed_ids = sorted(published), sorted(removed)
@@ -439,6 +457,9 @@ class MappingEngine:
         keep.last_seen = max(keep.last_seen, gone.last_seen)
         keep.version += 1
         del self.objects[gone.id]
+        gone_seen = self._sightings.pop(gone.id, set())
+        if not keep.confirmed and gone_seen:
+            self._sightings.setdefault(keep.id, set()).update(gone_seen)
 
     def _cleanup_due(self) -> list[int] | None:
         """The objects this keyframe cleans up, in id order; None: no clean-up work at all.
@@ -520,8 +541,24 @@ class MappingEngine:
                 ):
                     del self.objects[obj.id]
                     self._changed_since_cleanup.discard(obj.id)
+                    self._sightings.pop(obj.id, None)
                     touched.discard(obj.id)
         return removed
+
+    def _qualifies(self, obj: MapObject) -> bool:
+        """Seen on `min_observations` keyframes, or on `min_observations` frames (keyframes
+        and non-keyframe sightings) whose seqs span more than `min_observations` frames
+        (first and last at least that far apart): an object in view for a second or two of
+        a sweep (one keyframe and the frames after it) is confirmed, a detection that lives
+        for `min_observations` frames or fewer (a transient) is not."""
+        if obj.frames_seen >= self.knobs.min_observations:
+            return True
+        seqs = self._sightings.get(obj.id)
+        return (
+            seqs is not None
+            and len(seqs) >= self.knobs.min_observations
+            and max(seqs) - min(seqs) >= self.knobs.min_observations
+        )
 
     def _confirm(self, touched: set[int]) -> set[int]:
         """Confirm objects seen often enough; returns the confirmed ids that changed."""
@@ -530,11 +567,65 @@ class MappingEngine:
             obj = self.objects.get(oid)
             if obj is None:
                 continue
-            if not obj.confirmed and obj.frames_seen >= self.knobs.min_observations:
+            if not obj.confirmed and self._qualifies(obj):
                 obj.confirmed = True
+                self._sightings.pop(oid, None)
             if obj.confirmed:
                 published.add(oid)
         return published
+
+    def sight(self, frame: FrameInput, sent: FrameDetections | None) -> list[int]:
+        """Count a non-keyframe's detections as sightings of candidate objects (DESIGN.md
+        "Keyframes": a detection sent with a non-keyframe may count towards confirmation).
+
+        frame: validated by `validate_frame`, which returned `sent`. Each unconfirmed object
+        is projected into the frame; it is sighted when enough of its visible points
+        (SIGHTING_MIN_POINTS, SIGHTING_COVER) fall in one detection whose label it carries.
+        Nothing is lifted and no geometry changes; a candidate that now qualifies is
+        confirmed, and published, by the next keyframe. Returns the sighted ids."""
+        if sent is None or not sent.detections:
+            return []
+        candidates = [o for o in self.objects.values() if not o.confirmed and len(o.points)]
+        if not candidates:
+            return []
+        skip = {label.lower() for label in self.knobs.skip_mapping_set}
+        label_of = {d.instance_id: d.label for d in sent.detections if d.label.lower() not in skip}
+        pose = np.asarray(frame.pose, np.float64)
+        rotation, origin = pose[:3, :3], pose[:3, 3]
+        fx, fy, cx, cy = frame.intrinsics
+        width, height = frame.rgb_size
+        depth = frame.depth_m
+        ratio = max(1, round(width / depth.shape[1]))
+        sighted = []
+        for obj in candidates:
+            cam = (obj.points.astype(np.float64) - origin) @ rotation
+            z = cam[:, 2]
+            front = z > 1e-3
+            u = np.floor(fx * cam[front, 0] / z[front] + cx + 0.5).astype(np.int64)
+            v = np.floor(fy * cam[front, 1] / z[front] + cy + 0.5).astype(np.int64)
+            z = z[front]
+            inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+            u, v, z = u[inside], v[inside], z[inside]
+            sensed = depth[
+                np.minimum(v // ratio, depth.shape[0] - 1),
+                np.minimum(u // ratio, depth.shape[1] - 1),
+            ]
+            visible = (sensed > 0) & (np.abs(z - sensed) <= SIGHTING_DEPTH_TOLERANCE_M + 0.05 * z)
+            n_visible = int(visible.sum())
+            if n_visible < SIGHTING_MIN_POINTS:
+                continue
+            ids = sent.instance_image[v[visible], u[visible]]
+            counts = np.bincount(ids)
+            counts[0] = 0
+            best = int(np.argmax(counts))
+            if counts[best] < SIGHTING_COVER * n_visible:
+                continue
+            if label_of.get(best) not in obj.label_counts:
+                continue
+            self._sightings.setdefault(obj.id, set()).add(int(frame.seq))
+            self._sighted.add(obj.id)
+            sighted.append(obj.id)
+        return sighted
 
     # ------------------------------------------------------------------ reading the map
     def confirmed_objects(self) -> list[MapObject]:
