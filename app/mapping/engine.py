@@ -56,6 +56,8 @@ SIGHTING_MIN_POINTS = 5
 are visible there (in the image, in front of the camera, not hidden behind nearer depth)..."""
 SIGHTING_COVER = 0.5
 """...and at least this fraction of those fall in one detection carrying one of its labels."""
+SIGHTING_SAMPLE_POINTS = 200
+"""Points of each object projected into a non-keyframe (a regular subsample)."""
 SIGHTING_DEPTH_TOLERANCE_M = 0.1
 """A projected point is visible when its depth is within this (plus 5 %) of the sensed depth."""
 BASELINE_RESOLUTION_M = 0.01
@@ -134,6 +136,9 @@ class MappingEngine:
         self.max_objects = max_objects
         self._at_cap = False
         self._changed_since_cleanup: set[int] = set()
+        """Objects changed since they were last denoised."""
+        self._changed_since_merge_check: set[int] = set()
+        """Objects changed since they were last compared with their neighbours for a merge."""
         self._sightings: dict[int, set[int]] = {}
         """Candidate (unconfirmed) object id -> the frame seqs it was seen on, keyframes
         (observations) and non-keyframes (`sight`) alike."""
@@ -150,7 +155,8 @@ class MappingEngine:
         self.log = log
         self.keyframes = keyframes
         self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
-        self._changed_since_cleanup = set(self.objects)  # compared again at their clean-up
+        self._changed_since_cleanup = set(self.objects)  # cleaned again once
+        self._changed_since_merge_check = set(self.objects)
         self._sightings.clear()
         self._sighted.clear()
         self._confirmed_matrix = None
@@ -246,9 +252,9 @@ class MappingEngine:
             if not self.objects[oid].confirmed:
                 self._sightings.setdefault(oid, set()).add(int(frame.seq))
         removed: set[int] = set()
-        due = self._cleanup_due()
+        due = self._denoise_due()
         if due or self.keyframes % self.knobs.cleanup_interval == 0:
-            removed = self._cleanup(touched, due or [])
+            removed = self._cleanup(touched, due)
             stats.cleanup = True
         t4 = time.perf_counter()
 
@@ -433,6 +439,7 @@ class MappingEngine:
                 seen_this_frame.add(obj.id)
             touched.add(obj.id)
         self._changed_since_cleanup |= touched
+        self._changed_since_merge_check |= touched
         if stats.over_cap and not self._at_cap:
             log.warning(
                 "a map reached its cap of %d objects (server setting max_objects, "
@@ -461,49 +468,54 @@ class MappingEngine:
         if not keep.confirmed and gone_seen:
             self._sightings.setdefault(keep.id, set()).update(gone_seen)
 
-    def _cleanup_due(self) -> list[int] | None:
-        """The objects this keyframe cleans up, in id order; None: no clean-up work at all.
+    def _denoise_due(self) -> list[int]:
+        """The objects whose outliers this keyframe removes, in id order.
 
-        semanticxr spreads the clean-up over keyframes: an object changed since its last
-        clean-up is due on the keyframes where `keyframes % cleanup_interval` equals
-        `id % cleanup_interval`, so each one is cleaned within `cleanup_interval` keyframes
-        of changing and each keyframe carries about 1/cleanup_interval of the changed
-        objects, never the whole map. The baseline keeps the per-scene organisation: every
-        `cleanup_interval` keyframes, every changed object at once.
+        semanticxr spreads the denoising (the costly part of the clean-up) over keyframes:
+        an object changed since it was last denoised is due on the keyframes where
+        `keyframes % cleanup_interval` equals `id % cleanup_interval`, so each is denoised
+        within `cleanup_interval` keyframes of changing and each keyframe carries about
+        1/cleanup_interval of the changed objects, never the whole map. The baseline keeps
+        the per-scene organisation: every changed object every `cleanup_interval` keyframes.
         """
         interval = self.knobs.cleanup_interval
         if self.mode == "baseline":
-            return sorted(self._changed_since_cleanup) if self.keyframes % interval == 0 else None
+            return sorted(self._changed_since_cleanup) if self.keyframes % interval == 0 else []
         slot = self.keyframes % interval
         return sorted(oid for oid in self._changed_since_cleanup if oid % interval == slot)
 
     def _cleanup(self, touched: set[int], due: list[int]) -> set[int]:
-        """Outlier removal on the `due` objects (changed since their last clean-up), merge of
-        duplicates among the pairs one of them is in, then every `cleanup_interval`
-        keyframes pruning of transients. Both organisations run this; they differ only in
-        which objects are due (`_cleanup_due`): a pair of objects neither of which changed
-        since it was last compared cannot have started to qualify for a merge, so it is not
-        compared again.
+        """Outlier removal on the `due` objects (`_denoise_due`); every `cleanup_interval`
+        keyframes, merge of duplicates and pruning of transients. Both organisations run
+        this code. The merge compares only the pairs with an object changed since its last
+        merge check: two objects that did not change since they were compared cannot have
+        started to qualify, so nothing is compared twice for nothing.
 
         Adds the objects it changes to `touched`; returns the ids of published objects it
         removed (others were never sent downstream).
         """
         removed: set[int] = set()
-        due_objects = [self.objects[oid] for oid in due if oid in self.objects]
         self._changed_since_cleanup.difference_update(due)
-        for obj in due_objects:
+        for oid in due:
+            obj = self.objects.get(oid)
+            if obj is None:
+                continue
             kept = geo.remove_outliers(obj.points, OUTLIER_EPS_M)
             if len(kept) < len(obj.points):
                 obj.set_points(kept, obj.resolution_m)
                 obj.version += 1
-                touched.add(obj.id)
+                touched.add(oid)
+                self._changed_since_merge_check.add(oid)
+        if self.keyframes % self.knobs.cleanup_interval:
+            return removed
 
+        changed = self._changed_since_merge_check & self.objects.keys()
+        self._changed_since_merge_check = set()
         merged: set[int] = set()
-        if due_objects:
+        if changed:
             objects = sorted(self.objects.values(), key=lambda o: o.id)
-            due_ids = {o.id for o in due_objects}
             boxes = np.stack([o.bbox for o in objects])
-            rows = [k for k, o in enumerate(objects) if o.id in due_ids]
+            rows = [k for k, o in enumerate(objects) if o.id in changed]
             overlapping = geo.bbox_intersects_matrix(boxes[rows], boxes, 0.0)
             embeddings = np.stack([o.embedding for o in objects])
             semantic = embeddings[rows] @ embeddings.T
@@ -511,7 +523,7 @@ class MappingEngine:
             for r, j in zip(*np.nonzero(overlapping & (semantic >= MERGE_SEMANTIC)), strict=True):
                 i = rows[r]
                 if i != j:
-                    pairs.add((min(i, j), max(i, j)))  # a pair of two due objects once
+                    pairs.add((min(i, j), max(i, j)))  # a pair of two changed objects once
             for i, j in sorted(pairs):  # id order, as a scan of the upper triangle
                 a, b = objects[i], objects[j]
                 if a.id not in self.objects or b.id not in self.objects:
@@ -530,19 +542,16 @@ class MappingEngine:
                 self._changed_since_cleanup.discard(gone.id)
                 if gone.confirmed:
                     removed.add(gone.id)
-        # a merged object grew: it is compared again at its next clean-up
-        self._changed_since_cleanup |= merged & self.objects.keys()
+        # a merged object grew: compared again at the next merge check
+        self._changed_since_merge_check |= merged & self.objects.keys()
 
-        if self.keyframes % self.knobs.cleanup_interval == 0:
-            for obj in list(self.objects.values()):
-                if (
-                    not obj.confirmed
-                    and self.keyframes - obj.last_seen >= self.knobs.transient_max_age
-                ):
-                    del self.objects[obj.id]
-                    self._changed_since_cleanup.discard(obj.id)
-                    self._sightings.pop(obj.id, None)
-                    touched.discard(obj.id)
+        for obj in list(self.objects.values()):
+            if not obj.confirmed and self.keyframes - obj.last_seen >= self.knobs.transient_max_age:
+                del self.objects[obj.id]
+                self._changed_since_cleanup.discard(obj.id)
+                self._changed_since_merge_check.discard(obj.id)
+                self._sightings.pop(obj.id, None)
+                touched.discard(obj.id)
         return removed
 
     def _qualifies(self, obj: MapObject) -> bool:
@@ -582,7 +591,9 @@ class MappingEngine:
         is projected into the frame; it is sighted when enough of its visible points
         (SIGHTING_MIN_POINTS, SIGHTING_COVER) fall in one detection whose label it carries.
         Nothing is lifted and no geometry changes; a candidate that now qualifies is
-        confirmed, and published, by the next keyframe. Returns the sighted ids."""
+        confirmed, and published, by the next keyframe. A detection sights only the object
+        with the most visible points in it among those carrying its label. Returns the
+        sighted ids."""
         if sent is None or not sent.detections:
             return []
         candidates = [o for o in self.objects.values() if not o.confirmed and len(o.points)]
@@ -596,9 +607,17 @@ class MappingEngine:
         width, height = frame.rgb_size
         depth = frame.depth_m
         ratio = max(1, round(width / depth.shape[1]))
-        sighted = []
-        for obj in candidates:
-            cam = (obj.points.astype(np.float64) - origin) @ rotation
+        # Every object with a point sample competes for the detections; a candidate is
+        # sighted only by a detection it owns (most visible points among the objects carrying
+        # the detection's label), so a fragment of a confirmed object is not sighted by the
+        # object's own detection.
+        claims: dict[int, list[tuple[int, int]]] = {}  # detection id -> [(points, object id)]
+        best_of: dict[int, int] = {}
+        for obj in self.objects.values():
+            if not len(obj.points):
+                continue
+            points = obj.points[:: max(1, len(obj.points) // SIGHTING_SAMPLE_POINTS)]
+            cam = (points.astype(np.float64) - origin) @ rotation
             z = cam[:, 2]
             front = z > 1e-3
             u = np.floor(fx * cam[front, 0] / z[front] + cx + 0.5).astype(np.int64)
@@ -612,20 +631,24 @@ class MappingEngine:
             ]
             visible = (sensed > 0) & (np.abs(z - sensed) <= SIGHTING_DEPTH_TOLERANCE_M + 0.05 * z)
             n_visible = int(visible.sum())
-            if n_visible < SIGHTING_MIN_POINTS:
+            if n_visible < min(SIGHTING_MIN_POINTS, len(points)):
                 continue
-            ids = sent.instance_image[v[visible], u[visible]]
-            counts = np.bincount(ids)
+            counts = np.bincount(sent.instance_image[v[visible], u[visible]])
             counts[0] = 0
+            for det_id in np.flatnonzero(counts):
+                if label_of.get(int(det_id)) in obj.label_counts:
+                    claims.setdefault(int(det_id), []).append((int(counts[det_id]), obj.id))
             best = int(np.argmax(counts))
-            if counts[best] < SIGHTING_COVER * n_visible:
+            if not obj.confirmed and counts[best] >= SIGHTING_COVER * n_visible:
+                best_of[obj.id] = best
+        sighted = []
+        for oid, det_id in best_of.items():
+            if max(claims.get(det_id, [(0, 0)]))[1] != oid:
                 continue
-            if label_of.get(best) not in obj.label_counts:
-                continue
-            self._sightings.setdefault(obj.id, set()).add(int(frame.seq))
-            self._sighted.add(obj.id)
-            sighted.append(obj.id)
-        return sighted
+            self._sightings.setdefault(oid, set()).add(int(frame.seq))
+            self._sighted.add(oid)
+            sighted.append(oid)
+        return sorted(sighted)
 
     # ------------------------------------------------------------------ reading the map
     def confirmed_objects(self) -> list[MapObject]:
