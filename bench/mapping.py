@@ -37,11 +37,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", default="standard")
     parser.add_argument("--out", default="out", help="folder for mapping.json and mapping.png")
     parser.add_argument(
-        "--no-sightings",
-        dest="sightings",
-        action="store_false",
-        help="map the keyframes only (no non-keyframe detections counting towards "
-        "confirmation): the behaviour before issue 13 target 4",
+        "--sightings",
+        action="store_true",
+        help="also count the non-keyframes' detections as sightings towards confirmation "
+        "(issue 13 target 4, MappingEngine.sight; the server does not do it yet)",
     )
     parser.add_argument(
         "--queries",

@@ -36,11 +36,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     parser.add_argument("--json", metavar="PATH", help="write the results as JSON here")
     parser.add_argument(
-        "--no-sightings",
-        dest="sightings",
-        action="store_false",
-        help="map keyframes only; by default the other frames' detections count towards "
-        "confirmation, as when a device sends every frame",
+        "--sightings",
+        action="store_true",
+        help="also count the other frames' detections as sightings towards confirmation "
+        "(MappingEngine.sight), as a server would with a device sending every frame",
     )
     parser.add_argument(
         "--queries",

@@ -108,3 +108,19 @@ def test_eval_exits_2_naming_the_query_file_before_any_work(tmp_path):
     assert proc.returncode == 2
     assert "--queries" in proc.stderr and "unicorn" in proc.stderr
     assert "keyframes" not in proc.stderr  # refused before rendering anything
+
+
+def test_sightings_hand_the_non_keyframes_to_the_engines(encoder, report):
+    assert report["sightings"] is False and report["modes"]["semanticxr"]["sightings_ms"] is None
+    cfg = EvalConfig(
+        scene="kitchen",
+        frames=30,
+        width=160,
+        height=120,
+        modes=("semanticxr",),
+        knobs=Knobs(min_mapping_bbox_area=150),
+        sightings=True,
+    )
+    result = run_eval(cfg, encoder, progress=lambda _: None)
+    assert result["sightings"] is True
+    assert {"p50", "p95", "mean"} <= result["modes"]["semanticxr"]["sightings_ms"].keys()
