@@ -1,12 +1,17 @@
-"""Mapping speed and quality: semanticxr vs baseline on the same keyframes (issue 2 targets).
+"""Mapping speed and quality: semanticxr vs baseline on the same keyframes (issue 13 targets).
 
-    python -m bench.mapping [--scene apartment] [--frames 400] [--out out/]
+    python -m bench.mapping [--scene apartment] [--frames 400|1200] [--queries FILE] [--out out/]
 
-Targets (DESIGN.md "Targets"): semanticxr at least 3x faster per keyframe (p50) than the
-baseline with F-mIoU within 1 point of it, and semanticxr p50 <= 40 ms per keyframe,
-at 640x480 RGB, depth ÷5, noise `standard`. The organisations (and the cap variants) take
-turns keyframe by keyframe, so machine load drifts affect all alike; the speed-up is also
-reported at equal quality: for the cap variants within 1 F-mIoU point of the baseline.
+Targets 1-4 of issue 13, at 640x480 RGB, depth ÷5, noise `standard`, both organisations
+mapped side by side in one run (they take turns keyframe by keyframe, so machine load
+drifts affect all alike):
+  1. query top-1 over the categories in view (app.cli.evaluation: the noise-free detector
+     reports them in at least 8 frames) >= 85 %, and never below the baseline's;
+  2. F-mIoU of semanticxr within 1 point of the baseline's (or above);
+  3. mean keyframe latency >= 3x lower than the baseline's, and semanticxr p95 <= 3x p50;
+  4. a glance is enough: the categories in view for 8-15 frames only (1.6-3 s at 5 fps) are
+     mapped (a proxy on the walk; the one-frame spurious detections are a test's matter).
+Also reported, not targets: the point cap sweep, and a baseline fed full-resolution depth.
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ import os
 from bench.common import check, machine, save_plot, write_outputs
 
 FULL_DEPTH_BASELINE = "baseline, depth ÷1"
+GLANCE_MAX_FRAMES = 15
+"""Target 4 on the walk: categories in view for at most this many frames (3 s at 5 fps)."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,6 +36,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=400)
     parser.add_argument("--noise", default="standard")
     parser.add_argument("--out", default="out", help="folder for mapping.json and mapping.png")
+    parser.add_argument(
+        "--sightings",
+        action="store_true",
+        help="also count the non-keyframes' detections as sightings towards confirmation "
+        "(issue 13 target 4, MappingEngine.sight; the server does not do it yet)",
+    )
+    parser.add_argument(
+        "--queries",
+        metavar="FILE",
+        help='JSON {"category": ["phrase", ...]} replacing the built-in paraphrases',
+    )
     parser.add_argument(
         "--caps",
         default="1000,4000,8000",
@@ -44,11 +62,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
-    from app.cli.evaluation import EvalConfig, run_eval
+    from app.cli.evaluation import IN_VIEW_MIN_FRAMES, EvalConfig, load_queries, run_eval
     from app.config import Knobs
     from app.semantics import get_text_encoder
 
-    cfg = EvalConfig(scene=args.scene, seed=args.seed, frames=args.frames, noise=args.noise)
+    try:
+        queries = load_queries(args.queries) if args.queries else None
+    except ValueError as exc:
+        parser.error(f"--queries {exc}")
+    cfg = EvalConfig(
+        scene=args.scene,
+        seed=args.seed,
+        frames=args.frames,
+        noise=args.noise,
+        queries=queries,
+        sightings=args.sightings,
+    )
     caps = [int(c) for c in args.caps.split(",") if c.strip()]
     variants = {f"cap {cap}": ("semanticxr", Knobs(max_object_points_server=cap)) for cap in caps}
     if args.full_depth_baseline:
@@ -72,23 +101,77 @@ def main(argv: list[str] | None = None) -> int:
         }
         for cap, m in sorted(rows, key=lambda row: row[0])
     ]
-    equal_quality = [row for row in sweep if row["gap"] <= 1.0]
-    best = max(equal_quality, key=lambda row: row["speedup_p50"], default=None)
+    sx_lat, bl_lat = sx["latency_ms"], bl["latency_ms"]
+    glance = sorted(
+        name
+        for name, n in result["frames_in_view"].items()
+        if IN_VIEW_MIN_FRAMES <= n <= GLANCE_MAX_FRAMES
+    )
+    glance_mapped = [name for name in glance if name in sx["categories_mapped"]]
     targets = [
-        check("speed-up p50 (baseline / semanticxr)", result["speedup_p50"], ">=", 3.0, "x"),
-        check("F-mIoU gap (baseline - semanticxr)", bl["F_mIoU"] - sx["F_mIoU"], "<=", 1.0, " pts"),
-        check("semanticxr p50 per keyframe", sx["latency_ms"]["p50"], "<=", 40.0, " ms"),
+        check(
+            "1. query top-1 over observed categories (semanticxr)",
+            sx["query_top1_observed"],
+            ">=",
+            85.0,
+            " %",
+        ),
+        check(
+            "1. query top-1 observed, semanticxr - baseline",
+            sx["query_top1_observed"] - bl["query_top1_observed"],
+            ">=",
+            0.0,
+            " pts",
+        ),
+        check(
+            "2. F-mIoU gap (baseline - semanticxr)", bl["F_mIoU"] - sx["F_mIoU"], "<=", 1.0, " pts"
+        ),
+        check(
+            "3. mean latency ratio (baseline / semanticxr)",
+            bl_lat["mean"] / max(sx_lat["mean"], 1e-9),
+            ">=",
+            3.0,
+            "x",
+        ),
+        check("3. semanticxr p95 / p50", sx_lat["p95"] / max(sx_lat["p50"], 1e-9), "<=", 3.0, "x"),
+        check(
+            f"4. glance categories mapped (in view {IN_VIEW_MIN_FRAMES}-{GLANCE_MAX_FRAMES} "
+            f"frames: {len(glance)})",
+            100.0 * len(glance_mapped) / len(glance) if glance else 100.0,
+            ">=",
+            100.0,
+            " %",
+        ),
     ]
-    if best is not None:
-        targets.append(
-            check(
-                f"speed-up p50 at equal quality (cap {best['cap']}, gap {best['gap']:.2f} pts)",
-                best["speedup_p50"],
-                ">=",
-                3.0,
-                "x",
+    print("  side by side:            semanticxr    baseline")
+    for label, key in (
+        ("query top-1 observed %", "query_top1_observed"),
+        ("query top-1 (all) %", "query_top1"),
+        ("mAcc", "mAcc"),
+        ("F-mIoU", "F_mIoU"),
+        ("objects", "objects"),
+    ):
+        print(f"    {label:22s} {sx[key]:10.1f} {bl[key]:11.1f}")
+    for stat in ("p50", "p95", "mean"):
+        print(f"    latency {stat:4s} ms        {sx_lat[stat]:10.1f} {bl_lat[stat]:11.1f}")
+    print(
+        f"    mapping total s        {sx['mapping_total_ms'] / 1e3:10.1f} "
+        f"{bl['mapping_total_ms'] / 1e3:11.1f}"
+    )
+    print(
+        f"  not in view ({len(result['unobserved_categories'])}): "
+        f"{', '.join(result['unobserved_categories']) or 'none'}"
+    )
+    print(
+        f"  glance categories: {', '.join(glance) or 'none'}; mapped: {', '.join(glance_mapped) or 'none'}"
+    )
+    print("  query top-1 per observed category (frames in view): semanticxr / baseline %")
+    for name, n in sorted(result["frames_in_view"].items()):
+        if n >= IN_VIEW_MIN_FRAMES and name in sx["query_top1_per_category"]:
+            print(
+                f"    {name:18s} {n:5d}  {sx['query_top1_per_category'][name]:5.0f} / "
+                f"{bl['query_top1_per_category'][name]:5.0f}"
             )
-        )
     print("  per-stage p50 / mean in ms, semanticxr vs baseline:")
     for stage, sx_ms in sx["stages_ms"].items():
         bl_ms = bl["stages_ms"][stage]
@@ -133,7 +216,10 @@ def main(argv: list[str] | None = None) -> int:
         ax.plot(result["modes"][mode]["latencies_ms"], color=style, label=mode, lw=1)
     ax.set_xlabel("keyframe")
     ax.set_ylabel("mapping latency (ms)")
-    ax.set_title(f"{args.scene}: speed-up {result['speedup_p50']:.1f}x at p50")
+    ax.set_title(
+        f"{args.scene}: mean {sx_lat['mean']:.1f} vs {bl_lat['mean']:.1f} ms, "
+        f"semanticxr p95/p50 {sx_lat['p95'] / max(sx_lat['p50'], 1e-9):.1f}"
+    )
     ax.legend()
     save_plot(fig, args.out, "mapping")
     return 0 if all(t["ok"] for t in targets) else 1

@@ -51,6 +51,15 @@ OUTLIER_EPS_M = 0.1
 MAX_WORLD_M = 10_000.0
 """A camera farther than this from the map's origin (per axis) is refused: no XR map is that
 big, and it keeps lifted points finite whatever the pose bytes say."""
+SIGHTING_MIN_POINTS = 5
+"""A candidate object is sighted on a non-keyframe only if at least this many of its points
+are visible there (in the image, in front of the camera, not hidden behind nearer depth)..."""
+SIGHTING_COVER = 0.5
+"""...and at least this fraction of those fall in one detection carrying one of its labels."""
+SIGHTING_SAMPLE_POINTS = 200
+"""Points of each object projected into a non-keyframe (a regular subsample)."""
+SIGHTING_DEPTH_TOLERANCE_M = 0.1
+"""A projected point is visible when its depth is within this (plus 5 %) of the sensed depth."""
 BASELINE_RESOLUTION_M = 0.01
 """The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
 a depth pixel at mapping range, so repeated views do not stack identical points."""
@@ -127,6 +136,14 @@ class MappingEngine:
         self.max_objects = max_objects
         self._at_cap = False
         self._changed_since_cleanup: set[int] = set()
+        """Objects changed since they were last denoised."""
+        self._changed_since_merge_check: set[int] = set()
+        """Objects changed since they were last compared with their neighbours for a merge."""
+        self._sightings: dict[int, set[int]] = {}
+        """Candidate (unconfirmed) object id -> the frame seqs it was seen on, keyframes
+        (observations) and non-keyframes (`sight`) alike."""
+        self._sighted: set[int] = set()
+        """Candidates sighted since the last keyframe: `_confirm` considers them there."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
         geo.preload_outlier_removal()
 
@@ -138,6 +155,10 @@ class MappingEngine:
         self.log = log
         self.keyframes = keyframes
         self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
+        self._changed_since_cleanup = set(self.objects)  # cleaned again once
+        self._changed_since_merge_check = set(self.objects)
+        self._sightings.clear()
+        self._sighted.clear()
         self._confirmed_matrix = None
 
     # ------------------------------------------------------------------ validation
@@ -227,13 +248,18 @@ class MappingEngine:
         t3 = time.perf_counter()
 
         touched = self._apply(observations, matches, stats)
+        for oid in touched:
+            if not self.objects[oid].confirmed:
+                self._sightings.setdefault(oid, set()).add(int(frame.seq))
         removed: set[int] = set()
-        if self.keyframes % self.knobs.cleanup_interval == 0:
-            removed = self._cleanup(touched)
+        due = self._denoise_due()
+        if due or self.keyframes % self.knobs.cleanup_interval == 0:
+            removed = self._cleanup(touched, due)
             stats.cleanup = True
         t4 = time.perf_counter()
 
-        published = self._confirm(touched - removed)
+        published = self._confirm((touched | self._sighted) - removed)
+        self._sighted.clear()
         stats.removed = len(removed)
         stats.seq = self.log.commit(published, removed)
         stats.published_ids, stats.removed_ids = sorted(published), sorted(removed)
@@ -413,6 +439,7 @@ class MappingEngine:
                 seen_this_frame.add(obj.id)
             touched.add(obj.id)
         self._changed_since_cleanup |= touched
+        self._changed_since_merge_check |= touched
         if stats.over_cap and not self._at_cap:
             log.warning(
                 "a map reached its cap of %d objects (server setting max_objects, "
@@ -437,35 +464,69 @@ class MappingEngine:
         keep.last_seen = max(keep.last_seen, gone.last_seen)
         keep.version += 1
         del self.objects[gone.id]
+        gone_seen = self._sightings.pop(gone.id, set())
+        if not keep.confirmed and gone_seen:
+            self._sightings.setdefault(keep.id, set()).update(gone_seen)
 
-    def _cleanup(self, touched: set[int]) -> set[int]:
-        """Outlier removal on changed objects, merge of duplicates, pruning of transients.
+    def _denoise_due(self) -> list[int]:
+        """The objects whose outliers this keyframe removes, in id order.
+
+        semanticxr spreads the denoising (the costly part of the clean-up) over keyframes:
+        an object changed since it was last denoised is due on the keyframes where
+        `keyframes % cleanup_interval` equals `id % cleanup_interval`, so each is denoised
+        within `cleanup_interval` keyframes of changing and each keyframe carries about
+        1/cleanup_interval of the changed objects, never the whole map. The baseline keeps
+        the per-scene organisation: every changed object every `cleanup_interval` keyframes.
+        """
+        interval = self.knobs.cleanup_interval
+        if self.mode == "baseline":
+            return sorted(self._changed_since_cleanup) if self.keyframes % interval == 0 else []
+        slot = self.keyframes % interval
+        return sorted(oid for oid in self._changed_since_cleanup if oid % interval == slot)
+
+    def _cleanup(self, touched: set[int], due: list[int]) -> set[int]:
+        """Outlier removal on the `due` objects (`_denoise_due`); every `cleanup_interval`
+        keyframes, merge of duplicates and pruning of transients. Both organisations run
+        this code. The merge compares only the pairs with an object changed since its last
+        merge check: two objects that did not change since they were compared cannot have
+        started to qualify, so nothing is compared twice for nothing.
 
         Adds the objects it changes to `touched`; returns the ids of published objects it
         removed (others were never sent downstream).
         """
         removed: set[int] = set()
-        for oid in sorted(self._changed_since_cleanup):
+        self._changed_since_cleanup.difference_update(due)
+        for oid in due:
             obj = self.objects.get(oid)
-            if obj is not None:
-                kept = geo.remove_outliers(obj.points, OUTLIER_EPS_M)
-                if len(kept) < len(obj.points):
-                    obj.set_points(kept, obj.resolution_m)
-                    obj.version += 1
-                    touched.add(oid)
-        self._changed_since_cleanup.clear()
+            if obj is None:
+                continue
+            kept = geo.remove_outliers(obj.points, OUTLIER_EPS_M)
+            if len(kept) < len(obj.points):
+                obj.set_points(kept, obj.resolution_m)
+                obj.version += 1
+                touched.add(oid)
+                self._changed_since_merge_check.add(oid)
+        if self.keyframes % self.knobs.cleanup_interval:
+            return removed
 
-        objects = sorted(self.objects.values(), key=lambda o: o.id)
-        if objects:
+        changed = self._changed_since_merge_check & self.objects.keys()
+        self._changed_since_merge_check = set()
+        merged: set[int] = set()
+        if changed:
+            objects = sorted(self.objects.values(), key=lambda o: o.id)
             boxes = np.stack([o.bbox for o in objects])
-            overlapping = geo.bbox_intersects_matrix(boxes, boxes, 0.0)
-            semantic = np.stack([o.embedding for o in objects])
-            semantic = semantic @ semantic.T
-            for i, j in zip(*np.nonzero(np.triu(overlapping, 1)), strict=True):
+            rows = [k for k, o in enumerate(objects) if o.id in changed]
+            overlapping = geo.bbox_intersects_matrix(boxes[rows], boxes, 0.0)
+            embeddings = np.stack([o.embedding for o in objects])
+            semantic = embeddings[rows] @ embeddings.T
+            pairs = set()
+            for r, j in zip(*np.nonzero(overlapping & (semantic >= MERGE_SEMANTIC)), strict=True):
+                i = rows[r]
+                if i != j:
+                    pairs.add((min(i, j), max(i, j)))  # a pair of two changed objects once
+            for i, j in sorted(pairs):  # id order, as a scan of the upper triangle
                 a, b = objects[i], objects[j]
                 if a.id not in self.objects or b.id not in self.objects:
-                    continue
-                if semantic[i, j] < MERGE_SEMANTIC:
                     continue
                 small, large = (a, b) if len(a.points) <= len(b.points) else (b, a)
                 if (
@@ -475,16 +536,38 @@ class MappingEngine:
                     continue
                 keep, gone = (a, b) if a.id < b.id else (b, a)  # the older id survives
                 self._merge_objects(keep, gone)
+                merged.add(keep.id)
                 touched.add(keep.id)
                 touched.discard(gone.id)
+                self._changed_since_cleanup.discard(gone.id)
                 if gone.confirmed:
                     removed.add(gone.id)
+        # a merged object grew: compared again at the next merge check
+        self._changed_since_merge_check |= merged & self.objects.keys()
 
         for obj in list(self.objects.values()):
             if not obj.confirmed and self.keyframes - obj.last_seen >= self.knobs.transient_max_age:
                 del self.objects[obj.id]
+                self._changed_since_cleanup.discard(obj.id)
+                self._changed_since_merge_check.discard(obj.id)
+                self._sightings.pop(obj.id, None)
                 touched.discard(obj.id)
         return removed
+
+    def _qualifies(self, obj: MapObject) -> bool:
+        """Seen on `min_observations` keyframes, or on `min_observations` frames (keyframes
+        and non-keyframe sightings) whose seqs span more than `min_observations` frames
+        (first and last at least that far apart): an object in view for a second or two of
+        a sweep (one keyframe and the frames after it) is confirmed, a detection that lives
+        for `min_observations` frames or fewer (a transient) is not."""
+        if obj.frames_seen >= self.knobs.min_observations:
+            return True
+        seqs = self._sightings.get(obj.id)
+        return (
+            seqs is not None
+            and len(seqs) >= self.knobs.min_observations
+            and max(seqs) - min(seqs) >= self.knobs.min_observations
+        )
 
     def _confirm(self, touched: set[int]) -> set[int]:
         """Confirm objects seen often enough; returns the confirmed ids that changed."""
@@ -493,11 +576,79 @@ class MappingEngine:
             obj = self.objects.get(oid)
             if obj is None:
                 continue
-            if not obj.confirmed and obj.frames_seen >= self.knobs.min_observations:
+            if not obj.confirmed and self._qualifies(obj):
                 obj.confirmed = True
+                self._sightings.pop(oid, None)
             if obj.confirmed:
                 published.add(oid)
         return published
+
+    def sight(self, frame: FrameInput, sent: FrameDetections | None) -> list[int]:
+        """Count a non-keyframe's detections as sightings of candidate objects (DESIGN.md
+        "Keyframes": a detection sent with a non-keyframe may count towards confirmation).
+
+        frame: validated by `validate_frame`, which returned `sent`. Each unconfirmed object
+        is projected into the frame; it is sighted when enough of its visible points
+        (SIGHTING_MIN_POINTS, SIGHTING_COVER) fall in one detection whose label it carries.
+        Nothing is lifted and no geometry changes; a candidate that now qualifies is
+        confirmed, and published, by the next keyframe. A detection sights only the object
+        with the most visible points in it among those carrying its label. Returns the
+        sighted ids."""
+        if sent is None or not sent.detections:
+            return []
+        candidates = [o for o in self.objects.values() if not o.confirmed and len(o.points)]
+        if not candidates:
+            return []
+        skip = {label.lower() for label in self.knobs.skip_mapping_set}
+        label_of = {d.instance_id: d.label for d in sent.detections if d.label.lower() not in skip}
+        pose = np.asarray(frame.pose, np.float64)
+        rotation, origin = pose[:3, :3], pose[:3, 3]
+        fx, fy, cx, cy = frame.intrinsics
+        width, height = frame.rgb_size
+        depth = frame.depth_m
+        ratio = max(1, round(width / depth.shape[1]))
+        # Every object with a point sample competes for the detections; a candidate is
+        # sighted only by a detection it owns (most visible points among the objects carrying
+        # the detection's label), so a fragment of a confirmed object is not sighted by the
+        # object's own detection.
+        claims: dict[int, list[tuple[int, int]]] = {}  # detection id -> [(points, object id)]
+        best_of: dict[int, int] = {}
+        for obj in self.objects.values():
+            if not len(obj.points):
+                continue
+            points = obj.points[:: max(1, len(obj.points) // SIGHTING_SAMPLE_POINTS)]
+            cam = (points.astype(np.float64) - origin) @ rotation
+            z = cam[:, 2]
+            front = z > 1e-3
+            u = np.floor(fx * cam[front, 0] / z[front] + cx + 0.5).astype(np.int64)
+            v = np.floor(fy * cam[front, 1] / z[front] + cy + 0.5).astype(np.int64)
+            z = z[front]
+            inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+            u, v, z = u[inside], v[inside], z[inside]
+            sensed = depth[
+                np.minimum(v // ratio, depth.shape[0] - 1),
+                np.minimum(u // ratio, depth.shape[1] - 1),
+            ]
+            visible = (sensed > 0) & (np.abs(z - sensed) <= SIGHTING_DEPTH_TOLERANCE_M + 0.05 * z)
+            n_visible = int(visible.sum())
+            if n_visible < min(SIGHTING_MIN_POINTS, len(points)):
+                continue
+            counts = np.bincount(sent.instance_image[v[visible], u[visible]])
+            counts[0] = 0
+            for det_id in np.flatnonzero(counts):
+                if label_of.get(int(det_id)) in obj.label_counts:
+                    claims.setdefault(int(det_id), []).append((int(counts[det_id]), obj.id))
+            best = int(np.argmax(counts))
+            if not obj.confirmed and counts[best] >= SIGHTING_COVER * n_visible:
+                best_of[obj.id] = best
+        sighted = []
+        for oid, det_id in best_of.items():
+            if max(claims.get(det_id, [(0, 0)]))[1] != oid:
+                continue
+            self._sightings.setdefault(oid, set()).add(int(frame.seq))
+            self._sighted.add(oid)
+            sighted.append(oid)
+        return sorted(sighted)
 
     # ------------------------------------------------------------------ reading the map
     def confirmed_objects(self) -> list[MapObject]:
