@@ -174,6 +174,18 @@ def dequantise_points(data: bytes, lo: np.ndarray, step: np.ndarray) -> np.ndarr
     return (offsets.astype(np.float32) * step + lo).astype(np.float32)
 
 
+def _bfloat16_bits(values: np.ndarray) -> np.ndarray:
+    """uint16 bits of float32 `values` rounded to bfloat16 (nearest even, as torch does)."""
+    rounded = torch.from_numpy(np.ascontiguousarray(values, np.float32)).to(torch.bfloat16)
+    return rounded.view(torch.int16).numpy().view(np.uint16)
+
+
+def _float32_of_bfloat16(values: torch.Tensor) -> np.ndarray:
+    """float32 numpy of a bfloat16 tensor, exactly (a bfloat16 is a float32's top half)."""
+    bits = values.view(torch.int16).numpy().view(np.uint16)
+    return (bits.astype(np.uint32) << 16).view(np.float32)
+
+
 def _entry_bytes(data: bytes) -> int:
     """Bytes of one object's point bytes as the allocator holds them (header included)."""
     return _BYTES_HEADER + len(data)
@@ -217,6 +229,7 @@ class LocalMap:
         self._n = 0
         self._rows: dict[str, np.ndarray] = {}
         self._embeddings_t = torch.empty(0)  # zero-copy torch view of self._rows["embedding"]
+        self._scales_bf16_t = torch.empty(0)  # and of self._rows["scale_bf16"]
         self._reallocate(0)
         self._labels: list[str] = []
         self._points: list[bytes] = []  # uint8 [N, 3] offsets, see quantise_points
@@ -432,6 +445,7 @@ class LocalMap:
         columns["version"][target] = delta.versions[take]
         columns["embedding"][target] = delta.embeddings[take]
         columns["scale"][target] = delta.scales[take]
+        columns["scale_bf16"][target] = _bfloat16_bits(delta.scales[take])
         columns["points_lo"][target] = delta.points_lo[take]
         columns["points_step"][target] = delta.points_step[take]
         columns["bbox"][target] = delta.bboxes[take]
@@ -512,6 +526,7 @@ class LocalMap:
         return {
             "embedding": np.zeros((capacity, self.dim), np.int8),
             "scale": np.zeros(capacity, np.float32),
+            "scale_bf16": np.zeros(capacity, np.uint16),  # the kernel's copy, bfloat16 bits
             "points_lo": np.zeros((capacity, 3), np.float32),
             "points_step": np.zeros((capacity, 3), np.float32),
             "id": np.zeros(capacity, np.int64),
@@ -533,6 +548,7 @@ class LocalMap:
         self._rows = columns
         # from_numpy shares the buffer: queries read the int8 matrix in place, no copy.
         self._embeddings_t = torch.from_numpy(columns["embedding"])
+        self._scales_bf16_t = torch.from_numpy(columns["scale_bf16"]).view(torch.bfloat16)
 
     def _ensure_capacity(self, needed: int) -> None:
         capacity = self._rows["id"].shape[0]
@@ -613,8 +629,8 @@ class LocalMap:
         scores, error = self._approximate_scores(query)
         # Every row of the exact top k scores within 2 * error of the approximate k-th best,
         # so re-scoring those rows exactly gives the exact ranking (ties broken by id).
-        kth = float(torch.topk(scores, min(n, k)).values[-1])
-        candidates = np.flatnonzero(scores.numpy() >= kth - 2 * error)
+        kth = float(np.partition(scores, n - min(n, k))[n - min(n, k)])
+        candidates = np.flatnonzero(scores >= kth - 2 * error)
         exact = self._exact_scores(candidates, query)
         best = np.lexsort((self._rows["id"][candidates], -exact))[:k]
         hits = []
@@ -636,17 +652,19 @@ class LocalMap:
         columns = self._rows
         return (columns["embedding"][rows].astype(np.float32) @ query) * columns["scale"][rows]
 
-    def _approximate_scores(self, query: np.ndarray) -> tuple[torch.Tensor, float]:
+    def _approximate_scores(self, query: np.ndarray) -> tuple[np.ndarray, float]:
         """(float32 [n] scores of every held row against the unit `query`, bound on their
         error against `_exact_scores`)."""
         n = self._n
         if self.dim % _KERNEL_MIN_DIM_MULTIPLE == 0 and hasattr(torch, "_weight_int8pack_mm"):
-            scales = torch.from_numpy(self._rows["scale"][:n]).to(torch.bfloat16)
+            # torch only for the kernel: its small element-wise ops wake the thread pool,
+            # which costs milliseconds on a busy device; the rest is numpy.
+            scales = self._scales_bf16_t[:n]
             query_bf16 = torch.from_numpy(query).to(torch.bfloat16)[None]
             scores = torch._weight_int8pack_mm(query_bf16, self._embeddings_t[:n], scales)
-            return scores[0].float(), _KERNEL_ERROR
+            return _float32_of_bfloat16(scores[0]), _KERNEL_ERROR
         scores = np.empty(n, np.float32)
         for start in range(0, n, _FALLBACK_CHUNK_ROWS):
             rows = np.arange(start, min(n, start + _FALLBACK_CHUNK_ROWS))
             scores[rows] = self._exact_scores(rows, query)
-        return torch.from_numpy(scores), _FALLBACK_ERROR
+        return scores, _FALLBACK_ERROR
