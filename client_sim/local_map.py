@@ -21,7 +21,9 @@ bulk is (issue 13, target 5: 50k objects of 200 points and 384-d embeddings with
   (uint16 would give 0.015 mm at twice the bytes; the wire's own float16 rounding is up to
   3.9 mm at 8-16 m from the origin and 15.6 mm at 32-64 m).
 - ids, versions, boxes, centroids, n_obs, update clock: numpy columns of the same rows;
-  labels (interned) and point bytes in python lists; id -> row in a dict.
+  labels (interned) and point bytes in python lists; id -> row by a sorted index (ids
+  int64 and rows int32, 12 bytes an object, rebuilt when rows come or go) rather than a dict
+  (~100 bytes an object in python ints and table slots).
 
 Eviction (whenever `memory_bytes()` exceeds the budget): objects are ranked into groups,
 evicted group by group: first ordinary objects, then those within `distance_threshold_m` of
@@ -51,11 +53,13 @@ log = logging.getLogger(__name__)
 BYTES_PER_MB = 1_000_000
 """`budget_mb` is in SI megabytes (the stricter reading of "128 MB")."""
 
-PYTHON_BYTES_PER_OBJECT = 120
+PYTHON_BYTES_PER_OBJECT = 24
 """Estimate of the python-side bytes of one object besides its point bytes (which are counted
-exactly, header included): its id -> row dict entry with int key and value (~90 amortised),
-two list slots (16) and a share of the interned label. Checked against tracemalloc in the
-tests and the bench."""
+exactly, header included): two list slots (16) with the lists' over-allocation and a share
+of the interned label. Checked against tracemalloc in the tests and the bench."""
+
+_INDEX_BYTES_PER_OBJECT = 12
+"""The id -> row index: an int64 id and an int32 row per object."""
 
 POINT_LEVELS = 255
 """Points are stored as uint8 offsets: 255 steps per axis across the object's point box."""
@@ -234,7 +238,8 @@ class LocalMap:
         self._labels: list[str] = []
         self._points: list[bytes] = []  # uint8 [N, 3] offsets, see quantise_points
         self._points_nbytes = 0  # sum of _entry_bytes over _points
-        self._row_of: dict[int, int] = {}
+        self._index_ids = np.empty(0, np.int64)  # held ids, ascending
+        self._index_rows = np.empty(0, np.int32)  # their rows
 
         self.set_policy(
             budget_mb=budget_mb,
@@ -249,17 +254,19 @@ class LocalMap:
         return self._n
 
     def __contains__(self, oid: object) -> bool:
-        return oid in self._row_of
+        return isinstance(oid, int | np.integer) and self._row(int(oid)) is not None
 
     def ids(self) -> list[int]:
         """Ids of the held objects, ascending."""
-        return sorted(self._row_of)
+        return self._index_ids.tolist()
 
     def get(self, oid: int) -> dict:
         """One held object: id, version, label, bbox [6], centroid [3] (metres), points
         float32 [N, 3] (dequantised: within points_step / 2 per axis of the received ones),
         points_step [3] (metres per stored step), n_obs. KeyError if not held."""
-        row = self._row_of[oid]
+        row = self._row(oid)
+        if row is None:
+            raise KeyError(oid)
         rows = self._rows
         return {
             "id": int(rows["id"][row]),
@@ -277,14 +284,18 @@ class LocalMap:
     def snapshot(self) -> dict[int, tuple[int, str]]:
         """id -> (version, label) of every held object (to compare with the server)."""
         versions = self._rows["version"]
-        return {oid: (int(versions[row]), self._labels[row]) for oid, row in self._row_of.items()}
+        return {
+            oid: (int(versions[row]), self._labels[row])
+            for oid, row in zip(self._index_ids.tolist(), self._index_rows.tolist(), strict=True)
+        }
 
     def memory_bytes(self) -> int:
         """Bytes held: the row arrays at their capacity (int8 embeddings, scales and metadata
-        columns), the point bytes with their headers, and `PYTHON_BYTES_PER_OBJECT` per object
-        for python-side metadata."""
+        columns), the id index, the point bytes with their headers, and
+        `PYTHON_BYTES_PER_OBJECT` per object for python-side metadata."""
         columns = sum(column.nbytes for column in self._rows.values())
-        return columns + self._points_nbytes + self._n * PYTHON_BYTES_PER_OBJECT
+        index = self._index_ids.nbytes + self._index_rows.nbytes
+        return columns + index + self._points_nbytes + self._n * PYTHON_BYTES_PER_OBJECT
 
     # --- knobs ----------------------------------------------------------------------------
 
@@ -420,14 +431,15 @@ class LocalMap:
         )
 
     def _upsert(self, delta: _ParsedDelta) -> None:
-        """Write the fresh upserts of a validated delta: existing rows in place, new at the end."""
+        """Write the fresh upserts of a validated delta (ids unique, as parse_delta checks):
+        existing rows in place, new at the end."""
         held_versions = self._rows["version"]
         rows = np.empty(len(delta.ids), np.int64)
         fresh = np.ones(len(delta.ids), bool)
+        held_rows = self._rows_of(delta.ids)
         n_new = 0
-        for i, oid in enumerate(delta.ids.tolist()):
-            row = self._row_of.get(oid)
-            if row is None:
+        for i, row in enumerate(held_rows.tolist()):
+            if row < 0:
                 rows[i] = self._n + n_new
                 n_new += 1
             elif delta.versions[i] < held_versions[row]:
@@ -462,20 +474,22 @@ class LocalMap:
             else:  # new rows were numbered in order, so they append in order
                 self._points.append(points)
                 self._labels.append(delta.labels[i])
-                self._row_of[int(delta.ids[i])] = row
             self._points_nbytes += _entry_bytes(points)
         self._n += n_new
+        if n_new:
+            self._rebuild_index()
 
     def _clear(self) -> None:
         self._n = 0
         self._labels = []
         self._points = []
         self._points_nbytes = 0
-        self._row_of = {}
+        self._rebuild_index()
 
     def _remove_ids(self, ids: Sequence[int]) -> None:
         """Drop the held ones of `ids` (unknown ids may have been evicted: not an error)."""
-        rows = {self._row_of[oid] for oid in ids if oid in self._row_of}
+        held = self._rows_of(np.fromiter(set(ids), np.int64))
+        rows = set(held[held >= 0].tolist())
         if len(rows) < len(set(ids)):
             log.debug(
                 "%d removed ids were not held (evicted or never seen)", len(set(ids)) - len(rows)
@@ -487,18 +501,19 @@ class LocalMap:
             return
         for row in sorted(rows, reverse=True):  # descending: a moved last row is never pending
             self._swap_remove(row)
+        if rows:
+            self._rebuild_index()
 
     def _swap_remove(self, row: int) -> None:
-        """Remove one row in O(1) by moving the last row into its place."""
+        """Remove one row in O(1) by moving the last row into its place (the caller rebuilds
+        the index)."""
         last = self._n - 1
-        del self._row_of[int(self._rows["id"][row])]
         self._points_nbytes -= _entry_bytes(self._points[row])
         if row != last:
             for column in self._rows.values():
                 column[row] = column[last]
             self._labels[row] = self._labels[last]
             self._points[row] = self._points[last]
-            self._row_of[int(self._rows["id"][row])] = row
         self._labels.pop()
         self._points.pop()
         self._n = last
@@ -566,8 +581,34 @@ class LocalMap:
         self._labels = [self._labels[row] for row in kept]
         self._points = [self._points[row] for row in kept]
         self._points_nbytes = sum(_entry_bytes(data) for data in self._points)
-        self._row_of = {oid: row for row, oid in enumerate(new["id"][:m].tolist())}
         self._n = m
+        self._rebuild_index()
+
+    # --- id index -------------------------------------------------------------------------
+
+    def _rebuild_index(self) -> None:
+        """Sort the held ids (after rows came or went): O(n log n), ~2 ms at 50k objects."""
+        ids = self._rows["id"][: self._n]
+        order = np.argsort(ids, kind="stable")
+        self._index_ids = ids[order]
+        self._index_rows = order.astype(np.int32)
+
+    def _rows_of(self, ids: np.ndarray) -> np.ndarray:
+        """int64 rows of int64 `ids` [m], -1 where not held."""
+        ids = np.asarray(ids, np.int64)
+        at = np.searchsorted(self._index_ids, ids)
+        found = at < len(self._index_ids)
+        found[found] = self._index_ids[at[found]] == ids[found]
+        rows = np.full(len(ids), -1, np.int64)
+        rows[found] = self._index_rows[at[found]]
+        return rows
+
+    def _row(self, oid: int) -> int | None:
+        """The row of `oid`, or None if not held."""
+        at = int(np.searchsorted(self._index_ids, oid))
+        if at < len(self._index_ids) and int(self._index_ids[at]) == oid:
+            return int(self._index_rows[at])
+        return None
 
     # --- budget ---------------------------------------------------------------------------
 
@@ -600,7 +641,7 @@ class LocalMap:
         order = self._eviction_order()
         row_bytes = self._row_bytes()
         per_object = np.fromiter((_entry_bytes(data) for data in self._points), np.int64, n)
-        per_object += PYTHON_BYTES_PER_OBJECT + row_bytes
+        per_object += PYTHON_BYTES_PER_OBJECT + _INDEX_BYTES_PER_OBJECT + row_bytes
         # cost[k]: bytes when keeping the k objects that come last in the eviction order, in
         # columns of exactly k rows. It increases with k, so the largest k that fits is found
         # by one search, with no evict-and-recheck loop.

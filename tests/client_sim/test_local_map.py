@@ -147,6 +147,18 @@ def test_a_newer_version_replaces_geometry_and_embedding():
     assert m.query_embedding(unit_vector(200), k=1)[0].score == pytest.approx(1.0, abs=1e-3)
 
 
+def test_held_ids_are_found_by_id_after_rows_move():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(oid, label=f"l{oid}") for oid in (50, 7, 30, 9, 41)]))
+    m.apply_delta(delta(2, [upsert(3, label="l3")], removed=[7]))  # row 1 gets another id
+
+    assert m.ids() == [3, 9, 30, 41, 50]
+    assert [m.get(oid)["label"] for oid in m.ids()] == ["l3", "l9", "l30", "l41", "l50"]
+    assert 9 in m and 7 not in m and "9" not in m
+    with pytest.raises(KeyError):
+        m.get(7)
+
+
 def test_an_out_of_order_seq_raises_and_leaves_the_map_unchanged():
     m = local_map()
     m.apply_delta(delta(5, [upsert(1), upsert(2)]))
@@ -363,7 +375,7 @@ def test_a_query_ranks_exactly_by_the_stored_cosines_with_ties_broken_by_id():
 
     hits = m.query_embedding(query, k=12)
 
-    rows = np.array([m._row_of[oid] for oid in range(300)])
+    rows = np.array([m._row(oid) for oid in range(300)])
     exact = m._exact_scores(rows, (query / np.linalg.norm(query)).astype(np.float32))
     expected = sorted(range(300), key=lambda oid: (-exact[oid], oid))[:12]
     assert [hit.id for hit in hits] == expected == [7, *range(100, 111)]
