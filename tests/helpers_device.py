@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable
 
 import httpx
+import numpy as np
 
 WAIT_S = 20.0
 
@@ -43,9 +44,19 @@ async def server_state(server_url: str, sid: str, token: str) -> tuple[int, list
 
 
 def assert_local_map_equals(local_map, objects: list[dict], max_points: int) -> None:
-    """The local map holds exactly `objects` (GET /objects?points=true) at client resolution."""
+    """The local map holds exactly `objects` (GET /objects?points=true) at client resolution:
+    the same ids, versions and labels, and the same points row for row, equal within the
+    storage's rounding. The wire carries float16 (within one float16 spacing at the value),
+    the map keeps uint8 offsets in the object's box (within `points_step` / 2 per axis) and
+    the REST body rounds to 0.1 mm."""
     expected = {o["id"]: (o["version"], o["label"]) for o in objects}
     assert local_map.snapshot() == expected
     for obj in objects:
         held = local_map.get(obj["id"])
         assert len(held["points"]) == len(obj["points"]) <= max_points, obj["label"]
+        if not len(obj["points"]):
+            continue
+        served = np.asarray(obj["points"], np.float64)
+        float16_spacing = np.spacing(np.abs(served).astype(np.float16)).astype(np.float64)
+        tolerance = np.asarray(held["points_step"]) / 2 + float16_spacing + 1e-4
+        assert np.all(np.abs(held["points"] - served) <= tolerance), obj["label"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import sys
 import tracemalloc
 from collections import Counter
 from collections.abc import Sequence
@@ -18,10 +19,33 @@ from app.mapping.deltas import Delta
 from app.mapping.object import MapObject
 from app.mapping.publish import delta_message
 from app.protocol import UpsertEntry, pack_delta
-from client_sim.local_map import BYTES_PER_MB, DeltaError, LocalMap
+from client_sim.local_map import (
+    BYTES_PER_MB,
+    POINT_LEVELS,
+    DeltaError,
+    LocalMap,
+    dequantise_points,
+    quantise_points,
+)
+from client_sim.world.categories import CATEGORIES
 
 DIM = 32  # small embeddings keep the tests fast; the map is dimension-agnostic
 FEW = settings(max_examples=40, deadline=None)
+
+# Tolerances of the 8-bit storage (client_sim/local_map.py):
+# - a point is within step / 2 per axis of the received float16 one, step = box side / 255
+#   (3.9 mm for a 2 m object), plus float32 rounding of `lo + offset * step`;
+# - a score is an exact cosine of the int8 direction, within 0.01 of the float32 cosine.
+SCORE_TOLERANCE = 0.01
+
+
+def assert_points_within_step(held: dict, sent: np.ndarray) -> None:
+    """`held` (a `get()` result) has the points `sent` (float [N, 3]), row for row, each
+    within half a quantisation step per axis."""
+    sent32 = np.asarray(sent, np.float32)
+    step = np.asarray(held["points_step"], np.float32)
+    assert held["points"].shape == sent32.shape and held["points"].dtype == np.float32
+    assert np.all(np.abs(held["points"] - sent32) <= step / 2 + 1e-6)
 
 
 def unit_vector(seed: int, dim: int = DIM) -> np.ndarray:
@@ -121,6 +145,18 @@ def test_a_newer_version_replaces_geometry_and_embedding():
 
     assert m.get(7)["centroid"] == pytest.approx([5, 0, 0], abs=0.1)
     assert m.query_embedding(unit_vector(200), k=1)[0].score == pytest.approx(1.0, abs=1e-3)
+
+
+def test_held_ids_are_found_by_id_after_rows_move():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(oid, label=f"l{oid}") for oid in (50, 7, 30, 9, 41)]))
+    m.apply_delta(delta(2, [upsert(3, label="l3")], removed=[7]))  # row 1 gets another id
+
+    assert m.ids() == [3, 9, 30, 41, 50]
+    assert [m.get(oid)["label"] for oid in m.ids()] == ["l3", "l9", "l30", "l41", "l50"]
+    assert 9 in m and 7 not in m and "9" not in m
+    with pytest.raises(KeyError):
+        m.get(7)
 
 
 def test_an_out_of_order_seq_raises_and_leaves_the_map_unchanged():
@@ -305,6 +341,58 @@ def test_a_query_of_the_wrong_dimension_is_refused():
         local_map().query_embedding(np.ones(DIM + 1))
 
 
+def test_8_bit_embeddings_rank_the_paraphrase_queries_as_float32_does(encoder):
+    """One object per category of the synthetic world, embedded from its name (float16 on the
+    wire, int8 in the map); every paraphrase query's top-1 equals the float32 ranking's, and
+    the scores are within SCORE_TOLERANCE of the float32 cosines."""
+    names = sorted(CATEGORIES)
+    embeddings = np.asarray(encoder.encode(names), np.float32)
+    m = LocalMap(dim=encoder.dim)
+    m.apply_delta(
+        delta(1, [upsert(i, label=name, embedding=embeddings[i]) for i, name in enumerate(names)])
+    )
+    queries = [text for name in names for text in CATEGORIES[name].paraphrases]
+    unit = embeddings / np.linalg.norm(embeddings, axis=1, keepdims=True)
+
+    for text in queries:
+        query = np.asarray(encoder.encode_query(text), np.float32)
+        query /= np.linalg.norm(query)
+        float32_scores = unit @ query
+        hits = m.query_embedding(query, k=3)
+        assert hits[0].id == int(np.argmax(float32_scores)), text
+        for hit in hits:
+            assert hit.score == pytest.approx(float32_scores[hit.id], abs=SCORE_TOLERANCE)
+    assert len(queries) > 100
+
+
+def test_a_query_ranks_exactly_by_the_stored_cosines_with_ties_broken_by_id():
+    m = LocalMap(dim=384)
+    rng = np.random.default_rng(2)
+    vectors = rng.standard_normal((300, 384))
+    vectors[100:140] = vectors[7]  # 41 objects share one embedding (one label's text)
+    m.apply_delta(delta(1, [upsert(i, embedding=vectors[i]) for i in range(300)]))
+    query = vectors[7] + 0.3 * rng.standard_normal(384)
+
+    hits = m.query_embedding(query, k=12)
+
+    rows = np.array([m._row(oid) for oid in range(300)])
+    exact = m._exact_scores(rows, (query / np.linalg.norm(query)).astype(np.float32))
+    expected = sorted(range(300), key=lambda oid: (-exact[oid], oid))[:12]
+    assert [hit.id for hit in hits] == expected == [7, *range(100, 111)]
+
+
+def test_a_dimension_the_int8_kernel_does_not_take_is_scored_exactly():
+    m = LocalMap(dim=5)
+    vectors = np.random.default_rng(3).standard_normal((50, 5))
+    m.apply_delta(delta(1, [upsert(i, embedding=vectors[i]) for i in range(50)]))
+    unit = vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
+
+    hits = m.query_embedding(vectors[9], k=4)
+
+    assert hits[0].id == 9 and hits[0].score == pytest.approx(1.0, abs=1e-3)
+    assert [hit.id for hit in hits] == list(np.argsort(-(unit @ unit[9]))[:4])
+
+
 def test_a_text_query_finds_the_object_with_that_label(encoder):
     labels = ["sofa", "keys", "coffee mug", "floor lamp", "bookshelf"]
     embeddings = encoder.encode(labels)
@@ -325,24 +413,49 @@ def test_a_text_query_finds_the_object_with_that_label(encoder):
 
 def test_points_over_the_cap_are_subsampled_from_the_received_ones_deterministically():
     sent = upsert(1, n_points=500)
-    sent_points = {tuple(p) for p in sent.points.tolist()}
     first, second = local_map(max_points_per_object=64), local_map(max_points_per_object=64)
     first.apply_delta(delta(1, [sent]))
     second.apply_delta(delta(1, [sent]))
 
-    points = first.get(1)["points"]
-    assert points.shape == (64, 3) and points.dtype == np.float32
-    assert {tuple(p) for p in points.tolist()} <= sent_points
-    np.testing.assert_array_equal(points, second.get(1)["points"])
+    held = first.get(1)
+    assert held["points"].shape == (64, 3) and held["points"].dtype == np.float32
+    # each held point is one of the sent ones, within half a quantisation step per axis
+    gap = np.abs(held["points"][:, None, :] - sent.points.astype(np.float32)[None])
+    assert np.all((gap <= np.asarray(held["points_step"]) / 2 + 1e-6).all(axis=2).any(axis=1))
+    np.testing.assert_array_equal(held["points"], second.get(1)["points"])
 
 
-def test_points_under_the_cap_are_kept_exactly():
+def test_points_under_the_cap_are_kept_in_order_within_half_a_step():
     sent = upsert(1, n_points=30)
     m = local_map(max_points_per_object=64)
     m.apply_delta(delta(1, [sent]))
 
-    expected = sent.points.astype(np.float32)
-    np.testing.assert_array_equal(m.get(1)["points"], expected)
+    held = m.get(1)
+    assert_points_within_step(held, sent.points)
+    box = sent.points.astype(np.float32).max(axis=0) - sent.points.astype(np.float32).min(axis=0)
+    assert held["points_step"] == pytest.approx(box / POINT_LEVELS, rel=1e-5)
+
+
+def test_points_of_a_2_m_object_are_stored_within_4_mm_in_one_byte_per_coordinate():
+    rng = np.random.default_rng(5)
+    points = (np.array([30.0, -12.0, 1.0]) + rng.uniform(0, 2, (200, 3))).astype(np.float16)
+    data, lo, step = quantise_points(points)
+
+    restored = dequantise_points(data, lo, step)
+
+    assert len(data) == 200 * 3
+    assert np.all(step <= 2 / POINT_LEVELS)
+    assert np.abs(restored - points.astype(np.float32)).max() <= 1 / POINT_LEVELS + 1e-5
+
+
+def test_flat_and_empty_point_sets_round_trip():
+    flat = np.array([[1, 2, 3], [1, 2, 5], [1, 2, 4]], np.float16)
+    np.testing.assert_allclose(dequantise_points(*quantise_points(flat)), flat, atol=2 / 255)
+    assert dequantise_points(*quantise_points(np.zeros((0, 3), np.float16))).shape == (0, 3)
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1, n_points=0), upsert(2, n_points=1)]))
+    assert m.get(1)["points"].shape == (0, 3)
+    assert_points_within_step(m.get(2), upsert(2, n_points=1).points)
 
 
 def test_lowering_the_point_cap_at_run_time_recaps_held_objects():
@@ -353,7 +466,7 @@ def test_lowering_the_point_cap_at_run_time_recaps_held_objects():
     m.set_policy(max_points_per_object=25)
 
     assert [len(m.get(oid)["points"]) for oid in (1, 2)] == [25, 10]
-    assert m.memory_bytes() == before - 75 * 3 * 2
+    assert m.memory_bytes() == before - 75 * 3  # one byte a coordinate
 
 
 def test_the_centroid_is_the_mean_of_the_received_points():
@@ -390,6 +503,21 @@ def test_memory_follows_the_objects_down_after_removals():
     m.apply_delta(delta(2, removed=list(range(350))))
 
     assert m.memory_bytes() <= 1.2 * bytes_of_objects(50)
+
+
+def test_an_object_at_the_device_defaults_takes_the_compact_columns():
+    """200 points and a 384-d embedding: int8 embedding + float32 scale, 3 bytes a point;
+    within 64 MB for 50k objects (1,280 bytes each), row slack included."""
+    m = LocalMap(dim=384, max_points_per_object=200)
+    m.apply_delta(
+        delta(1, [upsert(i, n_points=200, embedding=unit_vector(i, 384)) for i in range(2000)])
+    )
+    per_object = m.memory_bytes() / 2000
+    capacity = m._rows["id"].shape[0]
+
+    assert m._rows["embedding"].nbytes == capacity * 384  # one byte a dimension
+    assert m._points_nbytes == 2000 * (200 * 3 + sys.getsizeof(b""))  # bytes and header
+    assert per_object <= 64 * BYTES_PER_MB / 50_000
 
 
 def test_memory_bytes_matches_what_the_allocator_sees():
@@ -472,11 +600,11 @@ def test_lowering_the_budget_at_run_time_evicts_at_once():
 
 
 def test_a_budget_too_small_for_one_object_empties_the_map_without_hanging():
-    m = local_map(budget_mb=0.001)
+    m = local_map(budget_mb=0.0005)  # one such object takes ~900 bytes
     m.apply_delta(delta(1, [upsert(1, n_points=200)]))
 
     assert len(m) == 0 and m.evicted == 1
-    assert m.memory_bytes() <= 0.001 * BYTES_PER_MB
+    assert m.memory_bytes() <= 0.0005 * BYTES_PER_MB
 
 
 # --- property: random delta streams ----------------------------------------------------------
