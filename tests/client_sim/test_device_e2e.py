@@ -385,7 +385,7 @@ SHOWROOM = (
 
 def test_the_local_map_never_exceeds_a_tiny_memory_budget(live_server):
     server = live_server()
-    budget_mb = 0.005  # room for about two objects of 200 points
+    budget_mb = 0.0025  # room for about two objects of 200 points
 
     async def scenario():
         sid, token, knobs = await new_session(server.url, local_map_budget_mb=budget_mb)
