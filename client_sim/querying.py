@@ -206,22 +206,11 @@ class QueryRouter:
         elif rtt > self.threshold_ms:
             reason = f"{source} {rtt:.0f} ms > {self.threshold_ms:g} ms"
         else:
-            sq_start_s = time.perf_counter()
+            why = f"{source} {rtt:.0f} ms <= {self.threshold_ms:g} ms"
             try:
-                results = await self.api.query(text, k)
+                return await self._server_query(text, k, why, start_s, rtt)
             except Exception as exc:  # any failure of the server path means: answer locally
                 reason = f"SQ failed ({type(exc).__name__}: {exc}); fell back to LQ"
-            else:
-                now_s = time.perf_counter()
-                return QueryAnswer(
-                    text=text,
-                    mode=SQ,
-                    results=results,
-                    latency_ms=(now_s - sq_start_s) * 1e3,
-                    reason=f"{source} {rtt:.0f} ms <= {self.threshold_ms:g} ms",
-                    total_ms=(now_s - start_s) * 1e3,
-                    rtt_ms=rtt,
-                )
         return await self._local_query(text, k, reason, start_s, rtt)
 
     async def aclose(self) -> None:
@@ -235,6 +224,23 @@ class QueryRouter:
 
     # --- the two modes --------------------------------------------------------------------
 
+    async def _server_query(
+        self, text: str, k: int, reason: str, start_s: float, rtt: float | None
+    ) -> QueryAnswer:
+        """SQ: the server's answer (raises whatever the server path raises)."""
+        sq_start_s = time.perf_counter()
+        results = await self.api.query(text, k)
+        now_s = time.perf_counter()
+        return QueryAnswer(
+            text=text,
+            mode=SQ,
+            results=results,
+            latency_ms=(now_s - sq_start_s) * 1e3,
+            reason=reason,
+            total_ms=(now_s - start_s) * 1e3,
+            rtt_ms=rtt,
+        )
+
     async def _server_only(
         self, text: str, k: int, start_s: float, rtt: float | None
     ) -> QueryAnswer:
@@ -245,20 +251,9 @@ class QueryRouter:
             problem = "link down (the streaming client is reconnecting)"
         else:
             try:
-                results = await self.api.query(text, k)
+                return await self._server_query(text, k, off, start_s, rtt)
             except Exception as exc:
                 problem = f"SQ failed ({type(exc).__name__}: {exc})"
-            else:
-                now_s = time.perf_counter()
-                return QueryAnswer(
-                    text=text,
-                    mode=SQ,
-                    results=results,
-                    latency_ms=(now_s - start_s) * 1e3,
-                    reason=off,
-                    total_ms=(now_s - start_s) * 1e3,
-                    rtt_ms=rtt,
-                )
         now_s = time.perf_counter()
         return QueryAnswer(
             text=text,

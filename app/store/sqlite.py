@@ -349,17 +349,8 @@ class SqliteStore(Store):
         counters: dict[str, int],
         next_object_id: int,
     ) -> None:
-        """Persist one keyframe's changes in one transaction; returns once they survive kill -9.
-
-        upserts: confirmed objects changed at `seq` (the delta log's seq after the commit),
-                 stored with their current fields; removed: ids removed at `seq` (tombstoned).
-        An id in both ends up removed, as in `DeltaLog.commit`. A keyframe that changed
-        nothing passes the unchanged seq and empty lists (to persist the counters).
-        Raises ValueError (and changes nothing) on a seq older than the stored one, changes
-        without a newer seq, an unconfirmed object, an id not below `next_object_id`, or
-        arrays that are not float32 points [N, 3] / embedding [d]; KeyError on an unknown
-        session; StoreUnavailableError (and changes nothing) when the disk refuses it.
-        """
+        """`Store.commit_keyframe`, in one SQLite transaction (WAL, synchronous): returns
+        once the changes survive kill -9; storage errors raise StoreUnavailableError."""
         seq = int(seq)
         removed_ids = sorted({int(oid) for oid in removed})
         gone = set(removed_ids)
