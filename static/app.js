@@ -24,18 +24,10 @@
     }
   }
 
-  // FastAPI's detail is a string, or for validation errors a list of {loc, msg}.
+  // Every error answer is {"detail": "<what is wrong>"} (422s included).
   function formatDetail(body, fallback) {
     const detail = body && typeof body === "object" ? body.detail : undefined;
     if (typeof detail === "string") return detail;
-    if (Array.isArray(detail)) {
-      return detail
-        .map((item) => {
-          const where = Array.isArray(item.loc) ? item.loc.filter((p) => p !== "query").join(".") : "";
-          return where ? `${where}: ${item.msg}` : String(item.msg);
-        })
-        .join("; ");
-    }
     return fallback || "no detail";
   }
 

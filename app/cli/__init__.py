@@ -13,6 +13,7 @@ import argparse
 import os
 import sys
 
+from app import __version__
 from app.cli import demo, device, eval, models, serve, viewer
 from app.config import KnobError
 from app.server.settings import SettingsError
@@ -26,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="semanticxr",
         description="Real-time, open-vocabulary 3D semantic mapping for XR devices.",
     )
+    parser.add_argument("--version", action="version", version=f"semanticxr {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(sub)

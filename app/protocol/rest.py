@@ -78,9 +78,9 @@ class ErrorBody(Record):
 
 
 class UnprocessableBody(Record):
-    detail: str | list[dict[str, Any]]
-    """A bad knob value or setting, in words; or FastAPI's list of {loc, msg, type} for a body
-    or parameter of the wrong shape."""
+    detail: str
+    """What is wrong, naming the field: a bad knob value or setting, or a body or parameter
+    of the wrong shape ("where: what; ...")."""
 
 
 def _knobs_model() -> type[BaseModel]:

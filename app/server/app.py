@@ -8,6 +8,7 @@ import logging
 from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Match
 
@@ -85,6 +86,17 @@ def create_app(
         allowed_hosts=allowed_hosts,
         allowed_origins=settings.allowed_origin_list(),
     )
+
+    @app.exception_handler(RequestValidationError)
+    async def unprocessable(request: Request, exc: RequestValidationError) -> JSONResponse:
+        """422 in the one error format, {"detail": "<where>: <what>; ..."}, as knob and
+        setting errors answer (FastAPI's own is a list of {loc, msg, type})."""
+        problems = [
+            f"{'.'.join(str(part) for part in error['loc'] if part != 'body') or 'body'}: "
+            f"{error['msg']}"
+            for error in exc.errors()
+        ]
+        return JSONResponse({"detail": "; ".join(problems)[:2000]}, 422)
 
     @app.exception_handler(405)
     async def method_not_allowed(request: Request, exc: Exception) -> JSONResponse:

@@ -443,3 +443,18 @@ def test_a_subscriber_catches_up_when_the_stream_stops_between_publications(live
 
         seq, target = asyncio.run(run())
         assert seq == target
+
+
+def test_every_422_answers_one_format_naming_the_field(live_server):
+    server = live_server()
+    with httpx.Client(base_url=server.url) as c:
+        sid = create(c)["session_id"]
+        answers = {
+            "mode": c.post("/v1/sessions", json={"mode": "nope"}),
+            "query.text": c.get(f"/v1/sessions/{sid}/query"),
+            "unknown knob 'nope'": c.patch(f"/v1/sessions/{sid}/knobs", json={"nope": 1}),
+        }
+    for named, answer in answers.items():
+        assert answer.status_code == 422
+        assert set(answer.json()) == {"detail"} and isinstance(answer.json()["detail"], str)
+        assert named in answer.json()["detail"], answer.text
