@@ -19,7 +19,6 @@
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import os
 import sys
@@ -29,7 +28,7 @@ import time
 import numpy as np
 
 from app.server.runner import ServerProcess
-from bench.common import check, machine, save_plot, write_outputs
+from bench.common import bench_parser, check, machine, save_plot, write_outputs
 from client_sim.sources.base import FrameSource, SourceFrame
 
 STREAM_FPS = 5.0
@@ -276,10 +275,8 @@ async def device_cpu(server: ServerProcess, source: FrameSource, seconds: float)
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--scene", default="apartment")
+    parser = bench_parser(__doc__)
+    parser.add_argument("--scene", default="apartment", help="synthetic scene of the streams")
     parser.add_argument("--frames", type=int, default=150, help="frames rendered for the streams")
     parser.add_argument(
         "--grid-frames", type=int, default=30, help="frames (evenly spaced) of each encoding grid"
@@ -294,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--no-quality", action="store_true", help="skip the F-mIoU evals (by ratio and depth step)"
     )
-    parser.add_argument("--out", default="out")
+    parser.add_argument("--out", default="out", help="folder for device.json and the plots")
     args = parser.parse_args(argv)
 
     from client_sim.encoder import FrameEncoder

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from app.protocol import DEFAULT_EMBEDDING_DIM, UpsertEntry, pack_delta
-from bench.common import check, machine, save_plot, write_outputs
+from bench.common import bench_parser, check, machine, save_plot, write_outputs
 
 if TYPE_CHECKING:
     from app.semantics import TextEncoder
@@ -215,13 +215,22 @@ def grow_and_measure(
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    parser = bench_parser(__doc__)
+    parser.add_argument(
+        "--sizes",
+        default="80,1000,5000,10000,25000,50000",
+        help="map sizes (objects) to measure, comma-separated",
     )
-    parser.add_argument("--sizes", default="80,1000,5000,10000,25000,50000")
-    parser.add_argument("--similarity-reps", type=int, default=300)
-    parser.add_argument("--end-to-end-reps", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--similarity-reps", type=int, default=300, help="similarity-only queries per size"
+    )
+    parser.add_argument(
+        "--end-to-end-reps",
+        type=int,
+        default=100,
+        help="end-to-end local queries (embedding + search) per size",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random maps")
     parser.add_argument("--out", default="out", help="folder for local_map.json and .png")
     args = parser.parse_args(argv)
     sizes = sorted(int(size) for size in args.sizes.split(","))

@@ -16,10 +16,9 @@ Also reported, not targets: the point cap sweep, and a baseline fed full-resolut
 
 from __future__ import annotations
 
-import argparse
 import os
 
-from bench.common import check, machine, save_plot, write_outputs
+from bench.common import bench_parser, check, machine, save_plot, write_outputs
 
 FULL_DEPTH_BASELINE = "baseline, depth ÷1"
 GLANCE_MAX_FRAMES = 15
@@ -28,13 +27,18 @@ GLANCE_MAX_FRAMES = 15
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    parser = bench_parser(__doc__)
+    parser.add_argument("--scene", default="apartment", help="synthetic scene to walk")
+    parser.add_argument("--seed", type=int, default=0, help="scene, walk and noise seed")
+    parser.add_argument(
+        "--frames",
+        type=int,
+        default=400,
+        help="input frames of the walk (400 and 1200 are the issue-13 walks)",
     )
-    parser.add_argument("--scene", default="apartment")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--frames", type=int, default=400)
-    parser.add_argument("--noise", default="standard")
+    parser.add_argument(
+        "--noise", default="standard", help="detection noise profile (none or standard)"
+    )
     parser.add_argument("--out", default="out", help="folder for mapping.json and mapping.png")
     parser.add_argument(
         "--sightings",

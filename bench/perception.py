@@ -12,14 +12,13 @@ this measures time only.
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import time
 
 import numpy as np
 
-from bench.common import machine, write_outputs
+from bench.common import bench_parser, machine, write_outputs
 
 WIDTH_PX, HEIGHT_PX, DEPTH_RATIO = 640, 480, 2
 
@@ -92,12 +91,12 @@ def build_backend(device: str, dtype):
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = bench_parser(__doc__)
     parser.add_argument("--objects", default="1,4,8,16,32", help="objects per keyframe")
     parser.add_argument("--repeats", type=int, default=2, help="runs per measurement (median)")
-    parser.add_argument("--detector-repeats", type=int, default=3)
+    parser.add_argument(
+        "--detector-repeats", type=int, default=3, help="detector runs per measurement (median)"
+    )
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--out", default="out", help="folder for perception.json")
     args = parser.parse_args(argv)

@@ -10,7 +10,6 @@ downstream update in `semanticxr` vs `baseline` mode on the standard synthetic s
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import sys
 import tempfile
@@ -21,7 +20,7 @@ import numpy as np
 
 from app.client import create_session, open_websocket
 from app.server.runner import ServerProcess
-from bench.common import check, machine, save_plot, write_outputs
+from bench.common import bench_parser, check, machine, save_plot, write_outputs
 
 
 async def new_session(server: ServerProcess, mode: str = "semanticxr", **knobs) -> str:
@@ -122,15 +121,13 @@ async def update_bytes(server: ServerProcess, keyframes: list[bytes], mode: str)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--scene", default="apartment")
+    parser = bench_parser(__doc__)
+    parser.add_argument("--scene", default="apartment", help="synthetic scene of the streamed walk")
     parser.add_argument("--frames", type=int, default=300, help="frames of the walk to pre-encode")
     parser.add_argument(
         "--seconds", type=float, default=15.0, help="duration of each sustained run"
     )
-    parser.add_argument("--out", default="out")
+    parser.add_argument("--out", default="out", help="folder for server.json and the plot")
     args = parser.parse_args(argv)
 
     print("encoding frames...", file=sys.stderr)

@@ -22,17 +22,40 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--scene",
         default="apartment",
         type=scene_name,
-        help="synthetic scene: living_room, kitchen, office, bedroom or apartment",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="scene, trajectory and noise seed")
-    parser.add_argument("--frames", type=positive_int, default=400, help="input frames of the walk")
-    parser.add_argument("--width", type=positive_int, default=640, help="RGB width in pixels")
-    parser.add_argument("--height", type=positive_int, default=480, help="RGB height in pixels")
-    parser.add_argument(
-        "--noise", default="standard", choices=("none", "standard"), help="detection noise"
+        help="synthetic scene: living_room, kitchen, office, bedroom or apartment (default: %(default)s)",
     )
     parser.add_argument(
-        "--mode", default="both", choices=(*MODES, "both"), help="system organisation"
+        "--seed",
+        type=int,
+        default=0,
+        help="scene, trajectory and noise seed (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--frames",
+        type=positive_int,
+        default=400,
+        help="input frames of the walk (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--width", type=positive_int, default=640, help="RGB width in pixels (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--height",
+        type=positive_int,
+        default=480,
+        help="RGB height in pixels (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--noise",
+        default="standard",
+        choices=("none", "standard"),
+        help="detection noise (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--mode",
+        default="both",
+        choices=(*MODES, "both"),
+        help="system organisation (default: %(default)s)",
     )
     parser.add_argument("--json", metavar="PATH", help="write the results as JSON here")
     parser.add_argument(
