@@ -1,8 +1,10 @@
-"""The REST calls of wire protocol v1: create a session, read it, change its knobs, query it."""
+"""The REST calls of wire protocol v1: create, list, read, export, import and delete sessions,
+change their knobs, query them."""
 
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -76,6 +78,87 @@ async def create_session(
     async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(api_key)) as http:
         answer = await request(http, "POST", url, expect=201, json=body)
     return answer["session_id"], answer["token"], answer
+
+
+EXPORT_TIMEOUT_S = 300.0
+"""Longest wait for an export or import, whole (a map may be tens of megabytes)."""
+
+
+async def list_sessions(server_url: str, *, api_key: str | None = None) -> list[dict]:
+    """GET /v1/sessions: every session's summary (SessionSummary records)."""
+    url = f"{http_base_url(server_url)}/v1/sessions"
+    async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(api_key)) as http:
+        return await request(http, "GET", url)
+
+
+async def delete_session(server_url: str, session_id: str, *, token: str | None = None) -> None:
+    """DELETE /v1/sessions/{sid} (token: the session's, or the API key)."""
+    url = f"{http_base_url(server_url)}/v1/sessions/{session_id}"
+    async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(token)) as http:
+        try:
+            response = await asyncio.wait_for(http.delete(url), REST_TIMEOUT_S)
+        except (httpx.HTTPError, TimeoutError) as exc:
+            raise ApiError(f"DELETE {url}: {type(exc).__name__}: {exc}") from exc
+    if response.status_code != 204:
+        _answer("DELETE", url, response, 204)  # raises, with the server's detail
+
+
+async def export_map(
+    server_url: str,
+    session_id: str,
+    out: Path,
+    *,
+    format: str = "json",
+    embeddings: bool = False,
+    token: str | None = None,
+) -> int:
+    """GET /v1/sessions/{sid}/export, streamed to `out` (written only when the answer is
+    200); returns the bytes written."""
+    url = f"{http_base_url(server_url)}/v1/sessions/{session_id}/export"
+    params = {"format": format, "embeddings": "true" if embeddings else "false"}
+    partial = out.with_name(out.name + ".part")
+
+    async def fetch() -> int:
+        async with (
+            httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(token)) as http,
+            http.stream("GET", url, params=params) as response,
+        ):
+            if response.status_code != 200:
+                await response.aread()
+                _answer("GET", url, response, 200)  # raises, with the server's detail
+            written = 0
+            with partial.open("wb") as f:
+                async for chunk in response.aiter_bytes():
+                    written += f.write(chunk)
+            partial.replace(out)
+            return written
+
+    try:
+        return await asyncio.wait_for(fetch(), EXPORT_TIMEOUT_S)
+    except (httpx.HTTPError, TimeoutError) as exc:
+        raise ApiError(f"GET {url}: {type(exc).__name__}: {exc}") from exc
+    finally:
+        partial.unlink(missing_ok=True)
+
+
+async def import_map(server_url: str, export: bytes, *, api_key: str | None = None) -> dict:
+    """POST /v1/sessions/import with a JSON export (its bytes) -> the SessionCreated answer.
+    A map bigger than the server's body limit is refused (413): the error says so."""
+    url = f"{http_base_url(server_url)}/v1/sessions/import"
+    headers = {**auth_headers(api_key), "Content-Type": "application/json"}
+    async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=headers) as http:
+        try:
+            return await request(
+                http, "POST", url, expect=201, timeout_s=EXPORT_TIMEOUT_S, content=export
+            )
+        except ApiError as exc:
+            if exc.status == 413:
+                raise ApiError(
+                    f"{exc}: this map is {len(export)} bytes, over the server's request body "
+                    "limit; start the server with a bigger --max-body-bytes to import it",
+                    413,
+                ) from None
+            raise
 
 
 class SessionApi:

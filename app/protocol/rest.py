@@ -279,3 +279,59 @@ def _field_name(loc: tuple) -> str:
         else:
             name += f".{part}" if name else str(part)
     return name
+
+
+# ---------------------------------------------------------------------- export and import
+EXPORT_FORMAT = "semanticxr-map"
+EXPORT_VERSION = 1
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+"""A JSON number that is neither NaN nor infinite."""
+
+
+class ExportedSession(Record):
+    """The session an export was taken from (what an import creates)."""
+
+    name: str = Field(max_length=MAX_NAME_CHARS)
+    mode: Literal["semanticxr", "baseline"]
+    knobs: dict[str, Any] = Field(json_schema_extra=KNOB_CHANGES_SCHEMA)
+    """The knobs in force (as GET knobs answers)."""
+    embedding: EmbeddingInfo
+    """The encoder the objects' embeddings come from; an import needs the same dimension."""
+    perception: str | None = Field(None, max_length=100)
+    """Extension: the session's perception backend (an import falls back to the server's
+    default when it is not loaded)."""
+
+
+class ExportedObject(Record):
+    """One confirmed object of an export, at full server resolution (0.1 mm)."""
+
+    id: int = Field(ge=1, le=2**31 - 1)
+    """Kept by an import."""
+    version: int = Field(ge=1)
+    label: str = Field(min_length=1, max_length=MAX_NAME_CHARS)
+    bbox: Annotated[list[Finite], Field(min_length=6, max_length=6)]
+    """[x0, y0, z0, x1, y1, z1] metres of the points (an import derives it again)."""
+    centroid: Annotated[list[Finite], Field(min_length=3, max_length=3)]
+    """Mean of the points (an import derives it again)."""
+    n_obs: int = Field(ge=1)
+    """Frames the object was seen in."""
+    points: Annotated[
+        list[Annotated[list[Finite], Field(min_length=3, max_length=3)]], Field(min_length=1)
+    ]
+    """[[x, y, z], ...] metres, world frame."""
+    embedding: Annotated[
+        list[Finite] | None, Field(exclude_if=lambda embedding: embedding is None)
+    ] = None
+    """The object's unit embedding (`?embeddings=true`); without it an import embeds the
+    label."""
+
+
+class MapExport(Record):
+    """`GET /v1/sessions/{sid}/export?format=json`, and the body of `POST
+    /v1/sessions/import`."""
+
+    format: Literal["semanticxr-map"]
+    version: Literal[1]
+    session: ExportedSession
+    objects: list[ExportedObject]
+    """Confirmed objects, in id order."""

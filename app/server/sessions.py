@@ -41,12 +41,14 @@ from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
 from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
+from app.mapping.export import imported_object
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
 from app.mapping.relevance import Rating, rate_hits
 from app.perception import DEFAULT_BACKEND, BackendOptions, UnknownBackendError, make_backend
 from app.perception.base import FrameDetections, PerceptionBackend
 from app.protocol import Ack, ErrorReply, FrameBudget, FrameInput
+from app.protocol.rest import MapExport
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
 from app.server.scheduler import RoundRobinScheduler
@@ -405,6 +407,72 @@ class SessionManager:
             engine.restore([], DeltaLog(max_tombstones=self.settings.max_tombstones), 0, 1)
             session = Session(rec, engine)
             self.sessions[sid] = session
+        return session, token
+
+    def import_session(self, export: MapExport) -> tuple[Session, str]:
+        """A new session holding an export's objects, with their ids, and its token.
+
+        The objects are committed to the store as the session's first change (seq 1), so a
+        restart keeps them. Raises as `create` does, and InputError naming the field when
+        the export's embedding dimension is not the session's encoder's, or it holds more
+        objects than max_objects; nothing is left behind then."""
+        spec = export.session
+        if len(export.objects) > self.settings.max_objects:
+            raise InputError(
+                "objects",
+                f"{len(export.objects)} objects, over max_objects={self.settings.max_objects}",
+            )
+        perception = spec.perception if spec.perception in self.backends else None
+        session, token = self.create(spec.name, spec.mode, spec.knobs, perception)
+        try:
+            engine = session.engine
+            if spec.embedding.dim != engine.encoder.dim:
+                raise InputError(
+                    "session.embedding.dim",
+                    f"{spec.embedding.dim}, but this server embeds with {engine.encoder.model_id} "
+                    f"({engine.encoder.dim} dimensions)",
+                )
+            without = [o.label for o in export.objects if o.embedding is None]
+            by_label = dict(zip(without, engine.encoder.encode(without), strict=True))
+            objects = []
+            for i, o in enumerate(export.objects):
+                embedding = (
+                    np.asarray(o.embedding, np.float32) if o.embedding else by_label[o.label]
+                )
+                if len(embedding) != engine.encoder.dim:
+                    raise InputError(
+                        f"objects[{i}].embedding",
+                        f"{len(embedding)} values, not {engine.encoder.dim}",
+                    )
+                objects.append(
+                    imported_object(
+                        o.id,
+                        o.version,
+                        o.label,
+                        o.n_obs,
+                        o.points,
+                        embedding,
+                        engine.knobs.voxel_size_m,
+                    )
+                )
+            if not objects:
+                return session, token
+            next_object_id = max(o.id for o in objects) + 1
+            with session._map_lock:
+                seq = engine.log.commit(upserted=[o.id for o in objects])
+                self.store.commit_keyframe(
+                    session.id,
+                    seq,
+                    objects,
+                    [],
+                    counters=self._counters(session),
+                    next_object_id=next_object_id,
+                )
+                engine.restore(objects, engine.log, engine.keyframes, next_object_id)
+                session.record.next_object_id = next_object_id
+        except BaseException:
+            self.delete(session.id)
+            raise
         return session, token
 
     def delete(self, sid: str) -> None:

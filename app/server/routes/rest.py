@@ -2,16 +2,24 @@
 
 from __future__ import annotations
 
+import json
 import time
-from typing import Annotated, Any
+from collections.abc import Iterator
+from typing import Annotated, Any, Literal
 
+import numpy as np
 from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, Response
+from fastapi.responses import StreamingResponse
 
 from app import protocol
 from app.config import KnobError, knobs_to_dict
+from app.errors import InputError
+from app.mapping.engine import MAX_WORLD_M
+from app.mapping.export import export_record, ply_bytes
 from app.mapping.object import MapObject
 from app.mapping.publish import client_points
 from app.perception import UnknownBackendError
+from app.protocol.rest import MapExport
 from app.server.auth import authorize_session, bearer, require_api_key
 from app.server.sessions import Session, SessionManager
 
@@ -207,3 +215,93 @@ def delete_session(sid: str, request: Request) -> Response:
     session_for(request, sid)
     manager(request).delete(sid)
     return Response(status_code=204)
+
+
+@router.get(
+    "/sessions/{sid}/export",
+    summary="Export the map (JSON or binary PLY)",
+    responses=SESSION_ERRORS
+    | {
+        200: {
+            "description": "JSON: the session and its confirmed objects at full server "
+            "resolution; PLY: their points with per-point object_id and a colour per label",
+            "content": {
+                "application/json": {"schema": {"$ref": "#/components/schemas/MapExport"}},
+                "application/octet-stream": {},
+            },
+        }
+    },
+)
+def export_map(
+    sid: str,
+    request: Request,
+    format: Literal["json", "ply"] = Query("json", description="json or ply"),
+    embeddings: bool = Query(False, description="include each object's embedding (JSON)"),
+) -> Response:
+    session = session_for(request, sid)
+    objects = session.objects()  # taken under the map lock; points are replaced, never edited
+    filename = f"semanticxr-{session.id}.{format}"
+    disposition = {"Content-Disposition": f'attachment; filename="{filename}"'}
+    if format == "ply":
+        return Response(
+            ply_bytes(objects), media_type="application/octet-stream", headers=disposition
+        )
+    encoder = session.engine.encoder
+    header = {
+        "format": protocol.rest.EXPORT_FORMAT,
+        "version": protocol.rest.EXPORT_VERSION,
+        "session": {
+            "name": session.record.name,
+            "mode": session.engine.mode,
+            "knobs": knobs_to_dict(session.knobs),
+            "embedding": {"model": encoder.model_id, "dim": encoder.dim},
+            "perception": session.record.perception,
+        },
+    }
+
+    def chunks() -> Iterator[bytes]:
+        # One object at a time: the whole map is never one JSON text in memory.
+        yield json.dumps(header)[:-1].encode() + b', "objects": ['
+        for i, obj in enumerate(objects):
+            yield (b", " if i else b"") + json.dumps(export_record(obj, embeddings)).encode()
+        yield b"]}"
+
+    return StreamingResponse(chunks(), media_type="application/json", headers=disposition)
+
+
+@router.post(
+    "/sessions/import",
+    status_code=201,
+    response_model=protocol.SessionCreated,
+    dependencies=[Depends(require_api_key)],
+    summary="Create a session from a JSON export",
+    responses=_errors(
+        _400="the body is not JSON",
+        _413="the export is bigger than the server's max_body_bytes (start it with a bigger "
+        "--max-body-bytes)",
+        _422="not a semanticxr-map version 1, an embedding dimension other than the server's, "
+        "a number that is not finite, a repeated object id, or a bad knob",
+        _503="the server holds its maximum of sessions",
+    ),
+)
+def import_map(body: MapExport, request: Request) -> protocol.SessionCreated:
+    seen: set[int] = set()
+    for i, obj in enumerate(body.objects):
+        if obj.id in seen:
+            raise HTTPException(422, f"objects[{i}].id: {obj.id} appears twice")
+        seen.add(obj.id)
+        if np.abs(np.asarray(obj.points)).max() > MAX_WORLD_M:
+            raise HTTPException(422, f"objects[{i}].points: over {MAX_WORLD_M:g} m from the origin")
+    try:
+        session, token = manager(request).import_session(body)
+    except (KnobError, UnknownBackendError, InputError) as exc:
+        raise HTTPException(422, str(exc)) from None
+    except OverflowError as exc:
+        raise HTTPException(503, str(exc)) from None
+    encoder = session.engine.encoder
+    return protocol.SessionCreated(
+        session_id=session.id,
+        token=token,
+        embedding=protocol.EmbeddingInfo(model=encoder.model_id, dim=encoder.dim),
+        knobs=knobs_to_dict(session.knobs),
+    )
