@@ -81,3 +81,47 @@ def test_the_demo_continues_its_walk_after_the_outage_and_logs_one_line_per_upda
         in out
     )
     assert "caught up: yes" in out
+
+
+class Terminal:
+    """A stdout that says it is a terminal, keeping what was written."""
+
+    def __init__(self, tty: bool):
+        self.tty, self.text = tty, ""
+
+    def isatty(self) -> bool:
+        return self.tty
+
+    def write(self, text: str) -> int:
+        self.text += text
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("tty", [True, False])
+def test_progress_is_a_live_line_on_a_terminal_and_one_line_per_update_in_a_log(monkeypatch, tty):
+    from app.cli.demo import _Console
+
+    out = Terminal(tty)
+    monkeypatch.setattr(sys, "stdout", out)
+    console = _Console()
+    console.progress("frames 1/3")
+    console.progress("frames 2/3")
+    console.say("device: reconnected")
+    console.progress("frames 3/3")
+    console.say("done")
+    if tty:  # redrawn in place; cleared before any other line
+        assert out.text == (
+            "\r\x1b[Kframes 1/3\r\x1b[Kframes 2/3\r\x1b[Kdevice: reconnected\n"
+            "\r\x1b[Kframes 3/3\r\x1b[Kdone\n"
+        )
+    else:
+        assert out.text.splitlines() == [
+            "frames 1/3",
+            "frames 2/3",
+            "device: reconnected",
+            "frames 3/3",
+            "done",
+        ]
