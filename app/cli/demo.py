@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import os
 import sys
 import tempfile
 import time
@@ -243,6 +244,8 @@ def run(args: argparse.Namespace) -> int:
         ports.append(("127.0.0.1", args.viewer_port, "--viewer-port (or --no-viewer)"))
     if not check_ports("demo", *ports):
         return 2
+    if not _console.tty:  # the model loader's bar would be one long \r line in a log
+        os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")
     from app.semantics import get_text_encoder
     from app.server.runner import ServerThread
     from app.server.settings import ServerSettings

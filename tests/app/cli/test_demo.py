@@ -71,7 +71,7 @@ def test_the_demo_continues_its_walk_after_the_outage_and_logs_one_line_per_upda
     )
     out = result.stdout
     assert result.returncode == 0, (out, result.stderr)
-    assert "\r" not in out  # stdout is a pipe: plain lines, no live line
+    assert "\r" not in out + result.stderr  # a pipe: plain lines, no live line or bar
     assert re.search(r"^ready: dashboard http://127\.0\.0\.1:\d+/", out, re.M)
     progress = re.findall(rf"^  frames (\d+)/{frames}\b", out, re.M)
     assert progress and all(int(n) <= frames for n in progress)
