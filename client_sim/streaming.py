@@ -320,14 +320,18 @@ class DeviceClient:
         fps: float | None = 5.0,
         limit: int | None = None,
         max_in_flight: int = 4,
+        start: int = 0,
     ) -> DeviceStats:
         """Play `source` to the server; returns the counters when done (or stopped).
 
-        fps: the source's frame rate (frame i is captured at i / fps s after the start);
+        fps: the source's frame rate (frame i is captured at (i - start) / fps s after the
+        start);
         every `send_every`-th frame is sent when it is captured, and skipped (`dropped`) if
         the link is down at that moment. None: no clock, frames go as fast as acks allow,
         and while the link is down the device waits for it (no frame is captured meanwhile).
-        limit: play only source frames 0 .. limit - 1 (None: all).
+        limit: play only source frames start .. limit - 1 (None: to the source's end).
+        start: the first source frame to play, e.g. where an earlier `stream()` of the same
+        walk stopped, so a device continues its walk instead of replaying it.
         max_in_flight: most frames sent and not yet answered.
 
         Server errors and lost connections are counted and logged, never raised; an error of
@@ -338,6 +342,8 @@ class DeviceClient:
             raise ValueError(f"fps must be a positive number or None, got {fps!r}")
         if max_in_flight < 1:
             raise ValueError(f"max_in_flight must be >= 1, got {max_in_flight!r}")
+        if isinstance(start, bool) or not isinstance(start, int) or start < 0:
+            raise ValueError(f"start must be a non-negative integer, got {start!r}")
         encoder = FrameEncoder(self.knobs.depth_downsampling_ratio, **self.encoder_options)
         n_frames = len(source) if limit is None else min(len(source), max(0, limit))
         link = _StreamLink(self, max_in_flight)
@@ -349,9 +355,9 @@ class DeviceClient:
             # connection handshake.
             await self._until_stopped(link.attempted.wait())
             start_s = loop.time()
-            for index in range(0, n_frames, self.send_every):
+            for index in range(start, n_frames, self.send_every):
                 if fps is not None:
-                    if not await self._sleep(start_s + index / fps - loop.time()):
+                    if not await self._sleep(start_s + (index - start) / fps - loop.time()):
                         break
                     if not await link.wait_for_slot(wait_for_link=False):
                         self.stats.dropped += 1

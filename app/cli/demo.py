@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import os
+import sys
 import tempfile
 import time
 from typing import Any
@@ -50,8 +52,74 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     return demo
 
 
+class _Console:
+    """The demo's output: a live progress line on a terminal (redrawn in place, cleared before
+    any other line), one progress line per update when stdout is a file or a pipe (a log
+    gets readable lines, never one long line of carriage returns)."""
+
+    def __init__(self) -> None:
+        self.live = False  # a progress line is on screen, unterminated
+
+    @property
+    def tty(self) -> bool:
+        isatty = getattr(sys.stdout, "isatty", None)
+        return bool(isatty and isatty())
+
+    def say(self, message: str) -> None:
+        self._clear()
+        print(message, flush=True)
+
+    def progress(self, line: str) -> None:
+        if self.tty:
+            sys.stdout.write(f"\r\x1b[K{line}")
+            sys.stdout.flush()
+            self.live = True
+        else:
+            print(line, flush=True)
+
+    def _clear(self) -> None:
+        if self.live:
+            sys.stdout.write("\r\x1b[K")
+            self.live = False
+
+
+_console = _Console()
+PROGRESS_TTY_S = 0.5
+"""How often the live line is redrawn on a terminal."""
+PROGRESS_LOG_S = 2.0
+"""How often a progress line is written when stdout is not a terminal."""
+
+
 def _say(message: str) -> None:
-    print(message, flush=True)
+    _console.say(message)
+
+
+async def _report_progress(device, total: int, t0: float) -> None:
+    """Until cancelled: the walk's progress, every PROGRESS_TTY_S on a terminal and every
+    PROGRESS_LOG_S otherwise (so the demo never goes quiet while it streams)."""
+    while True:
+        s = device.stats
+        elapsed_s = max(time.perf_counter() - t0, 1e-3)
+        sent = s.bytes_up_by_kind["total"]
+        rtt = f"{device.rtt_ms:.0f} ms" if device.rtt_ms is not None else "?"
+        _console.progress(
+            f"  frames {s.frames_sent}/{total}  up {8 * sent / elapsed_s / 1e6:.1f} Mbps at "
+            f"{s.frames_sent / elapsed_s:.1f} fps ({sent / max(s.frames_sent, 1) / 1e3:.0f}"
+            f" kB/frame)  objects held {len(device.local_map)}  RTT {rtt}"
+        )
+        await asyncio.sleep(PROGRESS_TTY_S if _console.tty else PROGRESS_LOG_S)
+
+
+async def _stream_with_progress(device, source, *, start: int, limit: int, t0: float) -> None:
+    """Stream source frames start .. limit - 1 of the walk, reporting progress meanwhile."""
+    reporter = asyncio.create_task(_report_progress(device, len(source), t0))
+    try:
+        await device.stream(source, fps=None, start=start, limit=limit)
+    finally:
+        reporter.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await reporter
+    _say(f"  frames {device.stats.frames_sent}/{len(source)} sent")
 
 
 def _show(answer) -> None:
@@ -90,6 +158,11 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
         except Exception as exc:  # the demo goes on without a viewer
             _say(f"(no 3D viewer: {exc})")
 
+    _say(
+        f"ready: dashboard {server_url}/"
+        + (f"   3D viewer {viewer.url}" if viewer is not None else "")
+        + "   (the map grows there as the device walks)"
+    )
     device = DeviceClient(
         device_url, sid, token, knobs=Knobs(), on_log=lambda m: _say(f"  device: {m}")
     )
@@ -97,30 +170,8 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     source = SyntheticSource(args.scene, n_frames=args.frames)
     _say(f"streaming {args.frames} frames of a synthetic {args.scene} (640x480, depth ÷5)...")
     t0 = time.perf_counter()
-    first_part = int(args.frames * 0.8)
-
-    async def progress(until: int) -> None:
-        while device.stats.frames_sent < until and not device.stopped:
-            s = device.stats
-            elapsed_s = max(time.perf_counter() - t0, 1e-3)
-            sent = s.bytes_up_by_kind["total"]
-            rate = (
-                f"up {8 * sent / elapsed_s / 1e6:.1f} Mbps at {s.frames_sent / elapsed_s:.1f} fps"
-                f" ({sent / max(s.frames_sent, 1) / 1e3:.0f} kB/frame)"
-            )
-            rtt = f"{device.rtt_ms:.0f} ms" if device.rtt_ms is not None else "?"
-            print(
-                f"\r  frames {s.frames_sent}/{args.frames}  {rate}  "
-                f"objects held {len(device.local_map)}  RTT {rtt}   ",
-                end="",
-                flush=True,
-            )
-            await asyncio.sleep(0.5)
-        print()
-
-    reporter = asyncio.create_task(progress(first_part))
-    await device.stream(source, fps=None, limit=first_part)
-    reporter.cancel()
+    first_part = max(1, int(args.frames * 0.8))
+    await _stream_with_progress(device, source, start=0, limit=first_part, t0=t0)
     server_seq = (await api.fetch())["update_seq"]
     await device.wait_synced(server_seq, timeout_s=15)
     _say(
@@ -147,12 +198,15 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     for text in queries:
         _show(await router.query(text))
 
-    _say("network back; the device resumes from its last update and streams on")
-    proxy.restore()
-    await device.stream(
-        source.__class__(args.scene, n_frames=args.frames), fps=None, limit=args.frames
+    _say(
+        f"network back; the device resumes its updates from its last one and continues its walk"
+        f" at frame {first_part}"
     )
-    server_seq = (await api.fetch())["update_seq"]
+    proxy.restore()
+    await _stream_with_progress(device, source, start=first_part, limit=args.frames, t0=t0)
+    session = await api.fetch()
+    server_seq = session["update_seq"]
+    _say(f"waiting for the device to apply the server's updates up to {server_seq}...")
     synced = await device.wait_synced(server_seq, timeout_s=20)
     objects = await api.objects()
     server_map = {o["id"]: o["version"] for o in objects}
@@ -162,6 +216,11 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     _say(
         f"caught up: {'yes' if same else 'NO'} — {len(local)} objects locally, "
         f"{len(server_map)} on the server; resumed with since={resumed[-1] if resumed else None}"
+    )
+    walked = session["frames"] == args.frames
+    _say(
+        f"walk continued: {'yes' if walked else 'NO'} — the server counted {session['frames']}"
+        f" frames of the {args.frames}-frame walk"
     )
     _say("queries again (SQ):")
     for text in queries[:2]:
@@ -174,10 +233,19 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     with contextlib.suppress(asyncio.CancelledError):
         await follower  # lets the updates socket close cleanly before the loop ends
     proxy.stop()
-    return {"session_id": sid, "token": token, "viewer": viewer, "in_sync": same}
+    return {"session_id": sid, "token": token, "viewer": viewer, "in_sync": same and walked}
 
 
 def run(args: argparse.Namespace) -> int:
+    from app.cli.ports import check_ports
+
+    ports = [("127.0.0.1", args.port, "--port")]
+    if not args.no_viewer:
+        ports.append(("127.0.0.1", args.viewer_port, "--viewer-port (or --no-viewer)"))
+    if not check_ports("demo", *ports):
+        return 2
+    if not _console.tty:  # the model loader's bar would be one long \r line in a log
+        os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")
     from app.semantics import get_text_encoder
     from app.server.runner import ServerThread
     from app.server.settings import ServerSettings

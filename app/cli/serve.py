@@ -46,11 +46,14 @@ def run(args: argparse.Namespace) -> int:
 
     from uvicorn import Server
 
+    from app.cli.ports import check_ports
     from app.perception.models.weights import MissingModelsError
     from app.server.app import create_app
     from app.server.runner import uvicorn_config
 
     settings = settings_from_args(args)
+    if not check_ports("serve", (settings.host, settings.port, "--port")):
+        return 2
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(levelname)s %(name)s: %(message)s"
     )

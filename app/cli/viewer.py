@@ -43,6 +43,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the viewer until Ctrl-C; prints its URL."""
+    from app.cli.ports import check_ports
+
+    if not check_ports("viewer", (args.host, args.port, "--port")):
+        return 2  # viser would quietly take the next port: the printed URL would be wrong
     from viewer.app import ViewerApp  # here: viser loads in about a second
 
     app = ViewerApp(

@@ -1,0 +1,127 @@
+"""`semanticxr demo`: after the network comes back the device continues its walk where it was
+(the server counts each frame of the walk once), and its output in a log is one line per
+update (no carriage returns)."""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import subprocess
+import sys
+
+import pytest
+from analytic_world import KITCHEN, RectSource
+from helpers_device import FAST_KNOBS
+
+from client_sim.netem import NetemProxy
+from client_sim.streaming import DeviceClient
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+
+
+class Recording(RectSource):
+    """A RectSource that remembers which frames the device read."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.read: list[int] = []
+
+    def frame(self, index: int):
+        self.read.append(index)
+        return super().frame(index)
+
+
+def test_a_stream_started_where_the_last_one_stopped_continues_the_walk(live_server):
+    server = live_server()
+    port = int(server.url.rsplit(":", 1)[1])
+    walk = Recording(KITCHEN, 10)
+
+    async def scenario(proxy: NetemProxy) -> dict:
+        sid, token, _ = await DeviceClient.create_session(server.url, knobs=FAST_KNOBS)
+        device = DeviceClient(proxy.url(), sid, token)
+        await device.stream(walk, fps=None, limit=6)
+        await asyncio.to_thread(proxy.cut)
+        await asyncio.to_thread(proxy.restore)
+        await device.stream(walk, fps=None, start=6)
+        await device.stop()
+        session = await DeviceClient.fetch_session(server.url, sid, token)
+        return {"session": session, "sent": device.stats.frames_sent}
+
+    with NetemProxy("127.0.0.1", port) as proxy:
+        r = asyncio.run(scenario(proxy))
+    assert walk.read == list(range(10))
+    assert r["sent"] == r["session"]["frames"] == 10
+
+
+def test_a_stream_refuses_a_negative_start():
+    device = DeviceClient("http://127.0.0.1:9", "s", "t")
+    with pytest.raises(ValueError, match="start"):
+        asyncio.run(device.stream(RectSource(KITCHEN, 3), fps=None, start=-1))
+
+
+def test_the_demo_continues_its_walk_after_the_outage_and_logs_one_line_per_update():
+    pytest.importorskip("client_sim.sources.synthetic")
+    frames = 10
+    result = subprocess.run(
+        [sys.executable, "-m", "app.cli", "demo", "--frames", str(frames), "--port", "0"]
+        + ["--no-viewer", "--exit"],
+        capture_output=True,
+        text=True,
+        timeout=200,
+    )
+    out = result.stdout
+    assert result.returncode == 0, (out, result.stderr)
+    assert "\r" not in out + result.stderr  # a pipe: plain lines, no live line or bar
+    assert re.search(r"^ready: dashboard http://127\.0\.0\.1:\d+/", out, re.M)
+    progress = re.findall(rf"^  frames (\d+)/{frames}\b", out, re.M)
+    assert progress and all(int(n) <= frames for n in progress)
+    assert "the device resumes its updates from its last one and continues its walk" in out
+    assert (
+        f"walk continued: yes — the server counted {frames} frames of the {frames}-frame walk"
+        in out
+    )
+    assert "caught up: yes" in out
+
+
+class Terminal:
+    """A stdout that says it is a terminal, keeping what was written."""
+
+    def __init__(self, tty: bool):
+        self.tty, self.text = tty, ""
+
+    def isatty(self) -> bool:
+        return self.tty
+
+    def write(self, text: str) -> int:
+        self.text += text
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("tty", [True, False])
+def test_progress_is_a_live_line_on_a_terminal_and_one_line_per_update_in_a_log(monkeypatch, tty):
+    from app.cli.demo import _Console
+
+    out = Terminal(tty)
+    monkeypatch.setattr(sys, "stdout", out)
+    console = _Console()
+    console.progress("frames 1/3")
+    console.progress("frames 2/3")
+    console.say("device: reconnected")
+    console.progress("frames 3/3")
+    console.say("done")
+    if tty:  # redrawn in place; cleared before any other line
+        assert out.text == (
+            "\r\x1b[Kframes 1/3\r\x1b[Kframes 2/3\r\x1b[Kdevice: reconnected\n"
+            "\r\x1b[Kframes 3/3\r\x1b[Kdone\n"
+        )
+    else:
+        assert out.text.splitlines() == [
+            "frames 1/3",
+            "frames 2/3",
+            "device: reconnected",
+            "frames 3/3",
+            "done",
+        ]
