@@ -26,7 +26,7 @@ from app.server.runner import ServerThread, free_port
 from app.server.settings import ServerSettings
 from client_sim.sources.base import FrameSource
 from client_sim.streaming import DeviceClient
-from viewer.app import ViewerApp
+from viewer.app import FLOOR_NODE, ViewerApp
 from viewer.scene import HIT_BOXES_NODE, points_node
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
@@ -161,6 +161,18 @@ def test_the_browser_shows_one_point_cloud_per_confirmed_object_and_the_query_hi
             wait_for(mounted_objects, f"the page to mount {sorted(wanted)}")
             # where the device is: its newest pose, from the updates' device_pose
             assert "/device/frustum" in (page.evaluate(MOUNTED_NODES_JS) or [])
+            assert FLOOR_NODE in (page.evaluate(MOUNTED_NODES_JS) or []), "the floor grid"
+
+            # Enter in "Find" runs the query, as the Search button does
+            find = page.locator("xpath=//*[text()='Find']/following::input[1]")  # no <label for>
+            find.fill("refrigerator")
+            find.press("Enter")
+            wait_for(
+                lambda: "for *refrigerator*" in app.gui.results.content,
+                "Enter in Find to run the query",
+            )
+            assert HIT_BOXES_NODE in app.model.sink._handles
+            app.clear_query()
 
             results = app.run_query("refrigerator", k=1)
             assert results[0]["label"] == "refrigerator"
