@@ -66,7 +66,7 @@ HIT_BOX_THICKNESS_PX = 4.0
 """Line width of the highlighted hits' boxes."""
 FLOOR_NODE = "/floor"
 """The floor grid: faint lines under the map, at its lowest box face along up."""
-FLOOR_CELL_RGB, FLOOR_SECTION_RGB = (222, 222, 222), (190, 190, 190)
+FLOOR_CELL_RGB, FLOOR_SECTION_RGB = (228, 228, 228), (200, 200, 200)
 """Faint: the floor is a reference, not content (0.5 m cells, 1 m sections)."""
 ASSUMED_CANVAS_PX = (1400, 860)
 """The canvas size the starting view of new clients is framed for (a laptop's browser)."""

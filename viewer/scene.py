@@ -199,8 +199,10 @@ VIEW_DIRECTION = (0.55, 0.45)
 """The first camera looks from aside (this much along a horizontal diagonal) and above."""
 FRAME_MARGIN = 1.08
 """Slack around the map's bounding sphere when framing it."""
-FLOOR_MARGIN_M = 0.5
-"""How far the floor grid reaches past the map's footprint (before rounding to metres)."""
+FLOOR_MARGIN_M = 0.25
+"""How far the floor grid reaches past the map's footprint (before rounding)."""
+FLOOR_STEP_M = 0.5
+"""The floor grid's edges lie on multiples of this (its cell size)."""
 
 
 @dataclass(frozen=True)
@@ -250,8 +252,8 @@ def frame_view(
 @dataclass(frozen=True)
 class FloorGrid:
     """A grid on the map's floor: the plane at the lowest box face along up, spanning the
-    map's footprint plus a margin, its edges on whole metres (so it changes only when the
-    footprint crosses a metre)."""
+    map's footprint plus a margin, its edges on multiples of FLOOR_STEP_M (so it changes only
+    when the footprint crosses one)."""
 
     plane: str
     """viser's plane name: the two horizontal axes ("xy" when z is up)."""
@@ -279,8 +281,8 @@ def floor_grid(bounds: tuple[np.ndarray, np.ndarray] | None, up: np.ndarray) -> 
     position[axis] = lo[axis] if up[axis] > 0 else hi[axis]
     extents = []
     for a in (first, second):
-        start = np.floor(lo[a] - FLOOR_MARGIN_M)
-        end = np.ceil(hi[a] + FLOOR_MARGIN_M)
+        start = np.floor((lo[a] - FLOOR_MARGIN_M) / FLOOR_STEP_M) * FLOOR_STEP_M
+        end = np.ceil((hi[a] + FLOOR_MARGIN_M) / FLOOR_STEP_M) * FLOOR_STEP_M
         position[a] = (start + end) / 2
         extents.append(float(end - start))
     plane = "xyz"[first] + "xyz"[second]

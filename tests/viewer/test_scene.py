@@ -384,23 +384,23 @@ def test_the_floor_grid_lies_under_the_map_along_up(up, plane, floor_axis, floor
     grid = floor_grid(bounds, np.array(up, float))
     assert grid is not None and grid.plane == plane
     assert grid.position[floor_axis] == pytest.approx(floor)  # the lowest face along up
-    # it covers the footprint with a margin, its edges on whole metres
+    # it covers the footprint with a margin, its edges on multiples of half a metre
     for extent, axis in zip(
         (grid.width, grid.height), ("xyz".index(plane[0]), "xyz".index(plane[1])), strict=True
     ):
         start, end = grid.position[axis] - extent / 2, grid.position[axis] + extent / 2
-        assert start <= bounds[0][axis] - 0.5 and end >= bounds[1][axis] + 0.5
-        assert start == round(start) and end == round(end)
+        assert start <= bounds[0][axis] - 0.25 and end >= bounds[1][axis] + 0.25
+        assert 2 * start == round(2 * start) and 2 * end == round(2 * end)
 
 
-def test_the_floor_grid_follows_the_map_bounds_when_they_cross_a_metre(scene):
+def test_the_floor_grid_follows_the_map_bounds_when_they_cross_half_a_metre(scene):
     model, _ = scene  # objects at x = 1, 2, 3 (0.5 m cubes)
     up = np.array([0, 0, 1.0])
     grid = floor_grid(model.bounds(), up)
     assert grid is not None
-    model.apply_delta(delta(2, [upsert(4, 1, offset=-1.4)]))  # x 2.6..3.1: same metres
+    model.apply_delta(delta(2, [upsert(4, 1, offset=-1.4)]))  # x 2.6..3.1: inside the footprint
     assert floor_grid(model.bounds(), up) == grid
-    model.apply_delta(delta(3, [upsert(9, 1)]))  # x 9: the footprint grows past a metre
+    model.apply_delta(delta(3, [upsert(9, 1)]))  # x 9: the footprint grows
     wider = floor_grid(model.bounds(), up)
     assert wider is not None and wider.width > grid.width and wider.height == grid.height
     model.apply_delta(delta(4, [], full=True))  # the map emptied: no floor
