@@ -154,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
                     )
                 with app._lock:
                     nodes = {points_node(oid) for oid in app.model.objects}
+                    lo, hi = app.model.bounds() or ((), ())
+                    print(f"map bounds {lo} .. {hi}; floor {app._floor}", file=sys.stderr)
                 out = Path(args.out)
                 screenshot(app.url, nodes, out, (args.width, args.height))
                 print(f"wrote {out}", file=sys.stderr)

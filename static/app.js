@@ -148,7 +148,7 @@
   // Objects' footprints (bbox x/y extents) and centroids seen from above (the synthetic world
   // and the mapping engine are z-up); query hits drawn on top, numbered by rank, each as
   // strong as its relevance (a weak hit is a faint outline, a confident one a bold box).
-  function drawPlot(canvas, objects, hits) {
+  function drawPlot(canvas, labelLayer, objects, hits) {
     const dpr = window.devicePixelRatio || 1;
     const widthPx = canvas.clientWidth || 320;
     const heightPx = canvas.clientHeight || widthPx;
@@ -168,6 +168,7 @@
     ctx.font = "12px system-ui, sans-serif";
 
     const all = [...objects, ...hits];
+    labelLayer.replaceChildren();
     if (all.length === 0) {
       ctx.fillStyle = colors.muted;
       ctx.textAlign = "center";
@@ -235,14 +236,6 @@
       ctx.fillStyle = colors.hit;
       ctx.fill();
       ctx.globalAlpha = 1;
-      ctx.textAlign = px > widthPx - 110 ? "right" : "left";
-      const [tx, ty, caption] = [px + (ctx.textAlign === "right" ? -8 : 8), py - 6, `${rank} ${h.label}`];
-      ctx.lineWidth = 3; // a halo in the background colour keeps labels readable over boxes
-      ctx.lineJoin = "round";
-      ctx.strokeStyle = colors.surface;
-      ctx.strokeText(caption, tx, ty);
-      ctx.fillStyle = colors.text;
-      ctx.fillText(caption, tx, ty);
     });
 
     // scale bar
@@ -255,6 +248,70 @@
     ctx.stroke();
     ctx.textAlign = "left";
     ctx.fillText("1 m", marginPx + scale + 6, heightPx - 4);
+
+    // The hits' labels, best first, where they overlap no other label.
+    const scaleBar = { left: 0, top: heightPx - 20, right: marginPx + scale + 40, bottom: heightPx };
+    const boxes = placeLabels(ctx, hits.map((h, i) => ({
+      text: `${i + 1} ${h.label}`,
+      short: `${i + 1}`,
+      x: sx(h.centroid[0]),
+      y: sy(h.centroid[1]),
+    })), widthPx, heightPx, [scaleBar]);
+    labelLayer.replaceChildren(...boxes.map((b) => {
+      const span = document.createElement("span");
+      span.className = "plot-label";
+      span.textContent = b.text; // user data: text only
+      span.style.left = `${b.left}px`;
+      span.style.top = `${b.top}px`;
+      return span;
+    }));
+  }
+
+  const LABEL_HEIGHT_PX = 16;
+  const LABEL_PAD_PX = 3; // each side, inside the label's box
+
+  function overlaps(a, b) {
+    return a.left < b.right && b.left < a.right && a.top < b.bottom && b.top < a.bottom;
+  }
+
+  // Greedy label placement: each label, in order, takes the first of a few spots around its
+  // point (right, left, above, below, then farther out) that stays inside the plot and
+  // overlaps no label placed before it nor an obstacle; when no spot fits, its short text
+  // (the rank) is tried the same way, and when that fails too it is left out. Returns the
+  // placed boxes {text, left, top, right, bottom} in CSS pixels of the plot.
+  function placeLabels(ctx, labels, widthPx, heightPx, obstacles = []) {
+    const placed = [];
+    const h = LABEL_HEIGHT_PX;
+    for (const label of labels) {
+      for (const text of [label.text, label.short]) {
+        const w = Math.ceil(ctx.measureText(text).width) + 2 * LABEL_PAD_PX + 2; // 2: font slack
+        const [x, y] = [label.x, label.y];
+        const spots = [];
+        for (const gap of [6, 6 + h, 6 + 2 * h]) {
+          spots.push(
+            [x + gap, y - h / 2 - gap / 2], // right, a little up
+            [x - gap - w, y - h / 2 - gap / 2], // left
+            [x - w / 2, y - gap - h], // above
+            [x - w / 2, y + gap], // below
+            [x + gap, y + gap / 2], // right, down
+            [x - gap - w, y + gap / 2], // left, down
+          );
+        }
+        const fits = (box) =>
+          box.left >= 0 && box.top >= 0 && box.right <= widthPx && box.bottom <= heightPx &&
+          !placed.some((other) => overlaps(box, other)) &&
+          !obstacles.some((other) => overlaps(box, other));
+        const box = spots
+          .map(([left, top]) => ({ text, left: Math.round(left), top: Math.round(top) }))
+          .map((b) => ({ ...b, right: b.left + w, bottom: b.top + h }))
+          .find(fits);
+        if (box) {
+          placed.push(box);
+          break;
+        }
+      }
+    }
+    return placed;
   }
 
   // --- one session's card ----------------------------------------------------------------
@@ -387,7 +444,7 @@
     }
 
     redraw() {
-      drawPlot($(".plot-canvas", this.root), this.objects, this.hits);
+      drawPlot($(".plot-canvas", this.root), $(".plot-labels", this.root), this.objects, this.hits);
     }
   }
 

@@ -35,7 +35,17 @@ from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
 from app.mapping.relevance import is_match
 from app.protocol import unpack_update
-from viewer.scene import HIT_BOXES_NODE, HITS_GROUP, DeltaError, Rgb, SceneModel
+from viewer.scene import (
+    HIT_BOXES_NODE,
+    HITS_GROUP,
+    PANEL_PX,
+    DeltaError,
+    FloorGrid,
+    Rgb,
+    SceneModel,
+    floor_grid,
+    frame_view,
+)
 
 MAX_PATH_POINTS = 5000
 """Device path vertices kept (one per update that moved more than 1 cm)."""
@@ -54,6 +64,12 @@ BOX_THICKNESS_PX = 1.5
 """Line width of the batched boxes, in screen pixels (constant at every distance)."""
 HIT_BOX_THICKNESS_PX = 4.0
 """Line width of the highlighted hits' boxes."""
+FLOOR_NODE = "/floor"
+"""The floor grid: faint lines under the map, at its lowest box face along up."""
+FLOOR_CELL_RGB, FLOOR_SECTION_RGB = (228, 228, 228), (200, 200, 200)
+"""Faint: the floor is a reference, not content (0.5 m cells, 1 m sections)."""
+ASSUMED_CANVAS_PX = (1400, 860)
+"""The canvas size the starting view of new clients is framed for (a laptop's browser)."""
 LIVE_RGB, DOWN_RGB, WAITING_RGB = "#1a7f37", "#cf222e", "#6e7781"
 """Status colours: live (green), disconnected (red), not connected yet (grey)."""
 
@@ -142,6 +158,7 @@ class ViewerStatus:
 @dataclass
 class _Gui:
     status: viser.GuiHtmlHandle
+    query_form: viser.GuiFormHandle
     query_text: viser.GuiTextHandle
     top_k: viser.GuiNumberHandle
     search: viser.GuiButtonHandle
@@ -207,6 +224,7 @@ class ViewerApp:
         self.model = SceneModel(ViserSceneSink(self.server.scene))
         self._device_path: list[np.ndarray] = []
         self._camera_framed = False  # frame the map once, when it first has objects
+        self._floor: FloorGrid | None = None  # the floor grid in the scene now
         self.gui = self._build_gui()
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -315,6 +333,8 @@ class ViewerApp:
             self.status.full_snapshots += summary.full
             if isinstance(message.get("device_pose"), bytes):
                 self._show_device(message["device_pose"])
+            if summary.changed:
+                self._show_floor()
             if not self._camera_framed and self.model.objects:
                 self._camera_framed = True
                 self._frame_camera()
@@ -387,7 +407,8 @@ class ViewerApp:
         gui.configure_theme(control_width="large", show_logo=False, show_share_button=False)
         with gui.add_folder("Connection"):
             status = gui.add_html(self._status_html())
-        with gui.add_folder("Query"):
+        # A form, so that Enter in "Find" submits it (the browser's implicit form submission).
+        with gui.add_form("Query") as query_form:
             query_text = gui.add_text("Find", "", hint="e.g. 'where can I sit'")
             top_k = gui.add_number("Top k", 5, min=1, max=100, step=1)
             search = gui.add_button("Search", icon=viser.Icon.SEARCH)
@@ -401,6 +422,7 @@ class ViewerApp:
             stats = gui.add_markdown("waiting for the first stats…")
         handles = _Gui(
             status=status,
+            query_form=query_form,
             query_text=query_text,
             top_k=top_k,
             search=search,
@@ -415,6 +437,10 @@ class ViewerApp:
         @search.on_click
         def _(_event: viser.GuiEvent) -> None:
             self._search_clicked()
+
+        @query_form.on_submit
+        def _(_event: viser.GuiEvent) -> None:
+            self._search_clicked()  # Enter in "Find" does what the button does
 
         @clear.on_click
         def _(_event: viser.GuiEvent) -> None:
@@ -513,22 +539,43 @@ class ViewerApp:
     # --- camera ---------------------------------------------------------------------------
 
     def _frame_camera(self) -> None:
-        """Look at the whole map from above and aside (caller holds the lock): the starting
-        view of new clients and of "Reset View", and the view of clients already open."""
+        """Frame the whole map, from above and aside, in the part of the canvas the GUI panel
+        leaves free (caller holds the lock): the starting view of new clients and of "Reset
+        View", and the view of clients already open (framed for their own canvas)."""
         bounds = self.model.bounds()
         if bounds is None:
             return
-        lo, hi = bounds
-        center = (lo + hi) / 2
-        size = float(np.linalg.norm(hi - lo)) or 1.0
-        # A horizontal direction: the diagonal of the two axes that are not `up`.
-        side = np.ones(3) - np.abs(self.up)
-        side = -side / np.linalg.norm(side)
-        position = center + size * (0.55 * side + 0.45 * self.up)
-        self.server.initial_camera.position = position
-        self.server.initial_camera.look_at = center
+        initial = self.server.initial_camera
+        width, height = ASSUMED_CANVAS_PX
+        view = frame_view(bounds, self.up, initial.fov, width / height, PANEL_PX / width)
+        initial.position, initial.look_at = view.position, view.look_at
         for client in self.server.get_clients().values():
-            # position first: viser moves look_at along with the position, then we re-aim.
+            camera = client.camera
             with contextlib.suppress(AssertionError):  # its camera is not known yet
-                client.camera.position = position
-                client.camera.look_at = center
+                width, height = camera.image_width, camera.image_height
+                mine = frame_view(bounds, self.up, camera.fov, width / height, PANEL_PX / width)
+                # position first: viser moves look_at along with the position, then we re-aim.
+                camera.position = mine.position
+                camera.look_at = mine.look_at
+
+    def _show_floor(self) -> None:
+        """Draw the floor grid under the map, again when its extent changed (holds the lock)."""
+        floor = floor_grid(self.model.bounds(), self.up)
+        if floor == self._floor:
+            return
+        self._floor = floor
+        if floor is None:
+            self.server.scene.remove_by_name(FLOOR_NODE)
+            return
+        self.server.scene.add_grid(
+            FLOOR_NODE,
+            width=floor.width,
+            height=floor.height,
+            plane=floor.plane,  # type: ignore[arg-type]
+            cell_size=0.5,
+            section_size=1.0,
+            cell_color=FLOOR_CELL_RGB,
+            section_color=FLOOR_SECTION_RGB,
+            shadow_opacity=0.0,
+            position=floor.position,
+        )

@@ -25,6 +25,8 @@ from viewer.scene import (
     box_segments,
     class_color,
     dimmed,
+    floor_grid,
+    frame_view,
     hit_box_color,
     hit_color,
     hit_label_node,
@@ -327,3 +329,79 @@ def test_the_labels_toggle_is_one_group_operation_and_the_boxes_toggle_one_node(
     model.set_show_boxes(True)
     assert sink.take() == [("set_boxes", BOXES_NODE)]
     assert len(sink.nodes[BOXES_NODE]["segments"]) == 4 * 12
+
+
+# --- framing the first camera and the floor -------------------------------------------------
+
+
+def _project(view, point, up, fov_y, aspect):
+    """NDC (x, y) of `point` seen by a pinhole camera at `view` (+y up on screen)."""
+    forward = np.subtract(view.look_at, view.position)
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, forward)
+    rel = np.subtract(point, view.position)
+    depth = rel @ forward
+    assert depth > 0, "the point is behind the camera"
+    tan_y = np.tan(fov_y / 2)
+    return (rel @ right) / depth / (aspect * tan_y), (rel @ true_up) / depth / tan_y
+
+
+@pytest.mark.parametrize("up", [(0, 0, 1), (0, 1, 0), (0, 0, -1)])
+@pytest.mark.parametrize("aspect", [1400 / 860, 0.8])
+def test_the_first_camera_shows_every_corner_of_the_map_left_of_the_panel(up, aspect):
+    up = np.array(up, float)
+    bounds = (np.array([-1.0, 2.0, 0.0]), np.array([4.0, 5.5, 2.2]))  # a 5 x 3.5 m room
+    fov_y, panel_share = np.deg2rad(75.0), 400 / 1400
+    view = frame_view(bounds, up, fov_y, aspect, panel_share)
+    corners = np.where(
+        np.array([[(k >> a) & 1 for a in range(3)] for k in range(8)]), *bounds[::-1]
+    )
+    ndc = np.array([_project(view, c, up, fov_y, aspect) for c in corners])
+    # every corner on screen and none under the panel (NDC x > 1 - 2 * share)
+    assert ndc[:, 0].min() > -1 and ndc[:, 0].max() < 1 - 2 * panel_share
+    assert np.abs(ndc[:, 1]).max() < 1
+    # and the map is not a speck: it fills a good part of the free width or the height
+    free_span = max(np.ptp(ndc[:, 0]) / (2 - 2 * panel_share), np.ptp(ndc[:, 1]) / 2)
+    assert free_span > 0.5
+    # looking down on it from above
+    assert np.dot(np.subtract(view.position, view.look_at), up) > 0
+
+
+def test_without_the_panel_the_camera_aims_at_the_map_centre():
+    bounds = (np.zeros(3), np.array([2.0, 2.0, 1.0]))
+    view = frame_view(bounds, np.array([0, 0, 1.0]), np.deg2rad(60), 1.5, panel_share=0.0)
+    assert np.allclose(view.look_at, (1.0, 1.0, 0.5))
+
+
+@pytest.mark.parametrize(
+    ("up", "plane", "floor_axis", "floor"),
+    [((0, 0, 1), "xy", 2, 0.1), ((0, 1, 0), "xz", 1, 0.3), ((0, 0, -1), "xy", 2, 2.5)],
+)
+def test_the_floor_grid_lies_under_the_map_along_up(up, plane, floor_axis, floor):
+    bounds = (np.array([-0.4, 0.3, 0.1]), np.array([3.2, 4.1, 2.5]))
+    grid = floor_grid(bounds, np.array(up, float))
+    assert grid is not None and grid.plane == plane
+    assert grid.position[floor_axis] == pytest.approx(floor)  # the lowest face along up
+    # it covers the footprint with a margin, its edges on multiples of half a metre
+    for extent, axis in zip(
+        (grid.width, grid.height), ("xyz".index(plane[0]), "xyz".index(plane[1])), strict=True
+    ):
+        start, end = grid.position[axis] - extent / 2, grid.position[axis] + extent / 2
+        assert start <= bounds[0][axis] - 0.25 and end >= bounds[1][axis] + 0.25
+        assert 2 * start == round(2 * start) and 2 * end == round(2 * end)
+
+
+def test_the_floor_grid_follows_the_map_bounds_when_they_cross_half_a_metre(scene):
+    model, _ = scene  # objects at x = 1, 2, 3 (0.5 m cubes)
+    up = np.array([0, 0, 1.0])
+    grid = floor_grid(model.bounds(), up)
+    assert grid is not None
+    model.apply_delta(delta(2, [upsert(4, 1, offset=-1.4)]))  # x 2.6..3.1: inside the footprint
+    assert floor_grid(model.bounds(), up) == grid
+    model.apply_delta(delta(3, [upsert(9, 1)]))  # x 9: the footprint grows
+    wider = floor_grid(model.bounds(), up)
+    assert wider is not None and wider.width > grid.width and wider.height == grid.height
+    model.apply_delta(delta(4, [], full=True))  # the map emptied: no floor
+    assert model.bounds() is None and floor_grid(model.bounds(), up) is None

@@ -9,13 +9,16 @@ conditions with deadlines, never sleeps.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import re
 import shutil
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
+import numpy as np
 import pytest
 from analytic_world import BATHROOM, KITCHEN, RectSource
 from helpers_device import FAST_KNOBS, server_state
@@ -26,8 +29,8 @@ from app.server.runner import ServerThread, free_port
 from app.server.settings import ServerSettings
 from client_sim.sources.base import FrameSource
 from client_sim.streaming import DeviceClient
-from viewer.app import ViewerApp
-from viewer.scene import HIT_BOXES_NODE, points_node
+from viewer.app import FLOOR_NODE, ViewerApp
+from viewer.scene import HIT_BOXES_NODE, PANEL_PX, frame_view, points_node
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
@@ -161,6 +164,18 @@ def test_the_browser_shows_one_point_cloud_per_confirmed_object_and_the_query_hi
             wait_for(mounted_objects, f"the page to mount {sorted(wanted)}")
             # where the device is: its newest pose, from the updates' device_pose
             assert "/device/frustum" in (page.evaluate(MOUNTED_NODES_JS) or [])
+            assert FLOOR_NODE in (page.evaluate(MOUNTED_NODES_JS) or []), "the floor grid"
+
+            # Enter in "Find" runs the query, as the Search button does
+            find = page.locator("xpath=//*[text()='Find']/following::input[1]")  # no <label for>
+            find.fill("refrigerator")
+            find.press("Enter")
+            wait_for(
+                lambda: "for *refrigerator*" in app.gui.results.content,
+                "Enter in Find to run the query",
+            )
+            assert HIT_BOXES_NODE in app.model.sink._handles
+            app.clear_query()
 
             results = app.run_query("refrigerator", k=1)
             assert results[0]["label"] == "refrigerator"
@@ -182,6 +197,42 @@ def test_the_browser_shows_one_point_cloud_per_confirmed_object_and_the_query_hi
                 lambda: HIT_BOXES_NODE not in (page.evaluate(MOUNTED_NODES_JS) or []),
                 "the hit's box to go",
             )
+
+
+def test_a_page_opened_on_an_empty_map_is_reframed_when_the_first_objects_arrive(live_server):
+    server = live_server()
+    sid, token, knobs = new_session(server.url)
+    with running_viewer(server.url, sid, token) as app, browser_page(app.url):
+
+        def page_camera():
+            for client in app.server.get_clients().values():
+                with contextlib.suppress(AssertionError):  # not reported yet
+                    return client.camera if client.camera.image_width else None
+            return None
+
+        camera = wait_for(page_camera, "the page to report its camera")
+        assert not app.model.objects
+        # Playwright's sync API keeps an event loop running on this thread: stream on another.
+        with ThreadPoolExecutor(1) as pool:
+            seq = pool.submit(
+                stream, server.url, sid, token, knobs, RectSource(KITCHEN, 6)
+            ).result()
+        wait_for(lambda: app.applied_seq >= seq, f"the viewer to apply seq {seq}")
+        with app._lock:
+            bounds = app.model.bounds()
+        assert bounds is not None
+        aspect = camera.image_width / camera.image_height
+        wanted = frame_view(bounds, app.up, camera.fov, aspect, PANEL_PX / camera.image_width)
+        # 2 cm: the page reports its camera back in float32, after its controls settle
+        wait_for(
+            lambda: (
+                np.allclose(camera.look_at, wanted.look_at, atol=0.02)
+                and np.allclose(camera.position, wanted.position, atol=0.02)
+            ),
+            "the page's camera to frame the map",
+        )
+        # and pages opened from now on start there too (for the assumed canvas size)
+        assert np.linalg.norm(app.server.initial_camera.position) > 0
 
 
 def test_the_viewer_shows_the_outage_and_resumes_from_its_seq_after_a_server_restart(

@@ -176,6 +176,64 @@ def test_the_dashboard_lists_a_session_and_answers_a_query(live_server, page):
     expect(card.locator(".results tbody tr.weak")).to_have_count(2)  # listed, but weak
 
 
+LABEL_BOXES_JS = """card => [...card.querySelectorAll('.plot-label')].map(el => {
+    const r = el.getBoundingClientRect();
+    return {text: el.textContent, left: r.left, top: r.top, right: r.right, bottom: r.bottom};
+})"""
+
+
+def crowded_answer(route) -> None:
+    """Five hits with long labels whose centroids are a few centimetres apart, as the
+    server's query answer: the plot must still lay their labels out without overlap."""
+    hits = [
+        {
+            "id": 10 + i,
+            "label": f"kitchen cabinet number {i}",
+            "score": 0.6 - 0.01 * i,
+            "relevance": 0.9 - 0.1 * i,
+            "centroid": [0.3 + 0.02 * i, 0.1 + 0.03 * i, 1.0],
+            "bbox": [0.2 + 0.02 * i, 0.0, 0.0, 0.4 + 0.02 * i, 0.2 + 0.03 * i, 2.0],
+        }
+        for i in range(5)
+    ]
+    body = {"text": "cabinets", "results": hits, "latency_ms": 1.0, "match": True}
+    route.fulfill(json=body)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_the_plot_lays_the_hits_labels_out_without_overlap(live_server, page):
+    server = live_server()
+    sid = map_the_scene(server)
+    page.route(re.compile(r"/v1/sessions/[^/]+/query\?"), crowded_answer)
+    page.goto(server.url)
+    card = page.locator(f'article[data-sid="{sid}"]')
+    expect(card.locator(".stat-objects")).to_have_text("2")
+    card.locator(".query-input").fill("cabinets")
+    card.locator(".query-button").click()
+    expect(card.locator(".results tbody tr")).to_have_count(5)
+    labels = card.locator(".plot-label")
+    expect(labels.first).to_be_visible()
+    boxes = card.evaluate(LABEL_BOXES_JS)
+    canvas = card.locator(".plot-canvas").bounding_box()
+    screenshot(page, "dashboard_crowded_labels.png")
+    # the best hit is always labelled in full; the others as room allows (at least the rank)
+    assert boxes[0]["text"] == "1 kitchen cabinet number 0"
+    assert len(boxes) >= 3
+    for box in boxes:
+        assert box["left"] >= canvas["x"] and box["right"] <= canvas["x"] + canvas["width"]
+        assert box["top"] >= canvas["y"] and box["bottom"] <= canvas["y"] + canvas["height"]
+    for a_index, a in enumerate(boxes):
+        for b in boxes[a_index + 1 :]:
+            apart = (
+                a["right"] <= b["left"]
+                or b["right"] <= a["left"]
+                or a["bottom"] <= b["top"]
+                or b["bottom"] <= a["top"]
+            )
+            assert apart, f"labels overlap: {a} and {b}"
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_with_an_api_key_the_page_asks_for_it_and_shows_names_as_text(live_server, page):
