@@ -40,13 +40,27 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--scene", default="apartment", type=scene_name, help="synthetic scene (default apartment)"
     )
     demo.add_argument(
-        "--frames", type=positive_int, default=300, help="frames of the walk to stream"
+        "--frames",
+        type=positive_int,
+        default=300,
+        help="frames of the walk to stream (default: %(default)s)",
     )
-    demo.add_argument("--port", type=int, default=8000, help="server port (0 = any free port)")
-    demo.add_argument("--viewer-port", type=int, default=8080, help="viser viewer port")
+    demo.add_argument(
+        "--port",
+        type=int,
+        default=8000,
+        help="server port, 0 for any free port (default: %(default)s)",
+    )
+    demo.add_argument(
+        "--viewer-port", type=int, default=8080, help="viser viewer port (default: %(default)s)"
+    )
     demo.add_argument("--no-viewer", action="store_true", help="do not start the 3D viewer")
     demo.add_argument("--data-dir", help="server data folder (default: a temporary folder)")
-    demo.add_argument("--query", action="append", help="query to ask (repeatable)")
+    demo.add_argument(
+        "--query",
+        action="append",
+        help="query to ask (repeatable; default: the demo's own queries)",
+    )
     demo.add_argument("--exit", action="store_true", help="exit after the scripted run")
     demo.set_defaults(func=run)
     return demo
