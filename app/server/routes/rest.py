@@ -68,6 +68,17 @@ def _object_record(obj: MapObject, session: Session, with_points: bool) -> proto
     )
 
 
+def _created(session: Session, token: str) -> protocol.SessionCreated:
+    """The 201 answer of a new session (created or imported): the only time its token shows."""
+    encoder = session.engine.encoder
+    return protocol.SessionCreated(
+        session_id=session.id,
+        token=token,
+        embedding=protocol.EmbeddingInfo(model=encoder.model_id, dim=encoder.dim),
+        knobs=knobs_to_dict(session.knobs),
+    )
+
+
 @router.post(
     "/sessions",
     status_code=201,
@@ -88,13 +99,7 @@ def create_session(body: protocol.CreateSession, request: Request) -> protocol.S
         raise HTTPException(422, str(exc)) from None
     except OverflowError as exc:
         raise HTTPException(503, str(exc)) from None
-    encoder = session.engine.encoder
-    return protocol.SessionCreated(
-        session_id=session.id,
-        token=token,
-        embedding=protocol.EmbeddingInfo(model=encoder.model_id, dim=encoder.dim),
-        knobs=knobs_to_dict(session.knobs),
-    )
+    return _created(session, token)
 
 
 @router.get(
@@ -298,10 +303,4 @@ def import_map(body: MapExport, request: Request) -> protocol.SessionCreated:
         raise HTTPException(422, str(exc)) from None
     except OverflowError as exc:
         raise HTTPException(503, str(exc)) from None
-    encoder = session.engine.encoder
-    return protocol.SessionCreated(
-        session_id=session.id,
-        token=token,
-        embedding=protocol.EmbeddingInfo(model=encoder.model_id, dim=encoder.dim),
-        knobs=knobs_to_dict(session.knobs),
-    )
+    return _created(session, token)
