@@ -17,7 +17,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 
 from app.config import KNOB_RANGES, Knobs, knob_docs
 from app.errors import InputError
-from app.protocol.limits import PROTOCOL_VERSION
+from app.protocol.limits import DEFAULT_EMBEDDING_DIM, PROTOCOL_VERSION
 
 MAX_QUERY_CHARS = 500
 """Longest query text."""
@@ -320,15 +320,45 @@ class ExportedObject(Record):
     ]
     """[[x, y, z], ...] metres, world frame."""
     embedding: Annotated[
-        list[Finite] | None, Field(exclude_if=lambda embedding: embedding is None)
+        Annotated[list[Finite], Field(min_length=1)] | None,
+        Field(exclude_if=lambda embedding: embedding is None),
     ] = None
-    """The object's unit embedding (`?embeddings=true`); without it an import embeds the
-    label."""
+    """The object's unit embedding (`?embeddings=true`); without it (absent or null, never
+    empty) an import embeds the label."""
 
 
 class MapExport(Record):
     """`GET /v1/sessions/{sid}/export?format=json`, and the body of `POST
     /v1/sessions/import`."""
+
+    # The example of /docs and of API fuzzers: an import a default server takes.
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "format": EXPORT_FORMAT,
+                    "version": EXPORT_VERSION,
+                    "session": {
+                        "name": "kitchen",
+                        "mode": "semanticxr",
+                        "knobs": {},
+                        "embedding": {"model": "all-MiniLM-L6-v2", "dim": DEFAULT_EMBEDDING_DIM},
+                    },
+                    "objects": [
+                        {
+                            "id": 1,
+                            "version": 1,
+                            "label": "chair",
+                            "bbox": [0.0, 0.0, 0.0, 0.4, 0.4, 0.8],
+                            "centroid": [0.2, 0.2, 0.4],
+                            "n_obs": 3,
+                            "points": [[0.0, 0.0, 0.0], [0.4, 0.4, 0.8]],
+                        }
+                    ],
+                }
+            ]
+        }
+    )
 
     format: Literal["semanticxr-map"]
     version: Literal[1]

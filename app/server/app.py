@@ -26,6 +26,8 @@ from app.server.settings import ServerSettings
 from app.store import open_store
 
 log = logging.getLogger("semanticxr")
+ERROR_BODY_REF = "#/components/schemas/ErrorBody"
+"""The one error body (app.protocol.ErrorBody), as the REST routes document it."""
 HEALTH_RETRY_AFTER_S = 2
 """Retry-After (seconds) of a 503 from /healthz; the store is probed every second meanwhile."""
 
@@ -101,13 +103,20 @@ def create_app(
     @app.exception_handler(405)
     async def method_not_allowed(request: Request, exc: Exception) -> JSONResponse:
         """405 naming every method the path takes (Starlette's own lists only the first
-        route that matched the path, e.g. GET but not DELETE for a session)."""
+        route that matched the path, e.g. GET but not DELETE for a session). A path the
+        OpenAPI document names literally takes the methods it documents: GET
+        /v1/sessions/import reaches GET /v1/sessions/{sid} only to find no such session."""
+        documented = app.openapi()["paths"].get(request.url.path)
         allowed = [
             method
             for method in ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
-            if any(
-                route.matches({**request.scope, "method": method})[0] == Match.FULL
-                for route in app.router.routes
+            if (
+                (method.lower() in documented or (method == "HEAD" and "get" in documented))
+                if documented is not None
+                else any(
+                    route.matches({**request.scope, "method": method})[0] == Match.FULL
+                    for route in app.router.routes
+                )
             )
         ]
         return JSONResponse(
@@ -137,6 +146,16 @@ def create_app(
         response_class=PlainTextResponse,
         summary="Prometheus metrics (needs the API key where the server has one)",
         dependencies=[Depends(require_api_key)],
+        responses={  # JSON, not the text/plain of the metrics themselves
+            code: {
+                "description": why,
+                "content": {"application/json": {"schema": {"$ref": ERROR_BODY_REF}}},
+            }
+            for code, why in (
+                (401, "missing API key (with one configured)"),
+                (403, "wrong API key"),
+            )
+        },
     )
     def metrics(request: Request) -> Response:
         manager: SessionManager = request.app.state.manager

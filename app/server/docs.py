@@ -1,10 +1,12 @@
 """/docs that render offline: Swagger UI served from the `swagger-ui-py` package's assets
-(FastAPI's self-hosting recipe), and the OpenAPI security schemes behind its Authorize
-button: the server's API key and a session's token, both `Authorization: Bearer`."""
+(FastAPI's self-hosting recipe); in /openapi.json, the security schemes behind its Authorize
+button (the server's API key and a session's token, both `Authorization: Bearer`) and the
+links from a new session to every operation on it, which API fuzzers follow."""
 
 from __future__ import annotations
 
 import importlib.util
+import re
 from pathlib import Path
 from typing import Any
 
@@ -16,18 +18,22 @@ from fastapi.staticfiles import StaticFiles
 ASSETS_URL = "/docs-assets"
 """Where the Swagger UI bundle, stylesheet and icon are served."""
 
+SESSION_PATH = "{sid}"
+"""The path parameter of every operation on one session."""
 SECURITY_SCHEMES = {
     "apiKey": {
         "type": "http",
         "scheme": "bearer",
         "description": "The server's API key (--api-key): creates and lists sessions, "
-        "imports maps, reads /metrics, and opens every session.",
+        "imports maps, reads /metrics, and opens every session. Needed only where the "
+        "server was started with one: without it the server runs open.",
     },
     "sessionToken": {
         "type": "http",
         "scheme": "bearer",
-        "description": "A session's token, from POST /v1/sessions (shown once): everything "
-        "under /v1/sessions/{sid}.",
+        "description": "A session's token, from POST /v1/sessions or /v1/sessions/import "
+        "(shown once): everything under /v1/sessions/{sid}. Needed only where the server "
+        "has an API key.",
     },
 }
 
@@ -46,7 +52,7 @@ def add_security(schema: dict[str, Any]) -> dict[str, Any]:
     and for /metrics; nothing for /healthz."""
     schema.setdefault("components", {})["securitySchemes"] = SECURITY_SCHEMES
     for path, operations in schema.get("paths", {}).items():
-        if "{sid}" in path:
+        if SESSION_PATH in path:
             security = [{"sessionToken": []}, {"apiKey": []}]
         elif path.startswith("/v1/") or path == "/metrics":
             security = [{"apiKey": []}]
@@ -57,8 +63,57 @@ def add_security(schema: dict[str, Any]) -> dict[str, Any]:
     return schema
 
 
+def add_session_links(schema: dict[str, Any]) -> dict[str, Any]:
+    """Links in the 201 answer of every operation that creates a session (answers
+    SessionCreated) to every operation under /v1/sessions/{sid}, both found in `schema`'s
+    paths (generated from the routes, so a new route gets its link): `sid` from the answer's
+    session_id and, where the operation takes the session token (add_security), that token
+    as the bearer credential."""
+    targets = {
+        _link_name(method, path): operation
+        for path, operations in schema.get("paths", {}).items()
+        if SESSION_PATH in path
+        for method, operation in operations.items()
+    }
+    links = {
+        name: {
+            "operationId": operation["operationId"],
+            "parameters": {
+                "sid": "$response.body#/session_id",
+                **(
+                    {"header.Authorization": "Bearer {$response.body#/token}"}
+                    if {"sessionToken": []} in operation.get("security", [])
+                    else {}
+                ),
+            },
+            "description": f"On the new session: {operation.get('summary', name)}",
+        }
+        for name, operation in sorted(targets.items())
+    }
+    for operations in schema.get("paths", {}).values():
+        for operation in operations.values():
+            created = operation.get("responses", {}).get("201", {})
+            if _answers_session_created(created):
+                created["links"] = links
+    return schema
+
+
+def _link_name(method: str, path: str) -> str:
+    """`get`, `/v1/sessions/{sid}/knobs` -> `getKnobs`; `delete`, `/v1/sessions/{sid}` ->
+    `deleteSession`."""
+    tail = path.split(SESSION_PATH, 1)[1].strip("/")
+    words = [word for word in re.split(r"[^A-Za-z0-9]+", tail) if word] or ["session"]
+    return method.lower() + "".join(word.capitalize() for word in words)
+
+
+def _answers_session_created(response: dict[str, Any]) -> bool:
+    schema = response.get("content", {}).get("application/json", {}).get("schema", {})
+    return schema.get("$ref", "").endswith("/SessionCreated")
+
+
 def install_docs(app: FastAPI) -> None:
-    """GET /docs (Swagger UI from local assets) and the security schemes in /openapi.json;
+    """GET /docs (Swagger UI from local assets), and the security schemes and session links
+    in /openapi.json;
     the app must be made with docs_url=None and redoc_url=None (their pages load a CDN)."""
     app.mount(ASSETS_URL, StaticFiles(directory=swagger_ui_assets()), name="swagger-ui")
     generate = app.openapi
@@ -66,7 +121,7 @@ def install_docs(app: FastAPI) -> None:
     def openapi() -> dict[str, Any]:
         schema = generate()  # cached by FastAPI after the first call
         if "securitySchemes" not in schema.get("components", {}):
-            add_security(schema)
+            add_session_links(add_security(schema))
         return schema
 
     app.openapi = openapi  # type: ignore[method-assign]

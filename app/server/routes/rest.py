@@ -44,7 +44,10 @@ router = APIRouter(
         _413="request body over the server's max_body_bytes",
     ),
 )
-SESSION_ERRORS = _errors(_404="no such session (server without an API key)")
+SESSION_ERRORS = _errors(
+    _404="no such session (server without an API key)",
+    _422="a query parameter of the wrong type or out of range",
+)
 
 
 def manager(request: Request) -> SessionManager:

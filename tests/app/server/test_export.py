@@ -129,8 +129,9 @@ def a_valid_export(http, server) -> dict:
         (lambda e: e["objects"][0]["points"][0].__setitem__(0, "NaN"), "objects.0.points"),
         (lambda e: e["objects"].insert(1, copy.deepcopy(e["objects"][0])), "objects[1].id"),
         (lambda e: e["objects"][0].update(embedding=[0.1] * 5), "objects[0].embedding"),
+        (lambda e: e["objects"][0].update(embedding=[]), "objects.0.embedding"),  # was a 500
     ],
-    ids=["format", "version", "dim", "nan", "duplicate-id", "embedding-length"],
+    ids=["format", "version", "dim", "nan", "duplicate-id", "embedding-length", "embedding-empty"],
 )
 def test_a_bad_import_is_refused_naming_the_field(server, http, spoil, field):
     export = a_valid_export(http, server)
