@@ -485,7 +485,11 @@ class SessionManager:
         t0 = time.perf_counter()
         session = self._restored(self.store.load_session(sid))
         session.touch()
-        self.save_counters_soon(session)  # its last use: retention counts from now
+        # Retention counts from this use, even if the server is killed before the next save
+        # (and while the store refuses writes, from the last use it holds).
+        with contextlib.suppress(StoreUnavailableError):
+            self.store.update_session(sid, last_used_at=session.record.last_used_at)
+            self._counters_saved_at[sid] = time.monotonic()
         self.metrics.session_loads.inc()
         self.metrics.session_load_latency.observe(time.perf_counter() - t0)
         return session
