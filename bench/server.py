@@ -1,11 +1,18 @@
 """Server benchmarks through the real stack (a `semanticxr serve` process on loopback).
 
     python -m bench.server [--frames 150] [--seconds 20] [--out out/]
+    python -m bench.server --stored-sessions 10,100,1000     # that section alone
 
 The server runs as `app.server.runner.ServerProcess` (`python -m app.cli serve`); every call
 goes through the API client (app.client). Measures (issue 3): ingest-to-ack latency per keyframe and per plain frame; frames per
 second sustained by 1 and 4 concurrent device streams (640x480, depth ÷5); bytes per
 downstream update in `semanticxr` vs `baseline` mode on the standard synthetic scene.
+
+Stored sessions (issue 16): a store holding N sessions of a few objects each (written
+through the store directly, as a server would have committed them: creating 1,000 maps
+through the API would mean streaming 1,000 walks), then the server's start-up time (process
+start to /healthz 200, polled every 0.1 s), its resident memory after start, and the first
+use of one session (its map loaded from the store). Start-up must not grow with N.
 """
 
 from __future__ import annotations
@@ -14,7 +21,11 @@ import asyncio
 import sys
 import tempfile
 import time
+import uuid
+from collections import Counter
+from pathlib import Path
 
+import httpx
 import msgpack
 import numpy as np
 
@@ -120,6 +131,142 @@ async def update_bytes(server: ServerProcess, keyframes: list[bytes], mode: str)
     return sizes
 
 
+STORED_OBJECTS = 8
+"""Objects per stored session."""
+STORED_POINTS = 500
+"""Points per stored object."""
+EMBEDDING_DIM = 384
+"""The default text encoder's (all-MiniLM-L6-v2)."""
+
+
+def add_stored_sessions(data_dir: str, count: int, seed: int = 0) -> None:
+    """Add `count` sessions of STORED_OBJECTS confirmed objects each to the store of a
+    server whose data dir is `data_dir`, committed as the server commits a keyframe."""
+    from app.config import Knobs, knobs_to_dict
+    from app.mapping.object import MapObject
+    from app.server.sessions import hash_token
+    from app.server.settings import STORE_FILE
+    from app.store import SessionRecord
+    from app.store.sqlite import SqliteStore
+
+    rng = np.random.default_rng(seed)
+    knobs = knobs_to_dict(Knobs())
+    with SqliteStore(Path(data_dir) / STORE_FILE) as store:
+        for _ in range(count):
+            sid = uuid.uuid4().hex[:16]
+            store.create_session(
+                SessionRecord(
+                    sid, f"stored-{sid[:6]}", "semanticxr", knobs, hash_token(sid), time.time()
+                )
+            )
+            objects = []
+            for oid in range(1, STORED_OBJECTS + 1):
+                embedding = rng.standard_normal(EMBEDDING_DIM).astype(np.float32)
+                obj = MapObject(
+                    id=oid,
+                    embedding_sum=embedding / np.linalg.norm(embedding),
+                    label_counts=Counter({f"thing-{oid}": 3}),
+                    n_obs=3,
+                    frames_seen=3,
+                    first_seen=0,
+                    last_seen=2,
+                    version=3,
+                    confirmed=True,
+                )
+                centre = rng.uniform(-5, 5, 3)
+                points = centre + rng.uniform(-0.4, 0.4, (STORED_POINTS, 3))
+                obj.set_points(points.astype(np.float32), 0.025)
+                objects.append(obj)
+            store.commit_keyframe(
+                sid, 1, objects, [], {"frames": 15, "keyframes": 3}, STORED_OBJECTS + 1
+            )
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of process `pid` (VmRSS), MB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError(f"no VmRSS for process {pid}")
+
+
+def stored_sessions(sizes: list[int]) -> list[dict]:
+    """Start-up time, RSS after start and one session's first use, with `sizes` sessions
+    stored (one store grown from size to size)."""
+    runs = []
+    with tempfile.TemporaryDirectory() as data_dir:
+        stored = 0
+        for size in sorted(sizes):
+            t0 = time.perf_counter()
+            add_stored_sessions(data_dir, size - stored, seed=size)
+            fill_s = time.perf_counter() - t0
+            stored = size
+            t0 = time.perf_counter()
+            server = ServerProcess(data_dir).start()
+            try:
+                startup_s = time.perf_counter() - t0
+                rss_after_start = rss_mb(server.pid)
+                t0 = time.perf_counter()
+                listed = httpx.get(f"{server.url}/v1/sessions", timeout=60).json()
+                list_ms = (time.perf_counter() - t0) * 1e3
+                use_ms, load_s = [], []
+                for entry in listed[:6]:  # the first use of each: its map loads from the store
+                    t0 = time.perf_counter()
+                    url = f"{server.url}/v1/sessions/{entry['session_id']}/objects"
+                    objects = httpx.get(url, timeout=60).json()
+                    use_ms.append((time.perf_counter() - t0) * 1e3)
+                    assert len(objects) == STORED_OBJECTS
+                    load_s.append(_metric(server.url, "semanticxr_session_load_seconds_sum"))
+                assert len(listed) == size
+            finally:
+                server.stop()
+            run = {
+                "stored_sessions": size,
+                "startup_s": startup_s,
+                "rss_after_start_mb": rss_after_start,
+                "list_ms": list_ms,
+                "first_use_ms": use_ms[0],
+                "next_first_uses_ms": float(np.median(use_ms[1:])),
+                "first_load_ms": load_s[0] * 1e3,
+                "next_loads_ms": float(np.median(np.diff(load_s))) * 1e3,
+                "store_fill_s": fill_s,
+            }
+            runs.append(run)
+            print(
+                f"{size} stored sessions: start-up {startup_s:.2f} s, RSS {rss_after_start:.0f} MB, "
+                f"GET /v1/sessions {list_ms:.0f} ms; first use of a session {use_ms[0]:.0f} ms "
+                f"(the very first, loading {run['first_load_ms']:.0f} ms), then "
+                f"{run['next_first_uses_ms']:.0f} ms (median, loading "
+                f"{run['next_loads_ms']:.1f} ms); store filled in {fill_s:.1f} s"
+            )
+    return runs
+
+
+def _metric(url: str, name: str) -> float:
+    from prometheus_client.parser import text_string_to_metric_families
+
+    for family in text_string_to_metric_families(httpx.get(f"{url}/metrics").text):
+        for sample in family.samples:
+            if sample.name == name:
+                return sample.value
+    raise RuntimeError(f"no {name} in /metrics")
+
+
+def stored_sessions_targets(runs: list[dict]) -> list[dict]:
+    smallest, largest = runs[0], runs[-1]
+    name = f"{largest['stored_sessions']} vs {smallest['stored_sessions']} stored sessions"
+    return [
+        check(f"start-up, {name}", largest["startup_s"] / smallest["startup_s"], "<=", 1.25, "x"),
+        check(
+            f"RSS after start, {name}",
+            largest["rss_after_start_mb"] - smallest["rss_after_start_mb"],
+            "<=",
+            20.0,
+            " MB",
+        ),
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = bench_parser(__doc__)
     parser.add_argument("--scene", default="apartment", help="synthetic scene of the streamed walk")
@@ -128,7 +275,27 @@ def main(argv: list[str] | None = None) -> int:
         "--seconds", type=float, default=15.0, help="duration of each sustained run"
     )
     parser.add_argument("--out", default="out", help="folder for server.json and the plot")
+    parser.add_argument(
+        "--stored-sessions",
+        default=None,
+        metavar="N,N,...",
+        help="run only the stored-sessions section with these store sizes (server_stored.json); "
+        "the full run includes it with 10,100,1000",
+    )
     args = parser.parse_args(argv)
+    if args.stored_sessions is not None:
+        sizes = [int(n) for n in args.stored_sessions.split(",") if n.strip()]
+        runs = stored_sessions(sizes)
+        document = {
+            "bench": "server_stored",
+            "machine": machine(),
+            "objects_per_session": STORED_OBJECTS,
+            "points_per_object": STORED_POINTS,
+            "stored_sessions": runs,
+            "targets": stored_sessions_targets(runs) if len(runs) > 1 else [],
+        }
+        write_outputs(args.out, "server_stored", document)
+        return 0
 
     print("encoding frames...", file=sys.stderr)
     frames, keyframes = encode_frames(args.frames, args.scene)
@@ -165,9 +332,11 @@ def main(argv: list[str] | None = None) -> int:
         f"bytes/update at plateau: semanticxr {plateau['semanticxr']:.0f}, baseline {plateau['baseline']:.0f} "
         f"({ratio:.1f}%)"
     )
+    stored = stored_sessions([10, 100, 1000])
     targets = [
         check("1 stream sustains 30 fps input", runs[0]["fps_total"], ">=", 30.0, " fps"),
         check("downstream bytes/update vs baseline at plateau", ratio, "<=", 10.0, "%"),
+        *stored_sessions_targets(stored),
     ]
     document = {
         "bench": "server",
@@ -179,6 +348,7 @@ def main(argv: list[str] | None = None) -> int:
         "update_bytes": updates,
         "update_bytes_plateau": plateau,
         "update_ratio_percent": ratio,
+        "stored_sessions": stored,
         "targets": targets,
     }
     write_outputs(args.out, "server", document)

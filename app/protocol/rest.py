@@ -172,6 +172,10 @@ class SessionSummary(Record):
     keyframes: int
     fps: float
     update_seq: int
+    resident: bool = True
+    """Whether the session's map is in memory now (else it loads on first use)."""
+    last_used_at: float | None = None
+    """Unix time of the session's last frame or use (what retention counts from)."""
 
 
 class LatencySummary(Record):

@@ -2,7 +2,8 @@
 
 With no API key configured the server runs open (local development) and says so at start.
 A wrong token and an unknown session look the same from outside (403), so a token never
-reveals whether a session exists.
+reveals whether a session exists. Access is checked on the session's stored record, before
+its map is loaded: a caller who may not use a session never costs a load.
 """
 
 from __future__ import annotations
@@ -11,7 +12,9 @@ import hmac
 
 from fastapi import HTTPException, Request
 
-from app.server.sessions import Session, SessionManager
+from app.server.residency import ResidentSessionsBusy
+from app.server.sessions import STORAGE_RETRY_AFTER_S, Session, SessionManager, token_matches
+from app.store import StoreUnavailableError
 
 
 def bearer(request_headers, query_params=None) -> str | None:
@@ -39,22 +42,50 @@ def require_api_key(request: Request) -> None:
         raise HTTPException(403, "wrong API key")
 
 
-def authorize_session(manager: SessionManager, sid: str, token: str | None) -> Session:
-    """The session if the caller may use it; raises HTTPException otherwise."""
+def check_session_access(manager: SessionManager, sid: str, token: str | None) -> None:
+    """Raise HTTPException unless the caller may use session `sid` (its record is read, not
+    its map)."""
     key = manager.settings.api_key
-    session = manager.sessions.get(sid)
+    record = manager.record(sid)
     if key is None:
-        if session is None:
+        if record is None:
             raise HTTPException(404, f"no session {sid!r}")
-        return session
+        return
     if token is None:
         raise HTTPException(
             401,
             "missing session token (Authorization: Bearer <token>)",
             headers={"WWW-Authenticate": "Bearer"},
         )
-    if session is None or not (
-        session.check_token(token) or hmac.compare_digest(token.encode(), key.encode())
+    if record is None or not (
+        token_matches(record, token) or hmac.compare_digest(token.encode(), key.encode())
     ):
         raise HTTPException(403, "wrong token for this session")
-    return session
+
+
+def authorize_session(manager: SessionManager, sid: str, token: str | None) -> Session:
+    """The session, if the caller may use it, loaded if need be and in use until
+    `manager.release(session)` (call from a thread: loading reads the store). Raises
+    HTTPException otherwise: as `check_session_access`, or 503 with Retry-After when there
+    is no room to load it now (`retry_later`)."""
+    check_session_access(manager, sid, token)
+    try:
+        return manager.acquire(sid)
+    except KeyError:  # deleted since the check: as if it never was
+        check_session_access(manager, sid, token)
+        raise
+    except (ResidentSessionsBusy, StoreUnavailableError) as exc:
+        raise retry_later(exc) from None
+
+
+def retry_later(exc: ResidentSessionsBusy | StoreUnavailableError) -> HTTPException:
+    """503 with Retry-After for a session that cannot be loaded or created now: every
+    resident session is busy, or the store cannot save the one that would make room."""
+    if isinstance(exc, ResidentSessionsBusy):
+        return HTTPException(503, str(exc), headers={"Retry-After": str(exc.retry_after_s)})
+    return HTTPException(
+        503,
+        "the server cannot save changes now (storage unavailable), so it cannot make room "
+        "for this session in memory; retry later",
+        headers={"Retry-After": str(STORAGE_RETRY_AFTER_S)},
+    )

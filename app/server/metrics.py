@@ -29,6 +29,7 @@ LATENCY_BUCKETS_S = (0.001, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32, 0
 FRAME_OUTCOMES = ("ok", "bad")
 UPSTREAM_KINDS = ("rgb", "depth", "detections")
 DOWNSTREAM_KINDS = ("updates",)
+UNLOAD_REASONS = ("idle", "budget")
 
 
 class Metrics:
@@ -99,7 +100,35 @@ class Metrics:
             buckets=LATENCY_BUCKETS_S,
             registry=registry,
         )
-        self.sessions = Gauge("semanticxr_sessions", "Sessions held", registry=registry)
+        self.sessions = Gauge(
+            "semanticxr_sessions", "Sessions resident (their maps in memory)", registry=registry
+        )
+        self.sessions_stored = Gauge(
+            "semanticxr_sessions_stored", "Sessions in the store, resident or not",
+            registry=registry,
+        )  # fmt: skip
+        self.session_loads = Counter(
+            "semanticxr_session_loads", "Sessions loaded from the store on first use",
+            registry=registry,
+        )  # fmt: skip
+        self.session_load_latency = Histogram(
+            "semanticxr_session_load_seconds",
+            "Time to load a session's map from the store",
+            buckets=LATENCY_BUCKETS_S,
+            registry=registry,
+        )
+        self.session_unloads = Counter(
+            "semanticxr_session_unloads",
+            "Sessions unloaded from memory (saved first), by reason: idle (unused for "
+            "--idle-unload-s) or budget (room for another under --max-resident-sessions)",
+            ["reason"],
+            registry=registry,
+        )
+        self.sessions_expired = Counter(
+            "semanticxr_sessions_expired",
+            "Sessions deleted by retention (unused for over --session-retention-days)",
+            registry=registry,
+        )
         self.subscribers = Gauge(
             "semanticxr_subscribers", "Update subscribers connected", registry=registry
         )
@@ -109,6 +138,8 @@ class Metrics:
             self.upstream_bytes.labels(kind=kind)
         for kind in DOWNSTREAM_KINDS:
             self.downstream_bytes.labels(kind=kind)
+        for reason in UNLOAD_REASONS:
+            self.session_unloads.labels(reason=reason)
 
     def render(self) -> bytes:
         """The Prometheus text exposition of every series."""

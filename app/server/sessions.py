@@ -15,6 +15,16 @@ no reader ever sees a change the store lacks and no seq is reused for other cont
 While the store refuses writes (disk full, I/O error) keyframes get `storage_unavailable`
 without being mapped, queries keep answering from the durable map, and the store is probed
 about once a second until it takes writes again (`StorageHealth`, `/healthz`).
+
+Stored versus resident: sessions live in the store, and only the maps in use are in memory
+(`app.server.residency`). Start-up loads no map; a session loads on its first use (a request
+or a socket) through the same path a restart took (`_restored`), and is unloaded (its
+counters and last use saved) after idle_unload_s without use, or when the resident budget
+(max_resident_sessions) needs room, least recently used first, never while a socket is open
+or a keyframe is in flight. Unloading and loading lose what a restart loses, nothing more:
+the map and the delta log are durable at every commit, so deltas resume by seq. Retention
+(session_retention_days, off by default) deletes sessions unused for longer, at start and
+then periodically.
 """
 
 from __future__ import annotations
@@ -42,6 +52,7 @@ from app.errors import InputError
 from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.export import imported_object
+from app.mapping.geometry import preload_outlier_removal
 from app.mapping.object import MapObject
 from app.mapping.publish import update_message
 from app.mapping.relevance import Rating, rate_hits
@@ -51,6 +62,7 @@ from app.protocol import Ack, ErrorReply, FrameBudget, FrameInput
 from app.protocol.rest import MapExport
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
+from app.server.residency import Residency
 from app.server.scheduler import RoundRobinScheduler
 from app.server.settings import ServerSettings
 from app.store import SessionRecord, Store, StoreUnavailableError
@@ -70,6 +82,16 @@ STORAGE_PROBE_INTERVAL_S = 1.0
 COUNTERS_SAVE_INTERVAL_S = 1.0
 """Most frames counted but not saved: a counters-only write follows a frame when the
 session's counters were last saved longer ago than this (kill -9 loses at most that)."""
+BUSY_RETRY_AFTER_S = 5
+"""Retry-After (seconds) when every resident session is busy: no room to load another."""
+STORAGE_RETRY_AFTER_S = 2
+"""Retry-After (seconds) when the store cannot save the session that would make room."""
+SOCKET_LOAD_WORKERS = 4
+"""Threads that check sockets' access and load their sessions (off the event loop)."""
+LAST_USE_SAVE_INTERVAL_S = 60.0
+"""Longest a session's last use (of requests only) waits to be saved while it stays resident."""
+RETENTION_CHECK_MAX_INTERVAL_S = 600.0
+"""Retention is checked every tenth of the retention period, at least this often."""
 STORAGE_UNAVAILABLE_MESSAGE = (
     "the server cannot save the map now (storage unavailable), so it did not map this "
     "keyframe; the map so far is safe and queries still work; retry later"
@@ -83,6 +105,16 @@ T = TypeVar("T")
 
 def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
+
+
+def token_matches(record: SessionRecord, token: str | None) -> bool:
+    """Whether `token` is the session's own (compared in constant time)."""
+    return token is not None and hmac.compare_digest(hash_token(token), record.token_hash)
+
+
+class StoredSessionsFull(RuntimeError):
+    """The store holds max_sessions sessions: no session can be created or imported until
+    some are deleted. Permanent until then, so not a 503 (which says "retry later")."""
 
 
 class StorageUnavailable(RuntimeError):
@@ -180,6 +212,20 @@ class Session:
     """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
     warnings: list[str] = field(default_factory=list)
     """Problems worth a user's attention, each said once (in the log and in the stats)."""
+    users: int = 0
+    """Sockets and requests using the session now (counted by `Residency`)."""
+    last_used: float = field(default_factory=time.monotonic)
+    """time.monotonic() of the last use (frame, request, socket): idleness, LRU order."""
+
+    @property
+    def busy(self) -> bool:
+        """In use (open sockets, requests) or mapping a keyframe: never unloaded then."""
+        return self.users > 0 or self._mapping
+
+    def touch(self) -> None:
+        """Note a use now (for idle unloading and for retention, which the store keeps)."""
+        self.last_used = time.monotonic()
+        self.record.last_used_at = time.time()
 
     @property
     def closed(self) -> bool:
@@ -195,7 +241,7 @@ class Session:
         return self.engine.knobs
 
     def check_token(self, token: str | None) -> bool:
-        return token is not None and hmac.compare_digest(hash_token(token), self.record.token_hash)
+        return token_matches(self.record, token)
 
     # ------------------------------------------------------------------ reading
     def stats(self) -> dict:
@@ -218,6 +264,7 @@ class Session:
             "mode": self.engine.mode,
             "perception": self.record.perception,
             "created_at": self.record.created_at,
+            "last_used_at": self.record.last_used_at,
             "frames": self.record.frames,
             "keyframes": self.engine.keyframes,
             "dropped_frames": self.dropped,
@@ -315,11 +362,22 @@ class SessionManager:
         other frames, and a burst of frames never delays a keyframe's mapping."""
         self.frame_budget = FrameBudget(settings.max_frame_pixels, settings.max_instances_per_frame)
         """What a frame may cost, checked before its pixels are decoded."""
-        self.sessions: dict[str, Session] = {}
+        self.resident: Residency[Session] = Residency(
+            settings.max_resident_sessions, self._load, self._unload, BUSY_RETRY_AFTER_S
+        )
+        """The sessions whose maps are in memory; every session is in the store."""
         self._lock = threading.Lock()
+        """Held while a creation checks max_sessions and stores the session."""
+        self._retention_due = -math.inf
+        """time.monotonic() at which retention is next checked."""
         self.storage = StorageHealth()
         self._store_io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="store")
-        """Counters-only writes and probes: off the event loop, out of the mapping pool."""
+        """Counters-only writes, probes, idle unloading and retention: off the event loop,
+        out of the mapping pool."""
+        self._socket_pool = ThreadPoolExecutor(
+            max_workers=SOCKET_LOAD_WORKERS, thread_name_prefix="load"
+        )
+        """Sockets' access checks and session loads (REST runs them in its own threads)."""
         self._counters_saved_at: dict[str, float] = {}
         self.backends: dict[str, PerceptionBackend] = {}
         """Perception backends loaded (at start), by name: what sessions may choose."""
@@ -342,43 +400,228 @@ class SessionManager:
             encoder, knobs, mode=rec.mode, backend=backend, max_objects=self.settings.max_objects
         )
 
-    def restore(self) -> int:
-        """Load every persisted session with its confirmed objects; returns how many.
+    @property
+    def sessions(self) -> dict[str, Session]:
+        """The resident sessions, by id (a snapshot; stored sessions: `list_sessions`)."""
+        return self.resident.snapshot()
 
-        A stored log with more than max_tombstones (a smaller setting, or a database from
-        before tombstones were trimmed) is trimmed now, in memory and in the store."""
-        for rec in self.store.list_sessions():
-            stored = self.store.load_delta_log(rec.session_id)
-            log = DeltaLog.from_state(stored.state(), self.settings.max_tombstones)
-            if log.floor > stored.floor:
-                self.store.trim_tombstones(rec.session_id, log.floor)
-            # A backend only restored sessions use is loaded too (at start, like the others).
-            engine = self._engine(rec, updated_knobs(Knobs(), rec.knobs))
-            engine.restore(
-                self.store.load_objects(rec.session_id), log, rec.keyframes, rec.next_object_id
-            )
-            self.sessions[rec.session_id] = Session(rec, engine, _stored_floor=log.floor)
-        return len(self.sessions)
+    def restore(self) -> int:
+        """At start: delete the sessions past their retention (when it is set) and count the
+        stored sessions; returns how many. Loads no map: each loads on its first use."""
+        self.apply_retention()
+        # What every engine imports (about a second, once): while the server starts
+        # answering, rather than inside the first session's first use.
+        self._socket_pool.submit(preload_outlier_removal)
+        stored = self.store.count_sessions()
+        self.metrics.sessions_stored.set(stored)
+        log.info(
+            "%d sessions stored; maps load on first use (at most %d in memory, unloaded after "
+            "%g s unused)",
+            stored,
+            self.settings.max_resident_sessions,
+            self.settings.idle_unload_s,
+        )
+        return stored
 
     def close(self) -> None:
-        """Close every session, let keyframes in flight finish, then save every session's
-        counters (frames counted since the last keyframe are not lost to a shutdown)."""
-        for session in self.sessions.values():
+        """Close every session, let keyframes in flight finish, then save every resident
+        session's counters (frames counted since the last keyframe are not lost to a
+        shutdown)."""
+        resident = list(self.sessions.values())
+        for session in resident:
             session.close()
         self.pool.shutdown(wait=True, cancel_futures=True)
         self.decode_pool.shutdown(wait=True, cancel_futures=True)
+        self._socket_pool.shutdown(wait=True, cancel_futures=True)
         self._store_io.shutdown(wait=True, cancel_futures=True)
-        for session in list(self.sessions.values()):
+        for session in resident:
             self._save_counters(session, even_if_failing=True)
+
+    # ------------------------------------------------------------------ resident or stored
+    def record(self, sid: str) -> SessionRecord | None:
+        """Session `sid`'s record (the resident one, else the stored row: no map is read);
+        None when there is no such session."""
+        session = self.resident.get(sid)
+        if session is not None:
+            return session.record
+        try:
+            return self.store.load_session(sid)
+        except KeyError:
+            return None
+
+    def acquire(self, sid: str) -> Session:
+        """Session `sid` in use until `release(session)`: loaded first if not resident (off
+        the event loop: call it from a thread). Raises KeyError when no such session is
+        stored, ResidentSessionsBusy when every resident session is busy, or
+        StoreUnavailableError when the session that would make room cannot be saved."""
+        return self.resident.acquire(sid)
+
+    def release(self, session: Session) -> None:
+        """End a use of `session`; its last use reaches the store within
+        LAST_USE_SAVE_INTERVAL_S (frames and keyframes save it sooner)."""
+        self.resident.release(session)
+        saved_at = self._counters_saved_at.get(session.id, -math.inf)
+        if time.monotonic() - saved_at >= LAST_USE_SAVE_INTERVAL_S:
+            self.save_counters_soon(session)
+
+    def _restored(self, rec: SessionRecord) -> Session:
+        """The session as the store holds it: confirmed objects, delta log, counters (what a
+        restart gives back, and what a load after an unload gives back).
+
+        A stored log with more than max_tombstones (a smaller setting, or a database from
+        before tombstones were trimmed) is trimmed now, in memory and in the store (or at
+        its next commit, if the store refuses writes now)."""
+        stored = self.store.load_delta_log(rec.session_id)
+        log = DeltaLog.from_state(stored.state(), self.settings.max_tombstones)
+        floor = stored.floor
+        if log.floor > stored.floor:
+            with contextlib.suppress(StoreUnavailableError):
+                self.store.trim_tombstones(rec.session_id, log.floor)
+                floor = log.floor
+        engine = self._engine(rec, updated_knobs(Knobs(), rec.knobs))
+        engine.restore(
+            self.store.load_objects(rec.session_id), log, rec.keyframes, rec.next_object_id
+        )
+        return Session(rec, engine, _stored_floor=floor)
+
+    def _load(self, sid: str) -> Session:
+        """`Residency`'s loader (in the caller's thread): the stored session; KeyError if none."""
+        t0 = time.perf_counter()
+        session = self._restored(self.store.load_session(sid))
+        session.touch()
+        # Retention counts from this use, even if the server is killed before the next save
+        # (and while the store refuses writes, from the last use it holds).
+        with contextlib.suppress(StoreUnavailableError):
+            self.store.update_session(sid, last_used_at=session.record.last_used_at)
+            self._counters_saved_at[sid] = time.monotonic()
+        self.metrics.session_loads.inc()
+        self.metrics.session_load_latency.observe(time.perf_counter() - t0)
+        return session
+
+    def _unload(self, session: Session, reason: str) -> None:
+        """`Residency`'s unloader: save what only memory holds (frame and byte counters, last
+        use; the map and delta log are saved at every commit) and let the session go.
+        StoreUnavailableError (it stays resident) when the store refuses the write."""
+        with session._map_lock:  # after a counters save in flight, never before it
+            try:
+                self.store.update_session(
+                    session.id,
+                    counters=self._counters(session, False),
+                    last_used_at=session.record.last_used_at,
+                )
+            except KeyError:
+                pass  # deleted meanwhile: nothing left to save
+            except StoreUnavailableError as exc:
+                self._store_failed(f"saving session {session.id} to unload it", exc)
+                raise
+            else:
+                self._store_succeeded()
+        self._counters_saved_at.pop(session.id, None)
+        self.metrics.session_unloads.labels(reason=reason).inc()
+        log.info(
+            "session %s unloaded from memory (%s); it loads again on its next use",
+            session.id,
+            "unused for --idle-unload-s" if reason == "idle" else "room for another",
+        )
+
+    def unload_idle(self) -> list[str]:
+        """Unload the sessions unused for idle_unload_s (no frames, requests or sockets, no
+        keyframe in flight); their ids."""
+        return self.resident.unload_idle(self.settings.idle_unload_s)
+
+    def list_sessions(self) -> list[dict]:
+        """Every stored session, oldest first, as `GET /v1/sessions` lists it: a resident one
+        with its live figures, the others from their stored rows (no map is loaded);
+        `resident` says which."""
+        listed = []
+        for entry in self.store.list_stored():
+            rec = entry.record
+            session = self.resident.get(rec.session_id)
+            if session is not None:
+                listed.append({**session.stats(), "resident": True})
+                continue
+            listed.append(
+                {
+                    "session_id": rec.session_id,
+                    "name": rec.name,
+                    "mode": rec.mode,
+                    "objects": entry.objects,
+                    "frames": rec.frames,
+                    "keyframes": rec.keyframes,
+                    "fps": 0.0,
+                    "update_seq": entry.seq,
+                    "last_used_at": rec.last_used_at,
+                    "resident": False,
+                }
+            )
+        return listed
+
+    # ------------------------------------------------------------------ retention
+    def apply_retention(self) -> list[str]:
+        """Delete every session unused (no frames, requests or sockets) for longer than
+        session_retention_days, each logged and counted; their ids. Does nothing when
+        retention is off (unset). A resident session counts by its use in memory, and one
+        in use is never deleted."""
+        days = self.settings.session_retention_days
+        if days is None:
+            return []
+        period_s = days * 86_400.0
+        self._retention_due = time.monotonic() + min(RETENTION_CHECK_MAX_INTERVAL_S, period_s / 10)
+        cutoff = time.time() - period_s
+
+        def still_idle(session: Session | None) -> bool:
+            return session is None or (
+                not session.busy and (session.record.last_used_at or 0.0) < cutoff
+            )
+
+        def delete_if_unused(session: Session | None, sid: str) -> bool:
+            if session is None:  # nobody can load it now: its stored last use is final
+                rec = self.record(sid)
+                if rec is None or (rec.last_used_at or 0.0) >= cutoff:
+                    return False
+            self._delete(sid, session)
+            return True
+
+        deleted = []
+        for sid in self.store.idle_sessions(cutoff):
+            if self.resident.remove(
+                sid, lambda session, sid=sid: delete_if_unused(session, sid), still_idle
+            ):
+                deleted.append(sid)
+                self.metrics.sessions_expired.inc()
+                log.info(
+                    "session %s deleted: unused for over %g days (--session-retention-days)",
+                    sid,
+                    days,
+                )
+        if deleted:
+            self.metrics.sessions_stored.set(self.store.count_sessions())
+        return deleted
+
+    def _retention_check_due(self) -> bool:
+        return (
+            self.settings.session_retention_days is not None
+            and time.monotonic() >= self._retention_due
+        )
 
     # ------------------------------------------------------------------ lifecycle
     def create(
         self, name: str | None, mode: str, knob_changes: dict, perception: str | None = None
     ) -> tuple[Session, str]:
-        """A new session and its token (the only time the token is shown).
+        """A new session and its token (the only time the token is shown), resident.
 
         perception: one of the backends loaded at start (default: the first the server's
-        `perception` setting names); UnknownBackendError naming --perception otherwise."""
+        `perception` setting names); UnknownBackendError naming --perception otherwise.
+        Raises StoredSessionsFull past max_sessions stored, and as `acquire` does when the
+        resident budget has no room."""
+        session, token = self._create(name, mode, knob_changes, perception)
+        self.release(session)
+        return session, token
+
+    def _create(
+        self, name: str | None, mode: str, knob_changes: dict, perception: str | None
+    ) -> tuple[Session, str]:
+        """`create`, the session left in use (release it)."""
         knobs = updated_knobs(Knobs(), knob_changes or {})
         perception = perception or self.settings.perception_backends[0]
         if perception not in self.backends:
@@ -386,28 +629,41 @@ class SessionManager:
                 f"perception {perception!r} is not loaded on this server; choose one of "
                 f"{', '.join(self.backends)} (a server loads backends with --perception)"
             )
-        with self._lock:
-            if len(self.sessions) >= self.settings.max_sessions:
-                raise OverflowError(
-                    f"the server holds its maximum of {self.settings.max_sessions} sessions"
-                )
-            token = secrets.token_urlsafe(24)
-            sid = uuid.uuid4().hex[:16]
-            rec = SessionRecord(
-                session_id=sid,
-                name=name or f"session-{sid[:6]}",
-                mode=mode,
-                knobs=knobs_to_dict(knobs),
-                token_hash=hash_token(token),
-                created_at=time.time(),
-                perception=perception,
-            )
-            self.store.create_session(rec)
+        self._check_room_to_store()  # before making room in memory for nothing
+        token = secrets.token_urlsafe(24)
+        sid = uuid.uuid4().hex[:16]
+        now = time.time()
+        rec = SessionRecord(
+            session_id=sid,
+            name=name or f"session-{sid[:6]}",
+            mode=mode,
+            knobs=knobs_to_dict(knobs),
+            token_hash=hash_token(token),
+            created_at=now,
+            perception=perception,
+            last_used_at=now,
+        )
+
+        def make() -> Session:
+            with self._lock:  # two creations never both take the last place
+                self._check_room_to_store()
+                self.store.create_session(rec)
             engine = self._engine(rec, knobs)
             engine.restore([], DeltaLog(max_tombstones=self.settings.max_tombstones), 0, 1)
-            session = Session(rec, engine)
-            self.sessions[sid] = session
+            return Session(rec, engine)
+
+        session = self.resident.admit(sid, make, users=1)
+        self.metrics.sessions_stored.inc()
         return session, token
+
+    def _check_room_to_store(self) -> None:
+        limit = self.settings.max_sessions
+        if self.store.count_sessions() >= limit:
+            raise StoredSessionsFull(
+                f"the server stores its maximum of {limit} sessions (--max-sessions); delete "
+                f"sessions you no longer need (semanticxr sessions delete SID) or raise "
+                f"--max-sessions"
+            )
 
     def import_session(self, export: MapExport) -> tuple[Session, str]:
         """A new session holding an export's objects, with their ids, and its token.
@@ -423,7 +679,7 @@ class SessionManager:
                 f"{len(export.objects)} objects, over max_objects={self.settings.max_objects}",
             )
         perception = spec.perception if spec.perception in self.backends else None
-        session, token = self.create(spec.name, spec.mode, spec.knobs, perception)
+        session, token = self._create(spec.name, spec.mode, spec.knobs, perception)
         try:
             engine = session.engine
             if spec.embedding.dim != engine.encoder.dim:
@@ -473,14 +729,24 @@ class SessionManager:
         except BaseException:
             self.delete(session.id)
             raise
+        finally:
+            self.release(session)
         return session, token
 
     def delete(self, sid: str) -> None:
-        with self._lock:
-            session = self.sessions.pop(sid)
+        """Delete session `sid` with its map, resident or not (its sockets close)."""
+        self.resident.remove(sid, lambda session: self._delete(sid, session))
+        self.metrics.sessions_stored.set(self.store.count_sessions())
+
+    def _delete(self, sid: str, session: Session | None) -> bool:
+        if session is None:
+            self.store.delete_session(sid)
+            return True
         session.close()
         with session._map_lock:  # let a keyframe in flight finish first
             self.store.delete_session(sid)
+        self._counters_saved_at.pop(sid, None)
+        return True
 
     def set_knobs(self, session: Session, changes: dict) -> Knobs:
         with session._map_lock:
@@ -489,6 +755,11 @@ class SessionManager:
             session.engine.knobs = knobs
             session.record.knobs = knobs_to_dict(knobs)
         return knobs
+
+    async def in_thread(self, fn: Callable[..., T], *args: object) -> T:
+        """`fn(*args)` in a socket thread (access checks and loads of sessions for sockets:
+        the event loop only moves bytes)."""
+        return await asyncio.get_running_loop().run_in_executor(self._socket_pool, fn, *args)
 
     # ------------------------------------------------------------------ ingest
     async def decode(self, decode: Callable[[], T]) -> T:
@@ -502,6 +773,7 @@ class SessionManager:
         COUNTERS_SAVE_INTERVAL_S ago."""
         rec = session.record
         rec.frames += 1
+        session.touch()
         if "detections" not in frame_bytes and session.engine.backend.name == DEFAULT_BACKEND:
             session.warn_once(NO_DETECTIONS_WARNING)
         now = time.monotonic()
@@ -521,17 +793,22 @@ class SessionManager:
             self._store_io.submit(self._save_counters, session)
 
     def _save_counters(self, session: Session, even_if_failing: bool = False) -> None:
-        """Write the session's frame and byte counters (not its map). Under the map lock, so
+        """Write the session's frame and byte counters and its last use (not its map), if it
+        is still the resident copy. Under the map lock, so
         a keyframe commit's counters and these land in the order they were taken. Skipped
         while the store refuses writes (unless `even_if_failing`): the next commit or save
         after it recovers carries them."""
         if self.storage.failing and not even_if_failing:
             return
         with session._map_lock:
-            if session.id not in self.sessions:
-                return  # deleted
+            if self.resident.get(session.id) is not session:
+                return  # unloaded (which saved them) or deleted
             try:
-                self.store.update_session(session.id, counters=self._counters(session, False))
+                self.store.update_session(
+                    session.id,
+                    counters=self._counters(session, False),
+                    last_used_at=session.record.last_used_at,
+                )
             except KeyError:
                 return  # deleted meanwhile
             except StoreUnavailableError as exc:
@@ -589,18 +866,29 @@ class SessionManager:
         return True
 
     async def watch_storage(self) -> None:
-        """Until cancelled: probe a failing store every STORAGE_PROBE_INTERVAL_S, so /healthz
-        turns 200 again when the disk has room even if no keyframe comes."""
+        """Until cancelled, every STORAGE_PROBE_INTERVAL_S, in the store thread: the server's
+        housekeeping (`housekeeping`). (Its name is older than the housekeeping it runs:
+        the app starts it at start-up and cancels it at shutdown.)"""
         loop = asyncio.get_running_loop()
         while True:
             await asyncio.sleep(STORAGE_PROBE_INTERVAL_S)  # a timer, not synchronisation
-            if self.storage.failing:
-                try:
-                    await loop.run_in_executor(self._store_io, self.probe_storage)
-                except RuntimeError:
-                    return  # the executor shut down: the server is stopping
-                except Exception:
-                    log.exception("probing the store failed")
+            try:
+                await loop.run_in_executor(self._store_io, self.housekeeping)
+            except RuntimeError:
+                return  # the executor shut down: the server is stopping
+            except Exception:
+                log.exception("housekeeping (store probe, idle unloading, retention) failed")
+
+    def housekeeping(self) -> None:
+        """While the store refuses writes: probe it, so /healthz turns 200 again when the
+        disk has room even if no keyframe comes. Otherwise: unload the sessions idle for
+        idle_unload_s, and apply retention when its check is due."""
+        if self.storage.failing:
+            self.probe_storage()
+            return
+        self.unload_idle()
+        if self._retention_check_due():
+            self.apply_retention()
 
     def _back_to_durable(self, session: Session, last_pose: np.ndarray | None) -> None:
         """Under the map lock, after a keyframe failed to map or commit: rebuild the session's
@@ -608,8 +896,8 @@ class SessionManager:
         (the device pose before the keyframe, which the store does not hold); loses what only
         memory held: unconfirmed candidates (they start again from their next sighting) and
         the set of objects awaiting their next outlier pass. If the
-        store cannot be read either, the session is closed (it comes back at restart) rather
-        than left showing changes the store lacks."""
+        store cannot be read either, the session is closed (its next use loads it again from
+        the store) rather than left showing changes the store lacks."""
         old = session.engine
         try:
             durable = self.store.load_session(session.id)
@@ -622,8 +910,7 @@ class SessionManager:
                 "is closed until the server restarts",
                 session.id,
             )
-            with self._lock:
-                self.sessions.pop(session.id, None)
+            self.resident.forget(session)
             session._closed = True  # under the map lock; sockets see it and close
             return
         engine = self._engine(session.record, old.knobs)
@@ -761,6 +1048,7 @@ class SessionManager:
                     stats.removed_ids,
                     counters=self._counters(session),
                     next_object_id=engine.next_object_id,
+                    last_used_at=rec.last_used_at,
                 )
             except BaseException as exc:
                 self._back_to_durable(session, pose_before)

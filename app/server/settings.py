@@ -35,8 +35,14 @@ class ServerSettings:
     """Largest WebSocket message accepted (bigger closes the socket with code 1009)."""
     max_body_bytes: int = 1 << 20
     """Largest REST request body."""
-    max_sessions: int = 64
-    """Sessions the server holds at once."""
+    max_sessions: int = 10_000
+    """Sessions the store keeps, in memory or not; past it, creating or importing one is refused (409) until some are deleted."""
+    max_resident_sessions: int = 64
+    """Sessions whose maps are held in memory at once; to load another, the least recently used one without an open socket is unloaded (none: 503 with Retry-After)."""
+    idle_unload_s: float = 600.0
+    """Seconds without frames, requests or open sockets after which a session's map is saved and unloaded from memory (its next use loads it again)."""
+    session_retention_days: float | None = None
+    """Days a session may go unused (no frames, no requests, no sockets) before it is deleted with its map, checked at start and periodically; unset keeps sessions until deleted."""
     perception: str = DEFAULT_BACKEND
     """Perception backends loaded at start, comma-separated; sessions use the first unless they choose."""
     models_dir: str | None = None
@@ -84,6 +90,13 @@ class ServerSettings:
         for name in _POSITIVE:
             if getattr(self, name) < 1:
                 raise SettingsError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if not self.idle_unload_s > 0:
+            raise SettingsError(f"idle_unload_s must be over 0 seconds, got {self.idle_unload_s}")
+        if self.session_retention_days is not None and not self.session_retention_days > 0:
+            raise SettingsError(
+                f"session_retention_days must be over 0 days (or unset to keep sessions), "
+                f"got {self.session_retention_days}"
+            )
         if self.max_instances_per_frame > MAX_INSTANCES_PER_FRAME:
             raise SettingsError(
                 f"max_instances_per_frame must be at most {MAX_INSTANCES_PER_FRAME} (the wire "
@@ -124,6 +137,11 @@ class ServerSettings:
                 continue
             if f.type in ("str", "str | None"):
                 values[f.name] = env
+            elif f.type in ("float", "float | None"):
+                try:
+                    values[f.name] = float(env)
+                except ValueError:
+                    raise SettingsError(f"{variable} must be a number, got {env!r}") from None
             else:
                 try:
                     values[f.name] = int(env)
@@ -141,6 +159,7 @@ _POSITIVE = (
     "max_message_bytes",
     "max_body_bytes",
     "max_sessions",
+    "max_resident_sessions",
     "mapping_workers",
     "decode_workers",
     "max_frame_pixels",

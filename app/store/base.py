@@ -7,6 +7,10 @@ committed, so the update seq continues and a subscriber resuming with `since` lo
 
 When the storage cannot take a write (disk full, I/O error, read-only), a write raises
 `StoreUnavailableError` and changes nothing; `probe` tells when writes can land again.
+
+The store is where sessions live: a server keeps only the maps in use in memory and loads
+the others from here on first use, so listing, counting and finding idle sessions read the
+sessions' rows only, never their maps.
 """
 
 from __future__ import annotations
@@ -56,6 +60,24 @@ class SessionRecord:
     """Id the session's next new object gets (ids are never reused, even after a restart)."""
     perception: str = "detections"
     """Name of the session's perception backend (app.perception.BACKENDS)."""
+    last_used_at: float | None = None
+    """Unix time (seconds) of the session's last frame or use: what retention measures
+    idleness by. None (when made) means `created_at`."""
+
+    def __post_init__(self) -> None:
+        if self.last_used_at is None:
+            self.last_used_at = self.created_at
+
+
+@dataclass
+class StoredSession:
+    """One entry of `Store.list_stored`: a session's row and the size of its map."""
+
+    record: SessionRecord
+    objects: int
+    """Confirmed objects stored."""
+    seq: int
+    """The delta log's seq (the session's update seq)."""
 
 
 class Store(abc.ABC):
@@ -78,6 +100,7 @@ class Store(abc.ABC):
         name: str | None = None,
         knobs: dict | None = None,
         counters: dict[str, int] | None = None,
+        last_used_at: float | None = None,
     ) -> None:
         """Change the given fields; counters are absolute values named as in COUNTER_NAMES."""
 
@@ -96,6 +119,30 @@ class Store(abc.ABC):
                 return rec
         raise KeyError(f"unknown session {session_id!r}")
 
+    def count_sessions(self) -> int:
+        """How many sessions are stored."""
+        return len(self.list_sessions())
+
+    def list_stored(self) -> list[StoredSession]:
+        """Every session with its object count and update seq, oldest first (no map loaded,
+        where the implementation can count without one)."""
+        return [
+            StoredSession(
+                rec,
+                len(self.load_objects(rec.session_id)),
+                self.load_delta_log(rec.session_id).seq,
+            )
+            for rec in self.list_sessions()
+        ]
+
+    def idle_sessions(self, used_before: float) -> list[str]:
+        """Ids of the sessions whose `last_used_at` is before `used_before` (unix time)."""
+        return [
+            rec.session_id
+            for rec in self.list_sessions()
+            if rec.last_used_at is not None and rec.last_used_at < used_before
+        ]
+
     # ------------------------------------------------------------------ the map
     @abc.abstractmethod
     def commit_keyframe(
@@ -106,6 +153,7 @@ class Store(abc.ABC):
         removed: list[int],
         counters: dict[str, int],
         next_object_id: int,
+        last_used_at: float | None = None,
     ) -> None:
         """Persist one keyframe's changes at once; returns once they survive a crash.
 
@@ -113,6 +161,7 @@ class Store(abc.ABC):
                  stored with their current fields; removed: ids removed at `seq` (tombstoned).
         An id in both ends up removed, as in `DeltaLog.commit`. A keyframe that changed
         nothing passes the unchanged seq and empty lists (to persist the counters).
+        last_used_at: the session's new `last_used_at`, if given.
         Raises ValueError (and changes nothing) on a seq older than the stored one, changes
         without a newer seq, an unconfirmed object, an id not below `next_object_id`, or
         arrays that are not float32 points [N, 3] / embedding [d]; KeyError on an unknown

@@ -51,6 +51,7 @@ from app.store.base import (
     COUNTER_NAMES,
     SessionRecord,
     Store,
+    StoredSession,
     StoreError,
     StoreUnavailableError,
     StoreVersionError,
@@ -114,6 +115,13 @@ _SCHEMA: tuple[str, ...] = (
 _MIGRATIONS: tuple[tuple[str, ...], ...] = (
     # 1 -> 2: the session's perception backend (sessions before it used `detections`).
     ("ALTER TABLE sessions ADD COLUMN perception TEXT NOT NULL DEFAULT 'detections'",),
+    # 2 -> 3: when each session was last used (for retention). Sessions from before it count
+    # as used at the upgrade: a session is never deleted for lack of a date.
+    (
+        "ALTER TABLE sessions ADD COLUMN last_used_at REAL NOT NULL DEFAULT 0",
+        "UPDATE sessions SET last_used_at = (julianday('now') - 2440587.5) * 86400.0",
+        "CREATE INDEX sessions_by_last_use ON sessions (last_used_at)",
+    ),
 )
 """_MIGRATIONS[i] takes a store from schema version i + 1 to i + 2; a new store is created
 at version 1 (`_SCHEMA`) and migrated like any other, so there is one path to each version."""
@@ -134,7 +142,7 @@ _STORAGE_ERROR_CODES = frozenset(
 
 _SESSION_COLUMNS = (
     "session_id, name, mode, perception, knobs, token_hash, created_at, "
-    "frames, keyframes, bytes_in, bytes_out, next_object_id"
+    "frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at"
 )
 _OBJECT_COLUMNS = (
     "object_id, version, n_obs, frames_seen, first_seen, last_seen, resolution_m, "
@@ -281,12 +289,13 @@ class SqliteStore(Store):
             int(rec.bytes_in),
             int(rec.bytes_out),
             int(rec.next_object_id),
+            float(rec.last_used_at if rec.last_used_at is not None else rec.created_at),
         )
         try:
             self._write(
                 lambda conn: conn.execute(
                     f"INSERT INTO sessions ({_SESSION_COLUMNS}, seq, delta_floor)"
-                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
+                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
                     row,
                 )
             )
@@ -300,6 +309,7 @@ class SqliteStore(Store):
         name: str | None = None,
         knobs: dict | None = None,
         counters: dict[str, int] | None = None,
+        last_used_at: float | None = None,
     ) -> None:
         """Change the given fields; counters are absolute values named as in COUNTER_NAMES."""
         assignments: dict[str, Any] = _checked_counters(counters or {})
@@ -307,6 +317,8 @@ class SqliteStore(Store):
             assignments["name"] = name
         if knobs is not None:
             assignments["knobs"] = _to_json(knobs)
+        if last_used_at is not None:
+            assignments["last_used_at"] = float(last_used_at)
 
         def update(conn: sqlite3.Connection) -> None:
             _session_row(conn, session_id, "1")
@@ -339,6 +351,31 @@ class SqliteStore(Store):
         with self._transaction(write=False) as conn:
             return _session_from_row(_session_row(conn, session_id, _SESSION_COLUMNS))
 
+    def count_sessions(self) -> int:
+        """How many sessions are stored."""
+        with self._transaction(write=False) as conn:
+            return conn.execute("SELECT count(*) FROM sessions").fetchone()[0]
+
+    def list_stored(self) -> list[StoredSession]:
+        """Every session with its object count and update seq, oldest first; objects are
+        counted on the primary key's index, no map is read."""
+        with self._transaction(write=False) as conn:
+            rows = conn.execute(
+                f"SELECT {_SESSION_COLUMNS}, seq, (SELECT count(*) FROM objects AS o"
+                " WHERE o.session_id = s.session_id) FROM sessions AS s"
+                " ORDER BY created_at, session_id"
+            ).fetchall()
+        return [StoredSession(_session_from_row(row[:-2]), row[-1], row[-2]) for row in rows]
+
+    def idle_sessions(self, used_before: float) -> list[str]:
+        """Ids of the sessions whose `last_used_at` is before `used_before` (unix time)."""
+        with self._transaction(write=False) as conn:
+            rows = conn.execute(
+                "SELECT session_id FROM sessions WHERE last_used_at < ? ORDER BY last_used_at",
+                (float(used_before),),
+            ).fetchall()
+        return [row[0] for row in rows]
+
     # ------------------------------------------------------------------ the map
     def commit_keyframe(
         self,
@@ -348,6 +385,7 @@ class SqliteStore(Store):
         removed: list[int],
         counters: dict[str, int],
         next_object_id: int,
+        last_used_at: float | None = None,
     ) -> None:
         """`Store.commit_keyframe`, in one SQLite transaction (WAL, synchronous): returns
         once the changes survive kill -9; storage errors raise StoreUnavailableError."""
@@ -355,7 +393,9 @@ class SqliteStore(Store):
         removed_ids = sorted({int(oid) for oid in removed})
         gone = set(removed_ids)
         kept = [obj for obj in upserts if int(obj.id) not in gone]
-        assignments = _checked_counters(counters)
+        assignments: dict[str, Any] = _checked_counters(counters)
+        if last_used_at is not None:
+            assignments["last_used_at"] = float(last_used_at)
 
         def commit(conn: sqlite3.Connection) -> None:
             stored_seq, stored_next_id = _session_row(conn, session_id, "seq, next_object_id")
@@ -476,8 +516,8 @@ def _checked_counters(counters: dict[str, int]) -> dict[str, int]:
 
 
 def _session_from_row(row: tuple) -> SessionRecord:
-    sid, name, mode, perception, knobs, token_hash, created_at, *counters, next_object_id = row
-    frames, keyframes, bytes_in, bytes_out = counters
+    sid, name, mode, perception, knobs, token_hash, created_at, *counters = row
+    frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at = counters
     return SessionRecord(
         session_id=sid,
         name=name,
@@ -491,6 +531,7 @@ def _session_from_row(row: tuple) -> SessionRecord:
         bytes_in=bytes_in,
         bytes_out=bytes_out,
         next_object_id=next_object_id,
+        last_used_at=last_used_at,
     )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -20,8 +21,16 @@ from app.mapping.object import MapObject
 from app.mapping.publish import client_points
 from app.perception import UnknownBackendError
 from app.protocol.rest import MapExport
-from app.server.auth import authorize_session, bearer, require_api_key
-from app.server.sessions import Session, SessionManager
+from app.server.auth import (
+    authorize_session,
+    bearer,
+    check_session_access,
+    require_api_key,
+    retry_later,
+)
+from app.server.residency import ResidentSessionsBusy
+from app.server.sessions import Session, SessionManager, StoredSessionsFull
+from app.store import StoreUnavailableError
 
 
 def _errors(**codes: str) -> dict[int | str, dict[str, Any]]:
@@ -47,6 +56,13 @@ router = APIRouter(
 SESSION_ERRORS = _errors(
     _404="no such session (server without an API key)",
     _422="a query parameter of the wrong type or out of range",
+    _503="the session is not in memory and there is no room to load it now: every session "
+    "held in memory is in use (see Retry-After)",
+)
+CREATE_ERRORS = _errors(
+    _409="the server stores its maximum of sessions (--max-sessions): delete some first",
+    _503="no room in memory for another session now: every session held in memory is in use "
+    "(see Retry-After)",
 )
 
 
@@ -54,8 +70,33 @@ def manager(request: Request) -> SessionManager:
     return request.app.state.manager
 
 
-def session_for(request: Request, sid: str) -> Session:
-    return authorize_session(manager(request), sid, bearer(request.headers))
+@contextmanager
+def session_in_use(request: Request, sid: str) -> Iterator[Session]:
+    """The session the caller may use, loaded if need be and kept in memory until the block
+    ends (HTTPException otherwise: 401/403/404, or 503 with Retry-After). Route functions
+    are plain `def`s, so FastAPI runs them, and loads, in a worker thread."""
+    session = authorize_session(manager(request), sid, bearer(request.headers))
+    try:
+        yield session
+    finally:
+        manager(request).release(session)
+
+
+def created_or_refused(create) -> tuple[Session, str]:
+    """`create()` (a creation or an import), its refusals as HTTP answers.
+
+    409, not 507 or 503, when the store is full (StoredSessionsFull): the condition lasts
+    until sessions are deleted, so "retry later" (503 + Retry-After) would be a lie, and it
+    is the caller's to resolve by deleting sessions (a conflict with the server's state, a
+    4xx); every 5xx but a documented 503 counts as a server bug in the API contract."""
+    try:
+        return create()
+    except (KnobError, UnknownBackendError, InputError) as exc:
+        raise HTTPException(422, str(exc)) from None
+    except StoredSessionsFull as exc:
+        raise HTTPException(409, str(exc)) from None
+    except (ResidentSessionsBusy, StoreUnavailableError) as exc:
+        raise retry_later(exc) from None
 
 
 def _object_record(obj: MapObject, session: Session, with_points: bool) -> protocol.ObjectRecord:
@@ -88,20 +129,17 @@ def _created(session: Session, token: str) -> protocol.SessionCreated:
     response_model=protocol.SessionCreated,
     dependencies=[Depends(require_api_key)],
     summary="Create a session",
-    responses=_errors(
+    responses=CREATE_ERRORS
+    | _errors(
         _400="the body is not JSON",
         _422="an unknown knob, a knob value of the wrong type or out of range, or a "
         "perception backend the server did not load",
-        _503="the server holds its maximum of sessions",
     ),
 )
 def create_session(body: protocol.CreateSession, request: Request) -> protocol.SessionCreated:
-    try:
-        session, token = manager(request).create(body.name, body.mode, body.knobs, body.perception)
-    except (KnobError, UnknownBackendError) as exc:
-        raise HTTPException(422, str(exc)) from None
-    except OverflowError as exc:
-        raise HTTPException(503, str(exc)) from None
+    session, token = created_or_refused(
+        lambda: manager(request).create(body.name, body.mode, body.knobs, body.perception)
+    )
     return _created(session, token)
 
 
@@ -109,11 +147,10 @@ def create_session(body: protocol.CreateSession, request: Request) -> protocol.S
     "/sessions",
     response_model=list[protocol.SessionSummary],
     dependencies=[Depends(require_api_key)],
-    summary="List sessions",
+    summary="List stored sessions, in memory or not (no map is loaded)",
 )
 def list_sessions(request: Request) -> list[protocol.SessionSummary]:
-    sessions = list(manager(request).sessions.values())
-    return [protocol.SessionSummary.model_validate(s.stats()) for s in sessions]
+    return [protocol.SessionSummary.model_validate(s) for s in manager(request).list_sessions()]
 
 
 @router.get(
@@ -123,7 +160,8 @@ def list_sessions(request: Request) -> list[protocol.SessionSummary]:
     responses=SESSION_ERRORS,
 )
 def get_session(sid: str, request: Request) -> protocol.SessionStats:
-    return protocol.SessionStats.model_validate(session_for(request, sid).stats())
+    with session_in_use(request, sid) as session:
+        return protocol.SessionStats.model_validate(session.stats())
 
 
 @router.get(
@@ -133,7 +171,8 @@ def get_session(sid: str, request: Request) -> protocol.SessionStats:
     responses=SESSION_ERRORS,
 )
 def get_knobs(sid: str, request: Request) -> dict:
-    return knobs_to_dict(session_for(request, sid).knobs)
+    with session_in_use(request, sid) as session:
+        return knobs_to_dict(session.knobs)
 
 
 @router.patch(
@@ -152,11 +191,11 @@ def patch_knobs(
     request: Request,
     changes: Annotated[dict[str, Any], Body(json_schema_extra=protocol.KNOB_CHANGES_SCHEMA)],
 ) -> dict:
-    session = session_for(request, sid)
-    try:
-        return knobs_to_dict(manager(request).set_knobs(session, changes))
-    except KnobError as exc:
-        raise HTTPException(422, str(exc)) from None
+    with session_in_use(request, sid) as session:
+        try:
+            return knobs_to_dict(manager(request).set_knobs(session, changes))
+        except KnobError as exc:
+            raise HTTPException(422, str(exc)) from None
 
 
 @router.get(
@@ -168,8 +207,8 @@ def patch_knobs(
 def list_objects(
     sid: str, request: Request, points: bool = Query(False, description="include points")
 ) -> list[protocol.ObjectRecord]:
-    session = session_for(request, sid)
-    return [_object_record(o, session, points) for o in session.objects()]
+    with session_in_use(request, sid) as session:
+        return [_object_record(o, session, points) for o in session.objects()]
 
 
 @router.get(
@@ -187,12 +226,12 @@ def query(
     k: int = Query(5, ge=1, description="how many results (at most the server's max_query_k)"),
     points: bool = Query(True, description="include each result's points"),
 ) -> protocol.QueryResult:
-    session = session_for(request, sid)
     max_k = manager(request).settings.max_query_k
     if k > max_k:
         raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
     t0 = time.perf_counter()
-    hits, rating = session.rated_query(text, k)
+    with session_in_use(request, sid) as session:
+        hits, rating = session.rated_query(text, k)
     max_points = session.knobs.max_object_points_client
     results = [
         protocol.QueryHit(
@@ -220,7 +259,7 @@ def query(
     responses=SESSION_ERRORS,
 )
 def delete_session(sid: str, request: Request) -> Response:
-    session_for(request, sid)
+    check_session_access(manager(request), sid, bearer(request.headers))  # no map is loaded
     manager(request).delete(sid)
     return Response(status_code=204)
 
@@ -246,26 +285,27 @@ def export_map(
     format: Literal["json", "ply"] = Query("json", description="json or ply"),
     embeddings: bool = Query(False, description="include each object's embedding (JSON)"),
 ) -> Response:
-    session = session_for(request, sid)
-    objects = session.objects()  # taken under the map lock; points are replaced, never edited
-    filename = f"semanticxr-{session.id}.{format}"
+    with session_in_use(request, sid) as session:
+        # Taken under the map lock; points are replaced, never edited.
+        objects = session.objects()
+        encoder = session.engine.encoder
+        header = {
+            "format": protocol.rest.EXPORT_FORMAT,
+            "version": protocol.rest.EXPORT_VERSION,
+            "session": {
+                "name": session.record.name,
+                "mode": session.engine.mode,
+                "knobs": knobs_to_dict(session.knobs),
+                "embedding": {"model": encoder.model_id, "dim": encoder.dim},
+                "perception": session.record.perception,
+            },
+        }
+    filename = f"semanticxr-{sid}.{format}"
     disposition = {"Content-Disposition": f'attachment; filename="{filename}"'}
     if format == "ply":
         return Response(
             ply_bytes(objects), media_type="application/octet-stream", headers=disposition
         )
-    encoder = session.engine.encoder
-    header = {
-        "format": protocol.rest.EXPORT_FORMAT,
-        "version": protocol.rest.EXPORT_VERSION,
-        "session": {
-            "name": session.record.name,
-            "mode": session.engine.mode,
-            "knobs": knobs_to_dict(session.knobs),
-            "embedding": {"model": encoder.model_id, "dim": encoder.dim},
-            "perception": session.record.perception,
-        },
-    }
 
     def chunks() -> Iterator[bytes]:
         # One object at a time: the whole map is never one JSON text in memory.
@@ -283,13 +323,13 @@ def export_map(
     response_model=protocol.SessionCreated,
     dependencies=[Depends(require_api_key)],
     summary="Create a session from a JSON export",
-    responses=_errors(
+    responses=CREATE_ERRORS
+    | _errors(
         _400="the body is not JSON",
         _413="the export is bigger than the server's max_body_bytes (start it with a bigger "
         "--max-body-bytes)",
         _422="not a semanticxr-map version 1, an embedding dimension other than the server's, "
         "a number that is not finite, a repeated object id, or a bad knob",
-        _503="the server holds its maximum of sessions",
     ),
 )
 def import_map(body: MapExport, request: Request) -> protocol.SessionCreated:
@@ -300,10 +340,5 @@ def import_map(body: MapExport, request: Request) -> protocol.SessionCreated:
         seen.add(obj.id)
         if np.abs(np.asarray(obj.points)).max() > MAX_WORLD_M:
             raise HTTPException(422, f"objects[{i}].points: over {MAX_WORLD_M:g} m from the origin")
-    try:
-        session, token = manager(request).import_session(body)
-    except (KnobError, UnknownBackendError, InputError) as exc:
-        raise HTTPException(422, str(exc)) from None
-    except OverflowError as exc:
-        raise HTTPException(503, str(exc)) from None
+    session, token = created_or_refused(lambda: manager(request).import_session(body))
     return _created(session, token)

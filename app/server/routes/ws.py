@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import msgpack
 from fastapi import APIRouter, HTTPException, WebSocket, WebSocketDisconnect
+from fastapi.responses import JSONResponse
 
 from app.errors import InputError
 from app.perception.base import FrameDetections
@@ -40,13 +41,34 @@ CLOSE_POLICY, CLOSE_TOO_BIG, CLOSE_TRY_LATER, CLOSE_GOING_AWAY = 1008, 1009, 101
 
 
 async def _authorize(ws: WebSocket, sid: str) -> Session | None:
+    """The session in use for this socket (release it when the socket ends), loaded in a
+    thread if need be; None once the handshake was refused: HTTP 403 for a caller who may
+    not use it (nothing about the session revealed), 503 with Retry-After when there is no
+    room to load it now."""
     manager: SessionManager = ws.app.state.manager
     try:
-        return authorize_session(manager, sid, bearer(ws.headers, ws.query_params))
+        return await manager.in_thread(
+            authorize_session, manager, sid, bearer(ws.headers, ws.query_params)
+        )
     except HTTPException as exc:
-        # Before accept(): the client sees an HTTP 403 and nothing about the session.
-        await ws.close(code=CLOSE_POLICY, reason=str(exc.detail)[:120])
+        if exc.status_code == 503:
+            await _refuse_for_now(ws, exc)
+        else:
+            # Before accept(): the client sees an HTTP 403 and nothing about the session.
+            await ws.close(code=CLOSE_POLICY, reason=str(exc.detail)[:120])
         return None
+
+
+async def _refuse_for_now(ws: WebSocket, exc: HTTPException) -> None:
+    """Refuse a handshake that may succeed later: HTTP 503 with Retry-After and the reason,
+    as REST answers; where the server cannot send an HTTP answer to a handshake, accept
+    and close with 1013 (try again later) and the reason."""
+    if "websocket.http.response" in ws.scope.get("extensions", {}):
+        answer = JSONResponse({"detail": exc.detail}, 503, headers=exc.headers)
+        await ws.send_denial_response(answer)
+        return
+    await ws.accept()
+    await ws.close(code=CLOSE_TRY_LATER, reason=str(exc.detail)[:120])
 
 
 def _payload_bytes(message: dict) -> dict[str, int]:
@@ -107,6 +129,13 @@ async def stream(ws: WebSocket, sid: str) -> None:
     session = await _authorize(ws, sid)
     if session is None:
         return
+    try:
+        await _stream_frames(ws, session)
+    finally:
+        ws.app.state.manager.release(session)
+
+
+async def _stream_frames(ws: WebSocket, session: Session) -> None:
     manager: SessionManager = ws.app.state.manager
     settings = manager.settings
     await ws.accept()
@@ -186,6 +215,13 @@ async def updates(ws: WebSocket, sid: str) -> None:
     session = await _authorize(ws, sid)
     if session is None:
         return
+    try:
+        await _follow_updates(ws, session)
+    finally:
+        ws.app.state.manager.release(session)
+
+
+async def _follow_updates(ws: WebSocket, session: Session) -> None:
     manager: SessionManager = ws.app.state.manager
     raw_since = ws.query_params.get("since")
     try:

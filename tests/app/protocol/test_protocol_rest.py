@@ -145,6 +145,8 @@ def test_session_records_answer_v1_bodies_with_the_protocol_version():
         "keyframes": 2,
         "fps": 5.0,
         "update_seq": 7,
+        "resident": True,  # a server before stored sessions listed only the ones in memory
+        "last_used_at": None,
     }
 
 

@@ -155,7 +155,7 @@ def test_a_subscriber_never_sees_a_seq_reused_for_other_contents(manager):
     # After a restart the store gives back exactly what subscribers were shown at that seq.
     restarted = SessionManager(manager.settings, manager.store, manager.encoder, make_metrics())
     restarted.restore()
-    again = restarted.sessions[session.id]
+    again = restarted.acquire(session.id)
 
     def the_map(message: dict) -> dict:
         message.pop("device_pose", None)  # where the device is: not part of the saved map

@@ -42,6 +42,10 @@ def test_the_store_defaults_to_the_sqlite_file_in_the_data_dir(monkeypatch, tmp_
         ({"SEMANTICXR_MAX_TOMBSTONES": "0"}, [], "max_tombstones must be at least 1"),
         ({"SEMANTICXR_PERCEPTION": "detections,owl"}, [], "perception: unknown backend 'owl'"),
         ({"SEMANTICXR_PERCEPTION": " , "}, [], "perception: unknown backend ''"),
+        ({}, ["--max-resident-sessions", "0"], "max_resident_sessions must be at least 1"),
+        ({}, ["--idle-unload-s", "0"], "idle_unload_s must be over 0 seconds, got 0.0"),
+        ({"SEMANTICXR_IDLE_UNLOAD_S": "soon"}, [], "SEMANTICXR_IDLE_UNLOAD_S must be a number"),
+        ({}, ["--session-retention-days", "-1"], "session_retention_days must be over 0 days"),
     ],
 )
 def test_serve_refuses_settings_that_cannot_work_and_names_them(
@@ -92,3 +96,15 @@ def test_serve_has_a_flag_per_setting_and_a_flag_beats_the_environment(monkeypat
     settings = settings_from_args(args)
     assert (settings.port, settings.max_sessions, settings.max_query_k) == (9002, 5, 7)
     assert settings.host == ServerSettings().host
+
+
+def test_fractional_settings_come_from_flags_and_the_environment(monkeypatch):
+    from app.cli import build_parser
+    from app.cli.serve import settings_from_args
+
+    monkeypatch.setenv("SEMANTICXR_SESSION_RETENTION_DAYS", "0.5")
+    args = build_parser().parse_args(["serve", "--idle-unload-s", "2.5"])
+    settings = settings_from_args(args)
+    assert (settings.idle_unload_s, settings.session_retention_days) == (2.5, 0.5)
+    assert ServerSettings().session_retention_days is None  # retention is off by default
+    assert (ServerSettings().max_sessions, ServerSettings().max_resident_sessions) == (10_000, 64)

@@ -12,6 +12,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -132,6 +133,39 @@ def test_sessions_round_trip_with_their_knobs_and_counters(store):
         keyframes=2,
         bytes_out=99,
     )
+
+
+def test_a_new_session_counts_as_used_when_it_was_created(store):
+    store.create_session(record("s1", created_at=5.0))
+    assert store.load_session("s1").last_used_at == 5.0
+
+
+def test_the_last_use_is_saved_with_counters_and_with_keyframes(store):
+    seeded(store)
+    store.update_session("s1", last_used_at=1_800_000_000.5)
+    assert store.load_session("s1").last_used_at == 1_800_000_000.5
+    store.commit_keyframe("s1", 3, [make_object(2, version=2)], [], {}, 4, last_used_at=1.9e9)
+    assert store.load_session("s1").last_used_at == 1.9e9
+    store.commit_keyframe("s1", 3, [], [], {"frames": 9}, 4)  # not given: kept
+    assert store.load_session("s1").last_used_at == 1.9e9
+
+
+def test_sessions_idle_since_a_time_are_found_from_their_rows(store):
+    for sid, used in (("old", 100.0), ("recent", 300.0), ("older", 50.0)):
+        store.create_session(record(sid, last_used_at=used))
+    assert store.idle_sessions(200.0) == ["older", "old"]
+    assert store.idle_sessions(50.0) == []
+
+
+def test_stored_sessions_are_listed_and_counted_with_their_map_sizes(store):
+    seeded(store, "s1")  # objects 1 and 2 at seq 2
+    store.create_session(record("s2", created_at=1_800_000_000.0))
+    assert store.count_sessions() == 2
+    listed = store.list_stored()
+    assert [(e.record, e.objects, e.seq) for e in listed] == [
+        (store.load_session("s1"), 2, 2),
+        (store.load_session("s2"), 0, 0),
+    ]
 
 
 def test_a_duplicate_session_id_is_a_value_error(store):
@@ -336,16 +370,37 @@ def test_a_version_1_store_opens_with_its_sessions_on_the_detections_backend(tmp
         seeded(store)
         before = everything(store)
     with sqlite3.connect(path) as db:  # what a server before the perception column wrote
+        db.execute("DROP INDEX sessions_by_last_use")
+        db.execute("ALTER TABLE sessions DROP COLUMN last_used_at")
         db.execute("ALTER TABLE sessions DROP COLUMN perception")
         db.execute("PRAGMA user_version = 1")
     with SqliteStore(path) as store:
-        assert everything(store) == before
+        assert everything(store)[1:] == before[1:]
         assert [s.perception for s in store.list_sessions()] == ["detections"]
         store.create_session(record("s2", perception="models"))
     with SqliteStore(path) as store:
         assert [s.perception for s in store.list_sessions()] == ["detections", "models"]
     with sqlite3.connect(path) as db:
-        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 2
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 3
+
+
+def test_a_version_2_store_counts_its_sessions_as_used_at_the_upgrade(tmp_path):
+    """Retention never deletes a session for lack of a date: sessions stored before the
+    last-use column count as used when the store is upgraded."""
+    path = tmp_path / "semanticxr.db"
+    with SqliteStore(path) as store:
+        seeded(store)
+        before = everything(store)
+    with sqlite3.connect(path) as db:  # what a server before the last-use column wrote
+        db.execute("DROP INDEX sessions_by_last_use")
+        db.execute("ALTER TABLE sessions DROP COLUMN last_used_at")
+        db.execute("PRAGMA user_version = 2")
+    upgrade_started = time.time()
+    with SqliteStore(path) as store:
+        (rec,) = store.list_sessions()
+        assert upgrade_started - 1 <= rec.last_used_at <= time.time() + 1
+        assert everything(store)[1:] == before[1:]
+        assert store.idle_sessions(upgrade_started - 1) == []
 
 
 def test_a_newer_schema_version_is_refused_with_a_clear_error(tmp_path):
