@@ -2,6 +2,7 @@
 
     python -m bench.server [--frames 150] [--seconds 20] [--out out/]
     python -m bench.server --stored-sessions 10,100,1000     # that section alone
+    python -m bench.server --paced-only [--devices 8,16,32] [--paced-seconds 20]
 
 The server runs as `app.server.runner.ServerProcess` (`python -m app.cli serve`); every call
 goes through the API client (app.client). Measures (issue 3): ingest-to-ack latency per keyframe and per plain frame; frames per
@@ -13,11 +14,22 @@ through the store directly, as a server would have committed them: creating 1,00
 through the API would mean streaming 1,000 walks), then the server's start-up time (process
 start to /healthz 200, polled every 0.1 s), its resident memory after start, and the first
 use of one session (its map loaded from the store). Start-up must not grow with N.
+
+Paced devices (issue 13): N emulated devices, each in its own session on its own socket,
+each sending the walk at 5 fps on a fixed clock (frame k at its start + k × 200 ms, starts
+offset at random within the first 200 ms), never waiting for acks but with at most 8 frames
+in flight (a frame due beyond that is skipped and counted as a stall). Reports ingest-to-ack
+p50/p95 of keyframes and of plain frames over all devices, keyframes acknowledged as
+dropped, errors, stalls and frames left unanswered, for each N; per device too in the JSON.
+The emulated devices run in this process, on the same cores as the server.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import math
+import os
 import sys
 import tempfile
 import time
@@ -29,7 +41,8 @@ import httpx
 import msgpack
 import numpy as np
 
-from app.client import create_session, open_websocket
+from app.client import CONNECTION_ERRORS, ApiError, create_session, open_websocket
+from app.client.rest import delete_session
 from app.server.runner import ServerProcess
 from bench.common import bench_parser, check, machine, save_plot, write_outputs
 
@@ -129,6 +142,221 @@ async def update_bytes(server: ServerProcess, keyframes: list[bytes], mode: str)
         await asyncio.sleep(1.0)  # let the last update arrive
         listener.cancel()
     return sizes
+
+
+PACED_FPS = 5.0
+"""Frames per second each paced device sends, on its own fixed clock."""
+PACED_MAX_IN_FLIGHT = 8
+"""Frames a paced device may have sent and not yet seen answered; a frame due while this many
+are in flight is not sent (a stall) and the device's clock keeps going."""
+MAX_PACED_DEVICES = 64
+"""Most devices a paced run may start (--devices)."""
+MAX_PACED_SECONDS = 120.0
+"""Longest a paced run may last (--paced-seconds)."""
+PACED_DRAIN_S = 60.0
+"""Longest a paced device waits for its last answers after its last frame is due."""
+
+
+def paced_frame_count(seconds: float) -> int:
+    """Frames one paced device sends in `seconds` (each once: no part of the walk is replayed,
+    so seqs only grow)."""
+    return math.ceil(seconds * PACED_FPS)
+
+
+def _percentiles_ms(values: list[float]) -> dict:
+    if not values:
+        return {"p50": None, "p95": None, "mean": None, "max": None, "count": 0}
+    return {
+        "p50": float(np.percentile(values, 50)),
+        "p95": float(np.percentile(values, 95)),
+        "mean": float(np.mean(values)),
+        "max": float(np.max(values)),
+        "count": len(values),
+    }
+
+
+async def paced_device(ws, frames: list[bytes], seqs: list[int], start_t: float) -> dict:
+    """One device on an open stream socket: frame k is due at `start_t` + k / PACED_FPS
+    (perf_counter clock) and sent then, whatever is still unanswered, unless
+    PACED_MAX_IN_FLIGHT are in flight (a stall: that frame is skipped). Replies are matched
+    to frames by seq. Ingest-to-ack latency runs from just before the send to the reply's
+    arrival, keyframes (ack `keyframe` true) and plain frames apart; a keyframe acknowledged
+    `dropped` (superseded by a newer one before mapping) is counted, not timed."""
+    sent_at: dict[int, float] = {}
+    result: dict = {
+        "frames_sent": 0,
+        "stalls": 0,
+        "keyframe_ms": [],
+        "frame_ms": [],
+        "dropped_keyframes": 0,
+        "errors": Counter(),
+        "send_lag_max_ms": 0.0,
+    }
+    sending_done, all_answered = asyncio.Event(), asyncio.Event()
+
+    async def send_on_clock() -> None:
+        try:
+            for k, data in enumerate(frames):
+                due = start_t + k / PACED_FPS
+                await asyncio.sleep(max(0.0, due - time.perf_counter()))  # the device's clock
+                if len(sent_at) >= PACED_MAX_IN_FLIGHT:
+                    result["stalls"] += 1
+                    continue
+                t0 = time.perf_counter()
+                result["send_lag_max_ms"] = max(result["send_lag_max_ms"], (t0 - due) * 1e3)
+                sent_at[seqs[k]] = t0
+                await ws.send(data)
+                result["frames_sent"] += 1
+        except CONNECTION_ERRORS as exc:
+            result["errors"][f"send: {type(exc).__name__}"] += 1
+            all_answered.set()
+        sending_done.set()
+        if not sent_at:
+            all_answered.set()
+
+    async def receive_answers() -> None:
+        try:
+            while True:
+                reply = msgpack.unpackb(await ws.recv())
+                latency_ms = (time.perf_counter() - sent_at.pop(reply.get("seq"), math.nan)) * 1e3
+                if reply.get("type") == "error":
+                    result["errors"][str(reply.get("code"))] += 1
+                elif math.isnan(latency_ms):
+                    result["errors"]["ack for no frame in flight"] += 1
+                elif reply.get("dropped"):
+                    result["dropped_keyframes"] += 1
+                else:
+                    result["keyframe_ms" if reply.get("keyframe") else "frame_ms"].append(
+                        latency_ms
+                    )
+                if sending_done.is_set() and not sent_at:
+                    all_answered.set()
+        except CONNECTION_ERRORS as exc:
+            result["errors"][f"receive: {type(exc).__name__}"] += 1
+            all_answered.set()
+
+    receiver = asyncio.create_task(receive_answers())
+    try:
+        await send_on_clock()
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(all_answered.wait(), PACED_DRAIN_S)
+    finally:
+        receiver.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await receiver
+    result["unanswered"] = len(sent_at)
+    return result
+
+
+async def paced_run(server: ServerProcess, frames: list[bytes], devices: int, seed: int) -> dict:
+    """`devices` paced devices, each in its own session on its own socket, each sending all of
+    `frames` at PACED_FPS from its own start (offset at random within the first frame period,
+    so they do not all send at once); their sessions are deleted afterwards."""
+    seqs = [msgpack.unpackb(data)["seq"] for data in frames]
+    sids = [await new_session(server, keyframe_interval=5) for _ in range(devices)]
+    offsets_s = np.random.default_rng(seed).uniform(0.0, 1.0 / PACED_FPS, devices)
+    load_before = os.getloadavg()[0]
+    try:
+        async with contextlib.AsyncExitStack() as sockets:
+            streams = [
+                await sockets.enter_async_context(
+                    await open_websocket(f"{server.ws_url}/v1/sessions/{sid}/stream", None)
+                )
+                for sid in sids
+            ]
+            t0 = time.perf_counter() + 0.2  # every socket is open before any clock starts
+            results = await asyncio.gather(
+                *(
+                    paced_device(ws, frames, seqs, t0 + offset)
+                    for ws, offset in zip(streams, offsets_s, strict=True)
+                )
+            )
+            elapsed_s = time.perf_counter() - t0
+    finally:
+        for sid in sids:
+            with contextlib.suppress(ApiError):
+                await delete_session(server.url, sid)
+    errors = sum((r["errors"] for r in results), Counter())
+    per_device = [
+        {
+            "frames_sent": r["frames_sent"],
+            "keyframe_ack_ms": _percentiles_ms(r["keyframe_ms"]),
+            "frame_ack_ms": _percentiles_ms(r["frame_ms"]),
+            "dropped_keyframes": r["dropped_keyframes"],
+            "errors": sum(r["errors"].values()),
+            "stalls": r["stalls"],
+            "unanswered": r["unanswered"],
+            "send_lag_max_ms": r["send_lag_max_ms"],
+        }
+        for r in results
+    ]
+    return {
+        "devices": devices,
+        "frames_due_per_device": len(frames),
+        "frames_sent": sum(r["frames_sent"] for r in results),
+        "keyframe_ack_ms": _percentiles_ms([ms for r in results for ms in r["keyframe_ms"]]),
+        "frame_ack_ms": _percentiles_ms([ms for r in results for ms in r["frame_ms"]]),
+        "dropped_keyframes": sum(r["dropped_keyframes"] for r in results),
+        "errors": sum(errors.values()),
+        "error_kinds": dict(errors),
+        "stalls": sum(r["stalls"] for r in results),
+        "unanswered": sum(r["unanswered"] for r in results),
+        "client_send_lag_max_ms": max(r["send_lag_max_ms"] for r in results),
+        "elapsed_s": elapsed_s,
+        "load_avg_1m_before": load_before,
+        "load_avg_1m_after": os.getloadavg()[0],
+        "per_device": per_device,
+    }
+
+
+async def warm_up(server: ServerProcess, frames: list[bytes]) -> float:
+    """Stream `frames` one at a time through a session that is then deleted, so that what a
+    server does once (e.g. the first keyframe's model warm-up) is not in a paced run; seconds."""
+    sid = await new_session(server, keyframe_interval=5)
+    t0 = time.perf_counter()
+    await ack_latency(f"{server.ws_url}/v1/sessions/{sid}/stream", frames)
+    elapsed_s = time.perf_counter() - t0
+    await delete_session(server.url, sid)
+    return elapsed_s
+
+
+def paced_devices(
+    server: ServerProcess, frames: list[bytes], device_counts: list[int], seconds: float
+) -> dict:
+    """One paced run per count in `device_counts`, on `server`, for `seconds` each; prints a
+    table and returns the section of the JSON document."""
+    frames = frames[: paced_frame_count(seconds)]
+    warm_up_s = asyncio.run(warm_up(server, frames[:10]))
+    print(f"  warm-up: 10 frames, 2 keyframes, one at a time in {warm_up_s:.1f} s", file=sys.stderr)
+    runs = []
+    for devices in device_counts:
+        runs.append(asyncio.run(paced_run(server, frames, devices, seed=devices)))
+        print(f"  {devices} paced devices done", file=sys.stderr)
+    ms = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
+    print(
+        f"paced devices: {PACED_FPS:g} fps each for {len(frames) / PACED_FPS:g} s, at most "
+        f"{PACED_MAX_IN_FLIGHT} frames in flight per device; ingest-to-ack ms over all devices"
+    )
+    print(
+        f"{'devices':>7} {'sent':>6} {'keyframes':>9} {'kf p50':>7} {'kf p95':>7} "
+        f"{'fr p50':>7} {'fr p95':>7} {'dropped':>7} {'stalls':>6} {'errors':>6} {'unans.':>6}"
+    )
+    for run in runs:
+        key, plain = run["keyframe_ack_ms"], run["frame_ack_ms"]
+        print(
+            f"{run['devices']:>7} {run['frames_sent']:>6} {key['count']:>9} "
+            f"{ms(key['p50']):>7} {ms(key['p95']):>7} {ms(plain['p50']):>7} {ms(plain['p95']):>7} "
+            f"{run['dropped_keyframes']:>7} {run['stalls']:>6} {run['errors']:>6} "
+            f"{run['unanswered']:>6}"
+        )
+    return {
+        "fps_per_device": PACED_FPS,
+        "seconds": len(frames) / PACED_FPS,
+        "max_in_flight_per_device": PACED_MAX_IN_FLIGHT,
+        "keyframe_interval": 5,
+        "warm_up_s": warm_up_s,
+        "runs": runs,
+    }
 
 
 STORED_OBJECTS = 8
@@ -282,7 +510,49 @@ def main(argv: list[str] | None = None) -> int:
         help="run only the stored-sessions section with these store sizes (server_stored.json); "
         "the full run includes it with 10,100,1000",
     )
+    parser.add_argument(
+        "--devices",
+        default="8,16,32",
+        metavar="N,N,...",
+        help="device counts of the paced-devices section (each device 5 fps, its own session)",
+    )
+    parser.add_argument(
+        "--paced-seconds", type=float, default=20.0, help="duration of each paced-devices run"
+    )
+    parser.add_argument(
+        "--paced-only",
+        action="store_true",
+        help="run only the paced-devices section (server_paced.json); the full run includes it",
+    )
     args = parser.parse_args(argv)
+    device_counts = [int(n) for n in args.devices.split(",") if n.strip()]
+    if not device_counts or min(device_counts) < 1 or max(device_counts) > MAX_PACED_DEVICES:
+        parser.error(
+            f"--devices must list counts from 1 to {MAX_PACED_DEVICES}, got {args.devices!r}"
+        )
+    if not 0 < args.paced_seconds <= MAX_PACED_SECONDS:
+        parser.error(
+            f"--paced-seconds must be in (0, {MAX_PACED_SECONDS:g}], got {args.paced_seconds:g}"
+        )
+    paced_frames = paced_frame_count(args.paced_seconds)
+    if args.paced_only:
+        print("encoding frames...", file=sys.stderr)
+        frames, _ = encode_frames(paced_frames, args.scene)
+        with tempfile.TemporaryDirectory() as data_dir:
+            server = ServerProcess(data_dir, quiet=False).start()
+            try:
+                paced = paced_devices(server, frames, device_counts, args.paced_seconds)
+            finally:
+                server.stop()
+        document = {
+            "bench": "server_paced",
+            "machine": machine(),
+            "scene": args.scene,
+            "upstream_bytes_per_frame": float(np.mean([len(f) for f in frames])),
+            "paced_devices": paced,
+        }
+        write_outputs(args.out, "server_paced", document)
+        return 0
     if args.stored_sessions is not None:
         sizes = [int(n) for n in args.stored_sessions.split(",") if n.strip()]
         runs = stored_sessions(sizes)
@@ -298,7 +568,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     print("encoding frames...", file=sys.stderr)
-    frames, keyframes = encode_frames(args.frames, args.scene)
+    frames, keyframes = encode_frames(max(args.frames, paced_frames), args.scene)
     upstream_bytes = float(np.mean([len(f) for f in frames]))
     with tempfile.TemporaryDirectory() as data_dir:
         server = ServerProcess(data_dir, quiet=False).start()
@@ -323,6 +593,7 @@ def main(argv: list[str] | None = None) -> int:
                 mode: asyncio.run(update_bytes(server, keyframes, mode))
                 for mode in ("semanticxr", "baseline")
             }
+            paced = paced_devices(server, frames, device_counts, args.paced_seconds)
         finally:
             server.stop()
 
@@ -349,6 +620,7 @@ def main(argv: list[str] | None = None) -> int:
         "update_bytes_plateau": plateau,
         "update_ratio_percent": ratio,
         "stored_sessions": stored,
+        "paced_devices": paced,
         "targets": targets,
     }
     write_outputs(args.out, "server", document)
