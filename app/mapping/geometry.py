@@ -7,9 +7,14 @@ coordinates; poses are camera-to-world; points are float32 [N, 3] in metres.
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 EMPTY_POINTS = np.zeros((0, 3), np.float32)
+PATCH_EROSION_PX = 2
+"""Mask boundary (px) not lifted from a full-resolution depth patch..."""
+PATCH_MIN_INNER_PX = 30
+"""...unless fewer pixels than this would remain (then the whole mask is lifted)."""
 
 
 def depth_to_rgb_pixel_grid(
@@ -93,6 +98,32 @@ def lift_instances_batched(
     bounds = np.searchsorted(ids, np.asarray(instance_ids, ids.dtype))
     ends = np.searchsorted(ids, np.asarray(instance_ids, ids.dtype), side="right")
     return {iid: points[b:e] for iid, b, e in zip(instance_ids, bounds, ends, strict=True)}
+
+
+def lift_in_patch(
+    instance_image: np.ndarray,
+    instance_id: int,
+    box_px: tuple[int, int, int, int],
+    patch_depth_m: np.ndarray,
+    intrinsics: tuple[float, float, float, float],
+    pose: np.ndarray,
+    max_depth_m: float,
+) -> np.ndarray:
+    """World points [N, 3] of one detection from a full-resolution depth patch of its box.
+
+    instance_image: uint16 [H, W] at RGB size; box_px (x0, y0, x1, y1) half-open, the patch's
+    box; patch_depth_m: float32 [y1 - y0, x1 - x0]. Every mask pixel inside the box with
+    valid depth becomes a point (the depth co-design for small detections).
+    """
+    x0, y0, x1, y1 = box_px
+    mask = instance_image[y0:y1, x0:x1] == instance_id
+    # A detector's mask boundary is where it bleeds onto what lies behind or under the
+    # object; at full resolution there are pixels to spare, so the boundary is not lifted.
+    inner = ndimage.binary_erosion(mask, iterations=PATCH_EROSION_PX)
+    if inner.sum() >= PATCH_MIN_INNER_PX:
+        mask = inner
+    v, u = np.nonzero(mask & valid_depth_mask(patch_depth_m, max_depth_m))
+    return backproject(u + x0, v + y0, patch_depth_m[v, u], intrinsics, pose)
 
 
 def _voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:

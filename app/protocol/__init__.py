@@ -28,10 +28,13 @@ from app.protocol.delta import (
     unpack_update,
 )
 from app.protocol.frame import (
+    DepthPatch,
+    EncodedDepthPatches,
     FrameInput,
     Uint16Image,
     pack_frame,
     parse_frame,
+    patch_rows,
     unpack_frame_message,
 )
 from app.protocol.limits import (
@@ -82,6 +85,8 @@ __all__ = [
     "UnprocessableBody",
     "DeltaError",
     "DeltaMessage",
+    "DepthPatch",
+    "EncodedDepthPatches",
     "EmbeddingInfo",
     "ErrorReply",
     "FrameBudget",
@@ -98,6 +103,7 @@ __all__ = [
     "UpsertEntry",
     "pack_delta",
     "pack_frame",
+    "patch_rows",
     "parse_delta",
     "parse_frame",
     "parse_query_result",
