@@ -17,10 +17,15 @@ from client_sim.encoder import FrameEncoder
 W, H = 80, 60
 
 
-def encoded(ratio=5, with_detections=True) -> dict:
+def sensor() -> tuple[np.ndarray, np.ndarray]:
+    """(rgb uint8 [H, W, 3], depth float32 [H, W] metres) of every encoded test frame."""
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
-    depth = rng.uniform(0.5, 4.0, (H, W)).astype(np.float32)
+    return rgb, rng.uniform(0.5, 4.0, (H, W)).astype(np.float32)
+
+
+def encoded(ratio=5, with_detections=True) -> dict:
+    rgb, depth = sensor()
     ids = np.zeros((H, W), np.uint16)
     ids[10:30, 20:50] = 3
     pose = np.eye(4)
@@ -62,6 +67,34 @@ def test_without_rgb_pixels_everything_but_the_pixels_is_the_same():
         parse_frame(bad, rgb_pixels=False)
 
 
+def test_a_small_detection_carries_its_box_at_full_depth_resolution():
+    _, full_depth = sensor()
+    frame = parse_frame(encoded(ratio=5))
+    [patch] = frame.depth_patches
+    assert patch.box_px == (20, 10, 50, 30)
+    assert patch.depth_m.shape == (20, 30)
+    np.testing.assert_allclose(patch.depth_m, full_depth[10:30, 20:50], atol=0.005 + 1e-6)
+
+
+def test_no_depth_patch_at_full_depth_resolution_or_for_large_boxes():
+    assert parse_frame(encoded(ratio=1)).depth_patches == []
+    message = (
+        FrameEncoder(5, depth_patch_max_area_px=600)
+        .encode(
+            seq=0,
+            t=0.0,
+            rgb=np.zeros((H, W, 3), np.uint8),
+            depth_m=np.ones((H, W), np.float32),
+            pose=np.eye(4),
+            intrinsics=(70.0, 70.0, 39.5, 29.5),
+            instance_ids=np.pad(np.full((20, 30), 3, np.uint16), ((10, 30), (20, 30))),
+            instances=[{"id": 3, "label": "mug", "score": 0.7}],
+        )
+        .message
+    )
+    assert "depth_patches" not in message  # 600 px is not under 600
+
+
 def test_detections_are_optional():
     frame = parse_frame(encoded(with_detections=False))
     assert frame.instance_ids is None and frame.instances == []
@@ -97,6 +130,12 @@ CASES = [
     ("depth.scale", _set("depth.scale", 0)),
     ("detections", _set("detections.w", 40)),
     ("detections.instances", _set("detections.instances", KeyError)),
+    ("depth_patches", _set("depth_patches", [1, 2])),
+    ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 90, 30]])),
+    ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 20, 30]])),
+    ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 50.5, 30]])),
+    ("depth_patches", _set("depth_patches.data", b"\x28\xb5\x2f\xfd garbage")),
+    ("depth_patches", _set("depth_patches.boxes", [[0, 0, W, H], [0, 0, W, H]])),
 ]
 
 
