@@ -48,7 +48,8 @@ class Knobs:
 
     min_mapping_bbox_area: int = 2000
     """Detections whose mask bounding box is smaller than this (px at RGB size) are deferred
-    (semanticxr mode; the baseline integrates every detection)."""
+    unless the frame carries a full-resolution depth patch of their box, which our device
+    sends for exactly these (semanticxr mode; the baseline integrates every detection)."""
 
     depth_downsampling_ratio: int = 5
     """Per-dimension depth downsampling on the device before upload."""
