@@ -424,8 +424,15 @@ class MappingEngine:
         """The object's geometry after a merge: capped in semanticxr mode, not in baseline.
 
         start_m: the merged objects' current spacing (the cap never refines it)."""
-        max_points = self.knobs.max_object_points_server if self.mode == "semanticxr" else 1 << 62
-        return geo.cap_points(points, max_points, self._resolution_m, start_m)
+        if self.mode == "baseline":
+            return geo.cap_points(points, 1 << 62, self._resolution_m, start_m)
+        return geo.cap_points(
+            points,
+            self.knobs.max_object_points_server,
+            self._resolution_m,
+            start_m,
+            self.knobs.max_object_spacing_m,
+        )
 
     @property
     def _full(self) -> bool:

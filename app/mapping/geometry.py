@@ -195,7 +195,11 @@ def voxel_sample(points: np.ndarray, voxel_m: float) -> np.ndarray:
 
 
 def cap_points(
-    points: np.ndarray, max_points: int, voxel_m: float, start_m: float | None = None
+    points: np.ndarray,
+    max_points: int,
+    voxel_m: float,
+    start_m: float | None = None,
+    max_spacing_m: float | None = None,
 ) -> tuple[np.ndarray, float]:
     """At most `max_points` points that still cover the whole object, and their spacing.
 
@@ -205,7 +209,10 @@ def cap_points(
     merge into a capped object keeps at least that spacing, so the cap costs one or two
     samplings instead of a search), else at the estimate for a surface (n ~ 1 / voxel^2),
     and grows by that estimate until the voxel count fits; then samples once. Deterministic.
-    Returns (float32 [M <= max_points, 3], the voxel in metres).
+    max_spacing_m: the spacing never grows past this, even if more than `max_points` remain
+    (a cap by surface density for large objects).
+    Returns (float32 [M, 3], M <= max_points unless max_spacing_m stops the search, the voxel
+    in metres).
     """
     points = voxel_downsample(points, voxel_m)
     if len(points) <= max_points:
@@ -214,13 +221,17 @@ def cap_points(
         spacing = voxel_m * np.sqrt(len(points) / max_points)
     else:
         spacing = max(voxel_m, start_m)
+    ceiling_m = np.inf if max_spacing_m is None else max(voxel_m, max_spacing_m)
+    spacing = min(spacing, ceiling_m)
     count = voxel_count(points, spacing)
     extent_m = float(np.ptp(points, axis=0).max()) + voxel_m
-    while count > max_points and spacing < 4 * extent_m:
-        spacing *= max(1.02, 1.005 * np.sqrt(count / max_points))
+    while count > max_points and spacing < min(4 * extent_m, ceiling_m):
+        spacing = min(ceiling_m, spacing * max(1.02, 1.005 * np.sqrt(count / max_points)))
         count = voxel_count(points, spacing)
     best = voxel_sample(points, spacing)
-    if len(best) > max_points:  # a cap below the 2x2x2 voxels any grid can straddle
+    if (
+        len(best) > max_points and spacing < ceiling_m
+    ):  # a cap below the 2x2x2 voxels any grid can straddle
         return best[np.linspace(0, len(best) - 1, max_points).astype(np.intp)], float(spacing)
     return best, float(spacing)
 
