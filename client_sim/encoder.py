@@ -37,7 +37,7 @@ from app.codecs import (
 from app.codecs import PNG_LEVEL as DEFAULT_PNG_LEVEL
 from app.codecs import ZSTD_LEVEL as DEFAULT_ZSTD_LEVEL
 from app.config import Knobs
-from app.protocol import EncodedDepthPatches, Uint16Image, pack_frame, patch_rows
+from app.protocol import EncodedDepthPatches, Uint16Image, pack_depth_patches, pack_frame
 
 DEPTH_DOWNSAMPLING_METHODS: tuple[str, ...] = ("nearest", "min")
 """'nearest': the block's centre pixel; 'min': the block's nearest valid depth."""
@@ -344,17 +344,9 @@ class FrameEncoder:
         ]
         if not boxes:
             return None
-        units = depth_to_uint16(depth_m, self.depth_scale_m)
-        pixels = np.concatenate([units[y0:y1, x0:x1].ravel() for x0, y0, x1, y1 in boxes])
-        width = instance_ids.shape[1]
-        rows = patch_rows(boxes, width)
-        padded = np.zeros(rows * width, np.uint16)
-        padded[: len(pixels)] = pixels
-        return EncodedDepthPatches(
-            codec="zstd",
-            boxes=boxes,
-            rows=rows,
-            data=encode_uint16_image_at_level(padded.reshape(rows, width), "zstd", self.zstd_level),
+        level = self.zstd_level
+        return pack_depth_patches(
+            depth_to_uint16(depth_m, self.depth_scale_m), boxes, "zstd", level
         )
 
     def _encode_detections(self, instance_ids: np.ndarray, rgb: np.ndarray) -> Uint16Image:

@@ -84,6 +84,26 @@ def patch_rows(boxes: Sequence[Sequence[int]], width: int) -> int:
     return max(1, -(-pixels // max(width, 1)))
 
 
+def pack_depth_patches(
+    depth_units: np.ndarray,
+    boxes: Sequence[tuple[int, int, int, int]],
+    codec: str = "zstd",
+    level: int | None = None,
+) -> EncodedDepthPatches:
+    """The `depth_patches` part of a frame: `depth_units` (uint16 [H, W] at RGB size, in the
+    frame's depth units) over each box (x0, y0, x1, y1), half-open, inside the image."""
+    height, width = depth_units.shape
+    pixels = np.concatenate(
+        [np.asarray(depth_units[y0:y1, x0:x1], np.uint16).ravel() for x0, y0, x1, y1 in boxes]
+        or [np.zeros(0, np.uint16)]
+    )
+    rows = patch_rows(boxes, width)
+    padded = np.zeros(rows * width, np.uint16)
+    padded[: len(pixels)] = pixels
+    data = codecs.encode_uint16_image(padded.reshape(rows, width), codec, level)
+    return EncodedDepthPatches(codec, [tuple(int(v) for v in b) for b in boxes], rows, data)
+
+
 @dataclass(frozen=True)
 class Uint16Image:
     """An encoded uint16 image part of a frame (depth or detection instance ids)."""

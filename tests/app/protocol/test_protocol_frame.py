@@ -5,13 +5,13 @@ from __future__ import annotations
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from app.codecs import DEPTH_CODECS, encode_jpeg, encode_uint16_image, pose_to_bytes
 from app.errors import InputError
-from app.protocol import Uint16Image, pack_frame, parse_frame
+from app.protocol import Uint16Image, pack_depth_patches, pack_frame, parse_frame
 from client_sim.encoder import FrameEncoder
 
 W, H = 80, 60
@@ -217,3 +217,39 @@ def test_a_packed_frame_survives_msgpack_and_parses_to_the_same_frame(
         assert frame.instances == frame_instances
     else:
         assert frame.instance_ids is None and frame.instances == []
+
+
+@st.composite
+def boxes_in(draw, width: int, height: int):
+    """Non-empty half-open boxes (x0, y0, x1, y1) inside a width x height image."""
+    x0 = draw(st.integers(0, width - 1))
+    y0 = draw(st.integers(0, height - 1))
+    return (x0, y0, draw(st.integers(x0 + 1, width)), draw(st.integers(y0 + 1, height)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    data=st.data(),
+    size=st.tuples(st.integers(1, 24), st.integers(1, 24)),
+    codec=st.sampled_from(DEPTH_CODECS),
+)
+def test_depth_patches_survive_msgpack_and_parse_to_the_same_depth(data, size, codec):
+    width, height = size
+    units = data.draw(hnp.arrays(np.uint16, (height, width), elements=st.integers(0, 65535)))
+    boxes = data.draw(st.lists(boxes_in(width, height), min_size=1, max_size=3))
+    assume(sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes) <= width * height)
+    message = pack_frame(
+        seq=1,
+        t=0.0,
+        pose=pose_to_bytes(np.eye(4)),
+        intrinsics=(10.0, 10.0, 1.0, 1.0),
+        rgb_jpeg=encode_jpeg(np.zeros((height, width, 3), np.uint8), 90),
+        depth=Uint16Image("raw", width, height, units.tobytes()),
+        depth_scale_m=0.001,
+        depth_patches=pack_depth_patches(units, boxes, codec),
+    )
+    frame = parse_frame(msgpack.unpackb(msgpack.packb(message)))
+    assert [p.box_px for p in frame.depth_patches] == boxes
+    for patch, (x0, y0, x1, y1) in zip(frame.depth_patches, boxes, strict=True):
+        expected = units[y0:y1, x0:x1].astype(np.float32) * np.float32(0.001)
+        np.testing.assert_array_equal(patch.depth_m, expected)
