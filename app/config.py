@@ -31,10 +31,11 @@ class Knobs:
     max_object_points_server: int = 2000
     """Per-object point cap on the server (semanticxr mode; the baseline is uncapped)."""
 
-    max_object_spacing_m: float | None = None
+    max_object_spacing_m: float | None = 0.035
     """The server's cap never spreads an object's points wider apart than this: a large object
-    keeps more than `max_object_points_server` points rather than become sparser than a small
-    one (a cap by surface density; semanticxr mode). None: the count cap alone."""
+    keeps more than `max_object_points_server` points rather than become sparser than the
+    small things beside it, which would then win its surface (a cap by surface density;
+    semanticxr mode). None: the count cap alone."""
 
     max_object_points_client: int = 200
     """Per-object point cap in downstream updates and on the device."""
