@@ -31,6 +31,12 @@ class Knobs:
     max_object_points_server: int = 2000
     """Per-object point cap on the server (semanticxr mode; the baseline is uncapped)."""
 
+    max_object_spacing_m: float | None = 0.035
+    """The server's cap never spreads an object's points wider apart than this: a large object
+    keeps more than `max_object_points_server` points rather than become sparser than the
+    small things beside it, which would then win its surface (a cap by surface density;
+    semanticxr mode). None: the count cap alone."""
+
     max_object_points_client: int = 200
     """Per-object point cap in downstream updates and on the device."""
 
@@ -48,7 +54,8 @@ class Knobs:
 
     min_mapping_bbox_area: int = 2000
     """Detections whose mask bounding box is smaller than this (px at RGB size) are deferred
-    (semanticxr mode; the baseline integrates every detection)."""
+    unless the frame carries a full-resolution depth patch of their box, which our device
+    sends for exactly these (semanticxr mode; the baseline integrates every detection)."""
 
     depth_downsampling_ratio: int = 5
     """Per-dimension depth downsampling on the device before upload."""
@@ -85,6 +92,7 @@ class Knobs:
 KNOB_RANGES: dict[str, tuple[float, float]] = {  # inclusive bounds of numeric knobs
     "net_latency_switch_threshold_ms": (0, 60_000),
     "max_object_points_server": (10, 1_000_000),
+    "max_object_spacing_m": (0.001, 10),
     "max_object_points_client": (1, 1_000_000),
     "distance_threshold_m": (0, 10_000),
     "local_map_budget_mb": (0.001, 1_000_000),
@@ -129,7 +137,7 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
             raise KnobError(f"knob {name!r} is too long")
         return [v.strip() for v in value]
     if value is None:
-        if name == "distance_threshold_m":
+        if name in ("distance_threshold_m", "max_object_spacing_m"):
             return None
         raise KnobError(f"knob {name!r} cannot be null")
     if isinstance(value, bool):

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 import msgpack
 import numpy as np
 from PIL import Image
+from scipy import ndimage
 
 if TYPE_CHECKING:
     from client_sim.sources.base import SourceFrame
@@ -35,7 +36,8 @@ from app.codecs import (
 )
 from app.codecs import PNG_LEVEL as DEFAULT_PNG_LEVEL
 from app.codecs import ZSTD_LEVEL as DEFAULT_ZSTD_LEVEL
-from app.protocol import Uint16Image, pack_frame
+from app.config import Knobs
+from app.protocol import EncodedDepthPatches, Uint16Image, pack_depth_patches, pack_frame
 
 DEPTH_DOWNSAMPLING_METHODS: tuple[str, ...] = ("nearest", "min")
 """'nearest': the block's centre pixel; 'min': the block's nearest valid depth."""
@@ -56,6 +58,9 @@ DEFAULT_DEPTH_SCALE_M = 0.01
 bits of finer units are mostly that noise, which no lossless codec can compress."""
 DEFAULT_DETECTIONS_CODEC = "zstd"
 """zstd beats PNG on instance-id images (large flat regions)."""
+DEFAULT_DEPTH_PATCH_MAX_AREA_PX = Knobs().min_mapping_bbox_area
+"""Detections whose box is smaller than this (px) get a full-resolution depth patch: exactly
+the ones the server would otherwise defer (the knob `min_mapping_bbox_area`)."""
 # The zstd and PNG levels of uint16 images are the codecs' defaults (app.codecs.ZSTD_LEVEL,
 # PNG_LEVEL), imported above as DEFAULT_ZSTD_LEVEL and DEFAULT_PNG_LEVEL.
 
@@ -99,6 +104,21 @@ def downsample_depth(depth_m: np.ndarray, ratio: int, method: str = "nearest") -
     nearest_valid = np.where(valid, blocks, np.inf).min(axis=(1, 3))
     nearest_valid[~np.isfinite(nearest_valid)] = 0.0
     return nearest_valid
+
+
+def small_boxes(instance_ids: np.ndarray, max_area_px: int) -> list[tuple | None]:
+    """For each instance id 1..max of `instance_ids` [H, W], its mask's box (x0, y0, x1, y1),
+    half-open, if the box is smaller than `max_area_px`; None for larger or absent ids."""
+    out: list[tuple | None] = []
+    for found in ndimage.find_objects(np.asarray(instance_ids).astype(np.int64)):
+        if found is None:
+            out.append(None)
+            continue
+        rows, cols = found
+        box = (int(cols.start), int(rows.start), int(cols.stop), int(rows.stop))
+        area = (box[2] - box[0]) * (box[3] - box[1])
+        out.append(box if area < max_area_px else None)
+    return out
 
 
 def depth_to_uint16(depth_m: np.ndarray, scale_m: float = 0.001) -> np.ndarray:
@@ -169,10 +189,13 @@ class FrameEncoder:
         depth_method: str = "nearest",
         jpeg_optimize: bool = DEFAULT_JPEG_OPTIMIZE,
         zstd_level: int = DEFAULT_ZSTD_LEVEL,
+        depth_patch_max_area_px: int = DEFAULT_DEPTH_PATCH_MAX_AREA_PX,
     ) -> None:
         """depth_scale_m: metres per depth unit on the wire (0 < scale <= 1, the protocol's
         range); depth is rounded to it, so it comes back within scale / 2. zstd_level: 1..22,
-        for whichever of depth and detections uses zstd. Bad values raise ValueError."""
+        for whichever of depth and detections uses zstd. depth_patch_max_area_px: with a
+        depth ratio above 1, each detection whose box is smaller than this also goes up as a
+        full-resolution depth patch of its box (0: none). Bad values raise ValueError."""
         if depth_codec not in DEPTH_CODECS:
             raise ValueError(f"unknown depth codec {depth_codec!r}, expected one of {DEPTH_CODECS}")
         if detections_codec not in DEPTH_CODECS:
@@ -203,6 +226,11 @@ class FrameEncoder:
             raise ValueError(
                 f"depth_scale_m must be metres per unit in (0, 1], got {depth_scale_m!r}"
             )
+        if not _is_int(depth_patch_max_area_px) or depth_patch_max_area_px < 0:
+            raise ValueError(
+                f"depth_patch_max_area_px must be an integer >= 0, got {depth_patch_max_area_px!r}"
+            )
+        self.depth_patch_max_area_px = int(depth_patch_max_area_px)
         self.depth_downsampling_ratio = depth_downsampling_ratio
         self.jpeg_quality = int(jpeg_quality)
         self.jpeg_optimize = bool(jpeg_optimize)
@@ -267,9 +295,12 @@ class FrameEncoder:
         pose_data = pose_to_bytes(validate_rigid_pose(pose))
 
         detections, detections_bytes = None, 0
+        patches, patches_bytes = None, 0
         if instance_ids is not None:
             detections = self._encode_detections(instance_ids, rgb)
             detections_bytes = len(detections.data)
+            patches = self._encode_depth_patches(np.asarray(instance_ids), depth_m)
+            patches_bytes = len(patches.data) if patches is not None else 0
         message = pack_frame(
             seq=seq,
             t=t,
@@ -285,16 +316,38 @@ class FrameEncoder:
             depth_scale_m=self.depth_scale_m,
             detections=detections,
             instances=instances or [],
+            depth_patches=patches,
         )
 
         bytes_by_kind = {
             "rgb": len(rgb_jpeg),
             "depth": len(depth_data),
             "detections": detections_bytes,
+            "depth_patches": patches_bytes,
             "pose": len(pose_data),
             "total": len(msgpack.packb(message, use_bin_type=True)),
         }
         return EncodedFrame(message=message, bytes_by_kind=bytes_by_kind)
+
+    def _encode_depth_patches(
+        self, instance_ids: np.ndarray, depth_m: np.ndarray
+    ) -> EncodedDepthPatches | None:
+        """Full-resolution depth of the boxes of the detections smaller than
+        `depth_patch_max_area_px` (the ones the server could not map at the downsampled
+        depth), or None when there are none or depth is not downsampled."""
+        if self.depth_downsampling_ratio == 1 or self.depth_patch_max_area_px == 0:
+            return None
+        boxes = [
+            box
+            for box in small_boxes(instance_ids, self.depth_patch_max_area_px)
+            if box is not None
+        ]
+        if not boxes:
+            return None
+        level = self.zstd_level
+        return pack_depth_patches(
+            depth_to_uint16(depth_m, self.depth_scale_m), boxes, "zstd", level
+        )
 
     def _encode_detections(self, instance_ids: np.ndarray, rgb: np.ndarray) -> Uint16Image:
         """The instance-id image of the "detections" part, at RGB size."""

@@ -170,7 +170,7 @@ def _encode_keyframes(
     )
     encoders = {ratio: FrameEncoder(ratio, **cfg.encoder_options) for ratio in ratios}
     messages: dict[int, list] = {ratio: [] for ratio in ratios}
-    upstream = {"rgb": 0, "depth": 0, "detections": 0, "total": 0}
+    upstream = {"rgb": 0, "depth": 0, "detections": 0, "depth_patches": 0, "total": 0}
     interval = cfg.knobs.keyframe_interval
     n_keyframes = len(range(0, cfg.frames, interval))
     noise_free = DetectionModel(source.scene, "none", cfg.seed)

@@ -37,7 +37,7 @@ from app.perception.base import (
     PerceptionBackend,
 )
 from app.perception.detections import detections_from_instance_image
-from app.protocol import MAX_INTRINSIC_PX, FrameInput
+from app.protocol import MAX_INTRINSIC_PX, DepthPatch, FrameInput
 from app.semantics import TextEncoder
 
 log = logging.getLogger(__name__)
@@ -63,6 +63,18 @@ SIGHTING_DEPTH_TOLERANCE_M = 0.1
 BASELINE_RESOLUTION_M = 0.01
 """The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
 a depth pixel at mapping range, so repeated views do not stack identical points."""
+
+
+def _patch_covering(
+    patches: list[DepthPatch], box_px: tuple[int, int, int, int]
+) -> DepthPatch | None:
+    """The first depth patch whose box holds all of `box_px` (x0, y0, x1, y1), or None."""
+    x0, y0, x1, y1 = box_px
+    for patch in patches:
+        px0, py0, px1, py1 = patch.box_px
+        if px0 <= x0 and py0 <= y0 and x1 <= px1 and y1 <= py1:
+            return patch
+    return None
 
 
 @dataclass
@@ -283,25 +295,38 @@ class MappingEngine:
         """Filter (skip set, deferral), lift, de-duplicate and embed the frame's detections."""
         skip = {label.lower() for label in self.knobs.skip_mapping_set}
         kept: list[Detection] = []
+        patch_of: dict[int, DepthPatch] = {}
+        """Small detections lifted from a full-resolution depth patch, by instance id."""
         for det in detections.detections:
             if det.label.lower() in skip:
                 stats.skipped += 1
             elif self.mode == "semanticxr" and det.bbox_area_px < self.knobs.min_mapping_bbox_area:
-                stats.deferred += 1  # too small to map well at this depth resolution
+                patch = _patch_covering(frame.depth_patches, det.bbox_px)
+                if patch is None:
+                    stats.deferred += 1  # too small to map well at this depth resolution
+                else:
+                    patch_of[det.instance_id] = patch
+                    kept.append(det)
             else:
                 kept.append(det)
         if not kept:
             return []
 
-        args = (
-            frame.depth_m,
-            frame.intrinsics,
-            np.asarray(frame.pose, np.float64),
-            self.knobs.max_depth_m,
-        )
+        pose = np.asarray(frame.pose, np.float64)
+        args = (frame.depth_m, frame.intrinsics, pose, self.knobs.max_depth_m)
         if self.mode == "semanticxr":
-            ids = [d.instance_id for d in kept]
+            ids = [d.instance_id for d in kept if d.instance_id not in patch_of]
             lifted = geo.lift_instances_batched(detections.instance_image, ids, *args)
+            for iid, patch in patch_of.items():
+                lifted[iid] = geo.lift_in_patch(
+                    detections.instance_image,
+                    iid,
+                    patch.box_px,
+                    patch.depth_m,
+                    frame.intrinsics,
+                    pose,
+                    self.knobs.max_depth_m,
+                )
             points = [lifted[d.instance_id] for d in kept]
         else:
             points = [geo.lift_detection(detections.mask(d), *args) for d in kept]
@@ -399,8 +424,15 @@ class MappingEngine:
         """The object's geometry after a merge: capped in semanticxr mode, not in baseline.
 
         start_m: the merged objects' current spacing (the cap never refines it)."""
-        max_points = self.knobs.max_object_points_server if self.mode == "semanticxr" else 1 << 62
-        return geo.cap_points(points, max_points, self._resolution_m, start_m)
+        if self.mode == "baseline":
+            return geo.cap_points(points, 1 << 62, self._resolution_m, start_m)
+        return geo.cap_points(
+            points,
+            self.knobs.max_object_points_server,
+            self._resolution_m,
+            start_m,
+            self.knobs.max_object_spacing_m,
+        )
 
     @property
     def _full(self) -> bool:

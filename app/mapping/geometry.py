@@ -7,9 +7,14 @@ coordinates; poses are camera-to-world; points are float32 [N, 3] in metres.
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 EMPTY_POINTS = np.zeros((0, 3), np.float32)
+PATCH_EROSION_PX = 2
+"""Mask boundary (px) not lifted from a full-resolution depth patch..."""
+PATCH_MIN_INNER_PX = 30
+"""...unless fewer pixels than this would remain (then the whole mask is lifted)."""
 
 
 def depth_to_rgb_pixel_grid(
@@ -95,6 +100,32 @@ def lift_instances_batched(
     return {iid: points[b:e] for iid, b, e in zip(instance_ids, bounds, ends, strict=True)}
 
 
+def lift_in_patch(
+    instance_image: np.ndarray,
+    instance_id: int,
+    box_px: tuple[int, int, int, int],
+    patch_depth_m: np.ndarray,
+    intrinsics: tuple[float, float, float, float],
+    pose: np.ndarray,
+    max_depth_m: float,
+) -> np.ndarray:
+    """World points [N, 3] of one detection from a full-resolution depth patch of its box.
+
+    instance_image: uint16 [H, W] at RGB size; box_px (x0, y0, x1, y1) half-open, the patch's
+    box; patch_depth_m: float32 [y1 - y0, x1 - x0]. Every mask pixel inside the box with
+    valid depth becomes a point (the depth co-design for small detections).
+    """
+    x0, y0, x1, y1 = box_px
+    mask = instance_image[y0:y1, x0:x1] == instance_id
+    # A detector's mask boundary is where it bleeds onto what lies behind or under the
+    # object; at full resolution there are pixels to spare, so the boundary is not lifted.
+    inner = ndimage.binary_erosion(mask, iterations=PATCH_EROSION_PX)
+    if inner.sum() >= PATCH_MIN_INNER_PX:
+        mask = inner
+    v, u = np.nonzero(mask & valid_depth_mask(patch_depth_m, max_depth_m))
+    return backproject(u + x0, v + y0, patch_depth_m[v, u], intrinsics, pose)
+
+
 def _voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
     """int64 [N] key of each point's voxel, ordered like the voxels' (x, y, z) indices.
 
@@ -164,7 +195,11 @@ def voxel_sample(points: np.ndarray, voxel_m: float) -> np.ndarray:
 
 
 def cap_points(
-    points: np.ndarray, max_points: int, voxel_m: float, start_m: float | None = None
+    points: np.ndarray,
+    max_points: int,
+    voxel_m: float,
+    start_m: float | None = None,
+    max_spacing_m: float | None = None,
 ) -> tuple[np.ndarray, float]:
     """At most `max_points` points that still cover the whole object, and their spacing.
 
@@ -174,7 +209,10 @@ def cap_points(
     merge into a capped object keeps at least that spacing, so the cap costs one or two
     samplings instead of a search), else at the estimate for a surface (n ~ 1 / voxel^2),
     and grows by that estimate until the voxel count fits; then samples once. Deterministic.
-    Returns (float32 [M <= max_points, 3], the voxel in metres).
+    max_spacing_m: the spacing never grows past this, even if more than `max_points` remain
+    (a cap by surface density for large objects).
+    Returns (float32 [M, 3], M <= max_points unless max_spacing_m stops the search, the voxel
+    in metres).
     """
     points = voxel_downsample(points, voxel_m)
     if len(points) <= max_points:
@@ -183,13 +221,17 @@ def cap_points(
         spacing = voxel_m * np.sqrt(len(points) / max_points)
     else:
         spacing = max(voxel_m, start_m)
+    ceiling_m = np.inf if max_spacing_m is None else max(voxel_m, max_spacing_m)
+    spacing = min(spacing, ceiling_m)
     count = voxel_count(points, spacing)
     extent_m = float(np.ptp(points, axis=0).max()) + voxel_m
-    while count > max_points and spacing < 4 * extent_m:
-        spacing *= max(1.02, 1.005 * np.sqrt(count / max_points))
+    while count > max_points and spacing < min(4 * extent_m, ceiling_m):
+        spacing = min(ceiling_m, spacing * max(1.02, 1.005 * np.sqrt(count / max_points)))
         count = voxel_count(points, spacing)
     best = voxel_sample(points, spacing)
-    if len(best) > max_points:  # a cap below the 2x2x2 voxels any grid can straddle
+    if (
+        len(best) > max_points and spacing < ceiling_m
+    ):  # a cap below the 2x2x2 voxels any grid can straddle
         return best[np.linspace(0, len(best) - 1, max_points).astype(np.intp)], float(spacing)
     return best, float(spacing)
 

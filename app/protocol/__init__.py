@@ -28,10 +28,14 @@ from app.protocol.delta import (
     unpack_update,
 )
 from app.protocol.frame import (
+    DepthPatch,
+    EncodedDepthPatches,
     FrameInput,
     Uint16Image,
+    pack_depth_patches,
     pack_frame,
     parse_frame,
+    patch_rows,
     unpack_frame_message,
 )
 from app.protocol.limits import (
@@ -82,6 +86,8 @@ __all__ = [
     "UnprocessableBody",
     "DeltaError",
     "DeltaMessage",
+    "DepthPatch",
+    "EncodedDepthPatches",
     "EmbeddingInfo",
     "ErrorReply",
     "FrameBudget",
@@ -97,7 +103,9 @@ __all__ = [
     "Uint16Image",
     "UpsertEntry",
     "pack_delta",
+    "pack_depth_patches",
     "pack_frame",
+    "patch_rows",
     "parse_delta",
     "parse_frame",
     "parse_query_result",

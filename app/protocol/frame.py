@@ -36,6 +36,8 @@ class FrameInput:
     rgb:          uint8 [H, W, 3], or None where a backend does not need it
     instance_ids: uint16 [H, W] instance image sent by the device (0 = none), optional
     instances:    [{"id": int, "label": str, "score": float}] for the ids in instance_ids
+    depth_patches: full-resolution depth of a few boxes of the RGB image (the depth
+                  co-design for small things: `DepthPatch`), optional
     """
 
     seq: int
@@ -47,6 +49,59 @@ class FrameInput:
     rgb: np.ndarray | None = None
     instance_ids: np.ndarray | None = None
     instances: list[dict] = field(default_factory=list)
+    depth_patches: list[DepthPatch] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class DepthPatch:
+    """Depth at RGB resolution over one box of the RGB image.
+
+    box_px:  (x0, y0, x1, y1) in RGB pixels, half-open
+    depth_m: float32 [y1 - y0, x1 - x0] metres, 0 = invalid
+    """
+
+    box_px: tuple[int, int, int, int]
+    depth_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class EncodedDepthPatches:
+    """The encoded `depth_patches` part of a frame: the boxes' depth pixels, box after box,
+    each row-major, zero-padded to whole rows of the RGB width, as one uint16 image."""
+
+    codec: str
+    """One of `app.codecs.DEPTH_CODECS`."""
+    boxes: list[tuple[int, int, int, int]]
+    """(x0, y0, x1, y1) per patch, RGB pixels, half-open."""
+    rows: int
+    """Rows of the padded image (its width is the RGB width)."""
+    data: bytes
+
+
+def patch_rows(boxes: Sequence[Sequence[int]], width: int) -> int:
+    """Rows of RGB width that hold the boxes' pixels one after another (the last row padded)."""
+    pixels = sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes)
+    return max(1, -(-pixels // max(width, 1)))
+
+
+def pack_depth_patches(
+    depth_units: np.ndarray,
+    boxes: Sequence[tuple[int, int, int, int]],
+    codec: str = "zstd",
+    level: int | None = None,
+) -> EncodedDepthPatches:
+    """The `depth_patches` part of a frame: `depth_units` (uint16 [H, W] at RGB size, in the
+    frame's depth units) over each box (x0, y0, x1, y1), half-open, inside the image."""
+    height, width = depth_units.shape
+    pixels = np.concatenate(
+        [np.asarray(depth_units[y0:y1, x0:x1], np.uint16).ravel() for x0, y0, x1, y1 in boxes]
+        or [np.zeros(0, np.uint16)]
+    )
+    rows = patch_rows(boxes, width)
+    padded = np.zeros(rows * width, np.uint16)
+    padded[: len(pixels)] = pixels
+    data = codecs.encode_uint16_image(padded.reshape(rows, width), codec, level)
+    return EncodedDepthPatches(codec, [tuple(int(v) for v in b) for b in boxes], rows, data)
 
 
 @dataclass(frozen=True)
@@ -70,12 +125,14 @@ def pack_frame(
     depth_scale_m: float,
     detections: Uint16Image | None = None,
     instances: Sequence[dict] = (),
+    depth_patches: EncodedDepthPatches | None = None,
 ) -> dict:
     """A v1 `frame` message, ready for `msgpack.packb`, from its already-encoded parts.
 
     pose: 64 bytes (`codecs.pose_to_bytes`); intrinsics (fx, fy, cx, cy) of the RGB image;
     depth: the (downsampled) depth image in units of `depth_scale_m` metres; detections: the
-    instance-id image at RGB size, with `instances` [{"id", "label", "score"}] describing it.
+    instance-id image at RGB size, with `instances` [{"id", "label", "score"}] describing it;
+    depth_patches: full-resolution depth of some boxes, in units of `depth_scale_m` too.
     """
     if instances and detections is None:
         raise ValueError("instances given without a detections image")
@@ -104,6 +161,12 @@ def pack_frame(
                 {"id": int(inst["id"]), "label": str(inst["label"]), "score": float(inst["score"])}
                 for inst in instances
             ],
+        }
+    if depth_patches is not None and depth_patches.boxes:
+        message["depth_patches"] = {
+            "codec": depth_patches.codec,
+            "boxes": [[int(v) for v in box] for box in depth_patches.boxes],
+            "data": depth_patches.data,
         }
     return message
 
@@ -231,6 +294,8 @@ def parse_frame(
             field="detections",
         )
 
+    patches = _parse_depth_patches(message.get("depth_patches"), width, height, scale, budget)
+
     return FrameInput(
         seq=seq,
         t=t,
@@ -241,4 +306,53 @@ def parse_frame(
         rgb=rgb,
         instance_ids=instance_ids,
         instances=instances,
+        depth_patches=patches,
     )
+
+
+def _parse_depth_patches(
+    part: Any, width: int, height: int, scale: float, budget: FrameBudget
+) -> list[DepthPatch]:
+    """The optional `depth_patches` part (v1 extension): boxes inside the RGB image, their
+    pixels at most the RGB image's, in the depth's units (`depth.scale`)."""
+    if part is None:
+        return []
+    if not isinstance(part, dict):
+        raise InputError("depth_patches", "must be a map")
+    boxes = _require(part, "boxes", list, "depth_patches.")
+    budget.check_instances("depth_patches.boxes", len(boxes))
+    checked = []
+    for k, box in enumerate(boxes):
+        if not (
+            isinstance(box, list)
+            and len(box) == 4
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in box)
+        ):
+            raise InputError(f"depth_patches.boxes[{k}]", "must be 4 integers [x0, y0, x1, y1]")
+        x0, y0, x1, y1 = box
+        if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+            raise InputError(
+                f"depth_patches.boxes[{k}]",
+                f"{box} must be a non-empty box inside the {width}x{height} RGB image",
+            )
+        checked.append((x0, y0, x1, y1))
+    if not checked:
+        return []
+    rows = patch_rows(checked, width)
+    if rows > height:
+        raise InputError("depth_patches", "the boxes hold more pixels than the RGB image")
+    budget.check_pixels("depth_patches", width, rows)
+    units = codecs.decode_uint16_image(
+        _require(part, "data", bytes, "depth_patches."),
+        _require(part, "codec", str, "depth_patches."),
+        width,
+        rows,
+        field="depth_patches",
+    ).reshape(-1)
+    patches, start = [], 0
+    for x0, y0, x1, y1 in checked:
+        n = (x1 - x0) * (y1 - y0)
+        depth_m = units[start : start + n].reshape(y1 - y0, x1 - x0).astype(np.float32)
+        patches.append(DepthPatch((x0, y0, x1, y1), depth_m * np.float32(scale)))
+        start += n
+    return patches

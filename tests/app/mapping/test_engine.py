@@ -61,7 +61,9 @@ def test_object_bbox_matches_the_rectangle(encoder):
 
 
 def test_point_cap_holds_after_many_merges(encoder):
-    engine = make_engine(encoder, max_object_points_server=150, voxel_size_m=0.01)
+    engine = make_engine(
+        encoder, max_object_points_server=150, voxel_size_m=0.01, max_object_spacing_m=None
+    )
     big = Rect(1, "sofa", -1.0, -0.6, 1.0, 0.6, 2.5)
     for step in range(12):
         engine.integrate(render_rects([big], cam_xy=(0.03 * step, -0.02 * step), ratio=1))
@@ -69,6 +71,16 @@ def test_point_cap_holds_after_many_merges(encoder):
     (obj,) = engine.objects.values()
     # capped geometry still spans the whole object
     assert obj.bbox[3] - obj.bbox[0] > 1.8 and obj.bbox[4] - obj.bbox[1] > 1.0
+
+
+def test_a_density_cap_keeps_a_large_object_as_dense_as_its_spacing(encoder):
+    engine = make_engine(encoder, max_object_points_server=150, max_object_spacing_m=0.05)
+    for step in range(4):
+        sofa = Rect(1, "sofa", -1.0, -0.6, 1.0, 0.6, 2.5)
+        engine.integrate(render_rects([sofa], cam_xy=(0.02 * step, 0.0), ratio=1))
+        (obj,) = engine.objects.values()
+        # 2 m x 1.2 m at 5 cm: ~40 x 24 points, more than the count cap of 150 allows
+        assert obj.resolution_m <= 0.05 and len(obj.points) > 600
 
 
 def test_baseline_keeps_uncapped_geometry(encoder):

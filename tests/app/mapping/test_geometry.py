@@ -107,6 +107,25 @@ def test_cap_from_a_start_spacing_holds_and_never_refines_it(points, cap, start)
 
 
 @settings(max_examples=60, deadline=None)
+@given(points=clouds, cap=st.integers(1, 100), max_spacing=st.floats(0.05, 2.0))
+def test_a_density_cap_never_spreads_points_wider_than_its_spacing(points, cap, max_spacing):
+    out, spacing = geo.cap_points(points, cap, 0.05, max_spacing_m=max_spacing)
+    assert 0.05 <= spacing <= max_spacing
+    if len(out) > cap:  # over the count: only because the spacing reached its ceiling
+        assert spacing == max_spacing
+        assert len(out) == geo.voxel_count(geo.voxel_downsample(points, 0.05), max_spacing)
+
+
+def test_a_large_surface_keeps_its_density_under_a_density_cap():
+    u, v = np.meshgrid(np.arange(0, 2.0, 0.01), np.arange(0, 1.0, 0.01))
+    wall = np.stack([u.ravel(), v.ravel(), np.zeros(u.size)], axis=1).astype(np.float32)
+    capped, spacing = geo.cap_points(wall, 200, 0.025)
+    dense, dense_spacing = geo.cap_points(wall, 200, 0.025, max_spacing_m=0.04)
+    assert len(capped) <= 200 and spacing > 0.09  # 2 m2 in 200 points: ~10 cm apart
+    assert dense_spacing == 0.04 and len(dense) == 50 * 25
+
+
+@settings(max_examples=60, deadline=None)
 @given(
     sets=st.lists(
         arrays(np.float32, st.tuples(st.integers(0, 30), st.just(3)), elements=finite), max_size=5

@@ -5,22 +5,27 @@ from __future__ import annotations
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from app.codecs import DEPTH_CODECS, encode_jpeg, encode_uint16_image, pose_to_bytes
 from app.errors import InputError
-from app.protocol import Uint16Image, pack_frame, parse_frame
+from app.protocol import Uint16Image, pack_depth_patches, pack_frame, parse_frame
 from client_sim.encoder import FrameEncoder
 
 W, H = 80, 60
 
 
-def encoded(ratio=5, with_detections=True) -> dict:
+def sensor() -> tuple[np.ndarray, np.ndarray]:
+    """(rgb uint8 [H, W, 3], depth float32 [H, W] metres) of every encoded test frame."""
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
-    depth = rng.uniform(0.5, 4.0, (H, W)).astype(np.float32)
+    return rgb, rng.uniform(0.5, 4.0, (H, W)).astype(np.float32)
+
+
+def encoded(ratio=5, with_detections=True) -> dict:
+    rgb, depth = sensor()
     ids = np.zeros((H, W), np.uint16)
     ids[10:30, 20:50] = 3
     pose = np.eye(4)
@@ -62,6 +67,34 @@ def test_without_rgb_pixels_everything_but_the_pixels_is_the_same():
         parse_frame(bad, rgb_pixels=False)
 
 
+def test_a_small_detection_carries_its_box_at_full_depth_resolution():
+    _, full_depth = sensor()
+    frame = parse_frame(encoded(ratio=5))
+    [patch] = frame.depth_patches
+    assert patch.box_px == (20, 10, 50, 30)
+    assert patch.depth_m.shape == (20, 30)
+    np.testing.assert_allclose(patch.depth_m, full_depth[10:30, 20:50], atol=0.005 + 1e-6)
+
+
+def test_no_depth_patch_at_full_depth_resolution_or_for_large_boxes():
+    assert parse_frame(encoded(ratio=1)).depth_patches == []
+    message = (
+        FrameEncoder(5, depth_patch_max_area_px=600)
+        .encode(
+            seq=0,
+            t=0.0,
+            rgb=np.zeros((H, W, 3), np.uint8),
+            depth_m=np.ones((H, W), np.float32),
+            pose=np.eye(4),
+            intrinsics=(70.0, 70.0, 39.5, 29.5),
+            instance_ids=np.pad(np.full((20, 30), 3, np.uint16), ((10, 30), (20, 30))),
+            instances=[{"id": 3, "label": "mug", "score": 0.7}],
+        )
+        .message
+    )
+    assert "depth_patches" not in message  # 600 px is not under 600
+
+
 def test_detections_are_optional():
     frame = parse_frame(encoded(with_detections=False))
     assert frame.instance_ids is None and frame.instances == []
@@ -97,6 +130,12 @@ CASES = [
     ("depth.scale", _set("depth.scale", 0)),
     ("detections", _set("detections.w", 40)),
     ("detections.instances", _set("detections.instances", KeyError)),
+    ("depth_patches", _set("depth_patches", [1, 2])),
+    ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 90, 30]])),
+    ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 20, 30]])),
+    ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 50.5, 30]])),
+    ("depth_patches", _set("depth_patches.data", b"\x28\xb5\x2f\xfd garbage")),
+    ("depth_patches", _set("depth_patches.boxes", [[0, 0, W, H], [0, 0, W, H]])),
 ]
 
 
@@ -178,3 +217,39 @@ def test_a_packed_frame_survives_msgpack_and_parses_to_the_same_frame(
         assert frame.instances == frame_instances
     else:
         assert frame.instance_ids is None and frame.instances == []
+
+
+@st.composite
+def boxes_in(draw, width: int, height: int):
+    """Non-empty half-open boxes (x0, y0, x1, y1) inside a width x height image."""
+    x0 = draw(st.integers(0, width - 1))
+    y0 = draw(st.integers(0, height - 1))
+    return (x0, y0, draw(st.integers(x0 + 1, width)), draw(st.integers(y0 + 1, height)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    data=st.data(),
+    size=st.tuples(st.integers(1, 24), st.integers(1, 24)),
+    codec=st.sampled_from(DEPTH_CODECS),
+)
+def test_depth_patches_survive_msgpack_and_parse_to_the_same_depth(data, size, codec):
+    width, height = size
+    units = data.draw(hnp.arrays(np.uint16, (height, width), elements=st.integers(0, 65535)))
+    boxes = data.draw(st.lists(boxes_in(width, height), min_size=1, max_size=3))
+    assume(sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes) <= width * height)
+    message = pack_frame(
+        seq=1,
+        t=0.0,
+        pose=pose_to_bytes(np.eye(4)),
+        intrinsics=(10.0, 10.0, 1.0, 1.0),
+        rgb_jpeg=encode_jpeg(np.zeros((height, width, 3), np.uint8), 90),
+        depth=Uint16Image("raw", width, height, units.tobytes()),
+        depth_scale_m=0.001,
+        depth_patches=pack_depth_patches(units, boxes, codec),
+    )
+    frame = parse_frame(msgpack.unpackb(msgpack.packb(message)))
+    assert [p.box_px for p in frame.depth_patches] == boxes
+    for patch, (x0, y0, x1, y1) in zip(frame.depth_patches, boxes, strict=True):
+        expected = units[y0:y1, x0:x1].astype(np.float32) * np.float32(0.001)
+        np.testing.assert_array_equal(patch.depth_m, expected)
