@@ -111,6 +111,10 @@ KNOB_RANGES: dict[str, tuple[float, float]] = {  # inclusive bounds of numeric k
 }
 
 KNOB_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Knobs))
+NULLABLE_KNOBS: frozenset[str] = frozenset(
+    f.name for f in dataclasses.fields(Knobs) if "None" in str(f.type)
+)
+"""Knobs that may be null (their type says `| None`)."""
 
 
 def knob_docs() -> dict[str, str]:
@@ -137,7 +141,7 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
             raise KnobError(f"knob {name!r} is too long")
         return [v.strip() for v in value]
     if value is None:
-        if name in ("distance_threshold_m", "max_object_spacing_m"):
+        if name in NULLABLE_KNOBS:
             return None
         raise KnobError(f"knob {name!r} cannot be null")
     if isinstance(value, bool):

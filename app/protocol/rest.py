@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model
 
-from app.config import KNOB_RANGES, Knobs, knob_docs
+from app.config import KNOB_RANGES, NULLABLE_KNOBS, Knobs, knob_docs
 from app.errors import InputError
 from app.protocol.limits import DEFAULT_EMBEDDING_DIM, PROTOCOL_VERSION
 
@@ -114,7 +114,7 @@ def _knob_changes_schema() -> dict[str, Any]:
             lo, hi = KNOB_RANGES[f.name]
             kind = "integer" if isinstance(default, int) else "number"
             prop = {"type": kind, "minimum": lo, "maximum": hi}
-            if default is None:
+            if f.name in NULLABLE_KNOBS:
                 prop = {"anyOf": [prop, {"type": "null"}]}
         properties[f.name] = {**prop, "description": docs.get(f.name, "")}
     return {"type": "object", "properties": properties, "additionalProperties": False}
