@@ -41,10 +41,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", default="out", help="folder for mapping.json and mapping.png")
     parser.add_argument(
-        "--sightings",
-        action="store_true",
-        help="also count the non-keyframes' detections as sightings towards confirmation "
-        "(issue 13 target 4, MappingEngine.sight; the server does not do it yet)",
+        "--no-sightings",
+        dest="sightings",
+        action="store_false",
+        help="map the keyframes only: do not count the non-keyframes' detections as "
+        "sightings towards confirmation (issue 13 target 4, MappingEngine.sight, which the "
+        "server does)",
     )
     parser.add_argument(
         "--queries",

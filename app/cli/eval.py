@@ -59,10 +59,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     parser.add_argument("--json", metavar="PATH", help="write the results as JSON here")
     parser.add_argument(
-        "--sightings",
-        action="store_true",
-        help="also count the other frames' detections as sightings towards confirmation "
-        "(MappingEngine.sight), as a server would with a device sending every frame",
+        "--no-sightings",
+        dest="sightings",
+        action="store_false",
+        help="map the keyframes only: do not count the other frames' detections as "
+        "sightings towards confirmation (MappingEngine.sight, which the server does)",
     )
     parser.add_argument(
         "--queries",

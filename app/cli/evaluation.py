@@ -68,11 +68,11 @@ class EvalConfig:
     encoder_options: dict = field(default_factory=dict)
     """FrameEncoder options besides the depth ratio (which comes from the knobs); unset
     ones keep the device's defaults."""
-    sightings: bool = False
-    """Also hand the engines every non-keyframe's detections as sightings (a v1 device
-    sends every frame whole; DESIGN.md "Keyframes"), so they count towards confirmation.
-    Off by default: the server does not hand non-keyframes to `MappingEngine.sight` yet,
-    and on the 400-frame walk it costs semanticxr 0.9 F-mIoU points."""
+    sightings: bool = True
+    """Also hand the engines every non-keyframe's detections as sightings towards
+    confirmation (`MappingEngine.sight`), as the server does with a device that sends every
+    frame whole or sends sightings between its keyframes (DESIGN.md "Keyframes"). False:
+    keyframes only."""
     queries: dict[str, list[str]] | None = None
     """{category: [phrase, ...]} replacing the built-in paraphrases (`load_queries`); None:
     each category's `paraphrases`. Categories of the scene missing here are not asked."""
