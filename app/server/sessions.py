@@ -70,6 +70,9 @@ STORAGE_PROBE_INTERVAL_S = 1.0
 COUNTERS_SAVE_INTERVAL_S = 1.0
 """Most frames counted but not saved: a counters-only write follows a frame when the
 session's counters were last saved longer ago than this (kill -9 loses at most that)."""
+SIGHTINGS_WAITING = 8
+"""Most non-keyframes a session holds for sighting while a keyframe is on its way or a reader
+holds the map; beyond it the oldest is forgotten (frames are samples, not a log)."""
 STORAGE_UNAVAILABLE_MESSAGE = (
     "the server cannot save the map now (storage unavailable), so it did not map this "
     "keyframe; the map so far is safe and queries still work; retry later"
@@ -180,6 +183,8 @@ class Session:
     """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
     warnings: list[str] = field(default_factory=list)
     """Problems worth a user's attention, each said once (in the log and in the stats)."""
+    _sightings_waiting: deque = field(default_factory=lambda: deque(maxlen=SIGHTINGS_WAITING))
+    """(frame, sent) of validated non-keyframes not yet counted as sightings (`sight`)."""
 
     @property
     def closed(self) -> bool:
@@ -260,6 +265,34 @@ class Session:
         """The update message for a subscriber whose last applied seq is `since`."""
         with self._map_lock:
             return update_message(self.engine, since)
+
+    # ------------------------------------------------------------------ sightings
+    def sight(self, frame: FrameInput, sent: FrameDetections) -> None:
+        """In a decode thread: count a validated non-keyframe's detections as sightings
+        towards confirmation (`MappingEngine.sight`), in frame order and without ever
+        waiting for the map. While a keyframe is on its way (waiting for its turn or
+        mapping) the frame waits behind it, since the keyframe may create the candidates it
+        sights; the next keyframe counts what waits before it maps, and so does the next
+        sighting once the map is free. A sighting changes nothing published: a candidate it
+        qualifies is confirmed, then committed and published, by the next keyframe."""
+        self._sightings_waiting.append((frame, sent))
+        if not self._mapping and self._map_lock.acquire(blocking=False):
+            try:
+                self.sight_waiting()
+            finally:
+                self._map_lock.release()
+
+    def sight_waiting(self) -> None:
+        """Under the map lock: count the waiting sightings, oldest first. A sighting that
+        fails is logged and forgotten; it never fails a keyframe."""
+        while self._sightings_waiting and not self._closed:
+            frame, sent = self._sightings_waiting.popleft()
+            try:
+                self.engine.sight(frame, sent)
+            except Exception:
+                log.exception(
+                    "session %s: counting frame %s as a sighting failed", self.id, frame.seq
+                )
 
     # ------------------------------------------------------------------ publishing
     def wait_published(self) -> asyncio.Event:
@@ -495,6 +528,18 @@ class SessionManager:
         """Run a frame's unpacking, decoding and validation in the decode pool (never on the
         event loop: a hostile message costs a decode thread, not every session's sockets)."""
         return await asyncio.get_running_loop().run_in_executor(self.decode_pool, decode)
+
+    async def sight(
+        self, session: Session, frame: FrameInput, sent: FrameDetections | None
+    ) -> None:
+        """Count a validated non-keyframe's detections as sightings (`Session.sight`), in the
+        decode pool; only where the session maps the device's own detections."""
+        if sent is None or session.engine.backend.name != DEFAULT_BACKEND:
+            return
+        with contextlib.suppress(RuntimeError):  # the pool shut down: the server is stopping
+            await asyncio.get_running_loop().run_in_executor(
+                self.decode_pool, session.sight, frame, sent
+            )
 
     def count_frame(self, session: Session, frame_bytes: dict[str, int]) -> bool:
         """Count a valid frame; True when it is a keyframe. The counters reach the store with
@@ -744,6 +789,7 @@ class SessionManager:
                 raise InputError("session", "the session was deleted")
             if not self.probe_storage():
                 raise StorageUnavailable(StorageHealth.REASON)
+            session.sight_waiting()  # the frames since the last keyframe count first
             t_locked = time.perf_counter()  # waiting for a reader of the map is not mapping
             engine, frame = session.engine, pending.frame
             detections = engine.perceive(frame, pending.sent)  # changes nothing in the map

@@ -161,6 +161,7 @@ async def stream(ws: WebSocket, sid: str) -> None:
                             session, frame, reply, decoded.sent, decoded.decode_ms
                         )
                     else:
+                        await manager.sight(session, frame, decoded.sent)
                         await reply(Ack(frame.seq, keyframe=False).pack())
             if bad_in_a_row >= settings.max_bad_frames:
                 await ws.close(code=CLOSE_POLICY, reason=f"{bad_in_a_row} bad messages in a row")
