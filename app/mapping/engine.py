@@ -150,6 +150,18 @@ def _pixels(image: np.ndarray, u: np.ndarray, v: np.ndarray, rgb_width: int) -> 
     ]
 
 
+def _check_size_ratio(field_name: str, image: np.ndarray, rgb_size: tuple[int, int]) -> None:
+    """InputError unless `image` [h, w] is the RGB size (W, H) divided by an integer ratio."""
+    width, height = rgb_size
+    h, w = image.shape[:2]
+    ratio = max(1, round(width / max(w, 1)))
+    if w == 0 or h == 0 or width // ratio != w or height // ratio != h:
+        raise InputError(
+            field_name,
+            f"is {w}x{h}, which is not the RGB size {width}x{height} divided by an integer ratio",
+        )
+
+
 class MappingEngine:
     """Fuses frames into a map of objects. Not thread-safe: one frame at a time per map."""
 
@@ -216,6 +228,25 @@ class MappingEngine:
         Returns those detections indexed (None when the frame carries none): what a
         keyframe's perception gets as `sent`. Nothing after this re-validates the frame.
         """
+        self._validate_view(frame)
+        if frame.instance_ids is None:
+            return None
+        return detections_from_instance_image(frame.instance_ids, frame.instances, frame.rgb_size)
+
+    def validate_sighting(self, frame: FrameInput) -> FrameDetections:
+        """The checks of `validate_frame` for a sighting (`app.protocol.parse_sighting`),
+        whose instance image, which it must carry, may be the RGB size divided by an
+        integer ratio, as its depth is. Returns the detections for `sight` (their boxes in
+        the instance image's pixels)."""
+        self._validate_view(frame)
+        if frame.instance_ids is None:
+            raise InputError("detections", "a sighting must carry detections")
+        _check_size_ratio("detections", frame.instance_ids, frame.rgb_size)
+        h, w = frame.instance_ids.shape
+        return detections_from_instance_image(frame.instance_ids, frame.instances, (w, h))
+
+    def _validate_view(self, frame: FrameInput) -> None:
+        """Pose, intrinsics, RGB size and depth of a frame or a sighting."""
         pose = validate_rigid_pose(np.asarray(frame.pose, np.float64))
         if np.abs(pose[:3, 3]).max() > MAX_WORLD_M:
             raise InputError(
@@ -241,16 +272,7 @@ class MappingEngine:
             raise InputError("depth", "must be a 2-D array")
         if depth.dtype != np.float32:
             raise InputError("depth", f"must be float32 metres, got {depth.dtype}")
-        h, w = depth.shape
-        ratio = max(1, round(width / max(w, 1)))
-        if w == 0 or h == 0 or width // ratio != w or height // ratio != h:
-            raise InputError(
-                "depth",
-                f"is {w}x{h}, which is not the RGB size {width}x{height} divided by an integer ratio",
-            )
-        if frame.instance_ids is None:
-            return None
-        return detections_from_instance_image(frame.instance_ids, frame.instances, frame.rgb_size)
+        _check_size_ratio("depth", depth, frame.rgb_size)
 
     # ------------------------------------------------------------------ integration
     def integrate(self, frame: FrameInput) -> IntegrationStats:

@@ -39,6 +39,7 @@ import numpy as np
 
 from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
+from app.keyframes import is_keyframe
 from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.export import imported_object
@@ -541,10 +542,14 @@ class SessionManager:
                 self.decode_pool, session.sight, frame, sent
             )
 
-    def count_frame(self, session: Session, frame_bytes: dict[str, int]) -> bool:
-        """Count a valid frame; True when it is a keyframe. The counters reach the store with
-        each keyframe, or in a counters-only write when they were last saved more than
-        COUNTERS_SAVE_INTERVAL_S ago."""
+    def count_frame(
+        self, session: Session, frame_bytes: dict[str, int], keyframe: bool | None = None
+    ) -> bool:
+        """Count a valid frame (or sighting); True when it is a keyframe: the one the device
+        picked (`keyframe`, with the sightings extension), else the shared selector's pick
+        among the frames received (`app.keyframes.is_keyframe`). The counters reach the
+        store with each keyframe, or in a counters-only write when they were last saved more
+        than COUNTERS_SAVE_INTERVAL_S ago."""
         rec = session.record
         rec.frames += 1
         if "detections" not in frame_bytes and session.engine.backend.name == DEFAULT_BACKEND:
@@ -556,7 +561,9 @@ class SessionManager:
             self.metrics.upstream_bytes.labels(kind=kind).inc(n)
         if now - self._counters_saved_at.get(session.id, 0.0) >= COUNTERS_SAVE_INTERVAL_S:
             self.save_counters_soon(session)
-        return (rec.frames - 1) % session.knobs.keyframe_interval == 0
+        if keyframe is not None:
+            return keyframe
+        return is_keyframe(rec.frames - 1, session.knobs.keyframe_interval)
 
     # ------------------------------------------------------------------ counters and storage
     def save_counters_soon(self, session: Session) -> None:

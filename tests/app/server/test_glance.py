@@ -1,7 +1,9 @@
 """A glance is enough (issue 13, target 4), through a real server on loopback: a plain v1
 client sends every frame whole, the server maps one in five (keyframe_interval 5) and counts
 the detections of the others as sightings, so an object in clear view for 8 frames (about
-1.5 s at 5 fps) is confirmed and published, while a detection of one frame never is."""
+1.5 s at 5 fps) is confirmed and published, while a detection of one frame never is. The
+same holds for our device with the sightings extension (target 6: it sends only the
+keyframes whole)."""
 
 from __future__ import annotations
 
@@ -11,8 +13,14 @@ import httpx
 import msgpack
 import pytest
 import websockets
-from analytic_world import Rect
-from devices import TIMEOUT_S, frame_message, stream_in_step
+from analytic_world import Rect, RectSource
+from devices import TIMEOUT_S, frame_message, stream, stream_in_step
+
+from app.client import SessionApi
+from app.config import Knobs, updated_knobs
+from app.protocol import SIGHTINGS_SUBPROTOCOL
+from client_sim.encoder import FrameEncoder
+from client_sim.streaming import DeviceClient, DeviceStats
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -61,3 +69,53 @@ def test_a_one_frame_detection_is_never_published(live_server, seq_of_vase):
     confirmed, published = stream_to_new_session(live_server(), frames)
     assert confirmed == ["chair"]
     assert published == ["chair"]
+
+
+# --- the sightings extension: keyframes whole, sightings between them ----------------------
+
+
+def stream_with_sightings(server, scene) -> tuple[list[str], DeviceStats]:
+    """Our device, offering the sightings extension, plays the same sweep; returns the
+    confirmed labels and the device's counters."""
+
+    async def scenario():
+        sid, token, answer = await DeviceClient.create_session(server.url, knobs=KNOBS)
+        knobs = updated_knobs(Knobs(), answer["knobs"])
+        device = DeviceClient(server.url, sid, token, knobs=knobs, on_log=lambda _: None)
+        source = RectSource(scene, FRAMES, step_m=0.005)
+        stats = await device.stream(source, fps=None, max_in_flight=1)
+        async with SessionApi(server.url, sid, token) as api:
+            objects = await api.objects()
+        return sorted(o["label"] for o in objects), stats
+
+    return asyncio.run(scenario())
+
+
+def test_with_the_sightings_extension_a_glance_is_still_enough(live_server):
+    confirmed, stats = stream_with_sightings(
+        live_server(), lambda seq: [CHAIR, MUG] if 6 <= seq < 14 else [CHAIR]
+    )
+    assert confirmed == ["chair", "mug"]
+    # the device sent 1 frame in 5 whole (the keyframes, all mapped), sightings between
+    assert stats.frames_sent == FRAMES and stats.errors == 0
+    assert stats.keyframes_acked == FRAMES // KNOBS["keyframe_interval"]
+    assert stats.sightings_sent == FRAMES - stats.keyframes_acked
+
+
+def test_with_the_sightings_extension_a_one_frame_detection_is_never_published(live_server):
+    confirmed, _ = stream_with_sightings(
+        live_server(), lambda seq: [CHAIR, VASE] if seq == 12 else [CHAIR]
+    )
+    assert confirmed == ["chair"]
+
+
+def test_a_sighting_on_a_socket_that_did_not_negotiate_the_extension_is_refused(live_server):
+    server = live_server()
+    frame = RectSource([CHAIR], 2).frame(1)
+    sighting = FrameEncoder(2).encode_source_frame_as_sighting(frame).message
+    with httpx.Client(base_url=server.url) as client:
+        sid = client.post("/v1/sessions", json={"knobs": KNOBS}).json()["session_id"]
+    url = f"{server.ws_url}/v1/sessions/{sid}/stream"
+    (reply,) = asyncio.run(stream(url, [sighting]))
+    assert reply["type"] == "error" and reply["code"] == "bad_frame" and reply["seq"] == 1
+    assert SIGHTINGS_SUBPROTOCOL in reply["message"]
