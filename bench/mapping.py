@@ -49,6 +49,13 @@ def main(argv: list[str] | None = None) -> int:
         "server does)",
     )
     parser.add_argument(
+        "--upstream",
+        default="frames",
+        choices=("frames", "sightings"),
+        help="what the device sends between keyframes: every frame whole (any v1 client), or "
+        "the sightings extension's coarse sightings (issue 13, target 6)",
+    )
+    parser.add_argument(
         "--queries",
         metavar="FILE",
         help='JSON {"category": ["phrase", ...]} replacing the built-in paraphrases',
@@ -83,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         noise=args.noise,
         queries=queries,
         sightings=args.sightings,
+        upstream=args.upstream,
     )
     caps = [int(c) for c in args.caps.split(",") if c.strip()]
     variants = {f"cap {cap}": ("semanticxr", Knobs(max_object_points_server=cap)) for cap in caps}

@@ -66,6 +66,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "sightings towards confirmation (MappingEngine.sight, which the server does)",
     )
     parser.add_argument(
+        "--upstream",
+        default="frames",
+        choices=("frames", "sightings"),
+        help="what the device sends between keyframes: every frame whole (any v1 client), or "
+        "the sightings extension's coarse sightings (default: %(default)s)",
+    )
+    parser.add_argument(
         "--queries",
         metavar="FILE",
         help='JSON {"category": ["phrase", ...]} replacing the built-in paraphrases for '
@@ -98,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         knobs=knobs_from_args(args),
         queries=queries,
         sightings=args.sightings,
+        upstream=args.upstream,
     )
     print(
         f"[eval] scene {cfg.scene} (seed {cfg.seed}), {cfg.frames} frames at "

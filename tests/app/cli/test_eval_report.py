@@ -125,3 +125,20 @@ def test_sightings_hand_the_non_keyframes_to_the_engines_unless_turned_off(encod
     result = run_eval(cfg, encoder, progress=lambda _: None)
     assert result["sightings"] is False
     assert result["modes"]["semanticxr"]["sightings_ms"] is None
+
+
+def test_the_sightings_extension_path_hands_the_engines_parsed_sighting_messages(encoder):
+    cfg = EvalConfig(
+        scene="kitchen",
+        frames=30,
+        width=160,
+        height=120,
+        modes=("semanticxr",),
+        knobs=Knobs(min_mapping_bbox_area=150),
+        upstream="sightings",
+    )
+    result = run_eval(cfg, encoder, progress=lambda _: None)
+    assert result["upstream"] == "sightings"
+    assert {"p50", "p95", "mean"} <= result["modes"]["semanticxr"]["sightings_ms"].keys()
+    with pytest.raises(ValueError, match="upstream must be one of frames, sightings"):
+        run_eval(EvalConfig(upstream="carrier pigeon"), encoder, progress=lambda _: None)
