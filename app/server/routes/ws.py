@@ -192,8 +192,10 @@ async def stream(ws: WebSocket, sid: str) -> None:
                             session, frame, reply, decoded.sent, decoded.decode_ms
                         )
                     else:
-                        await manager.sight(session, frame, decoded.sent)
+                        # Acked first: a sighting changes nothing the device waits for, and
+                        # its ack time is an RTT sample (the SQ/LQ switch).
                         await reply(Ack(frame.seq, keyframe=False).pack())
+                        await manager.sight(session, frame, decoded.sent)
             if bad_in_a_row >= settings.max_bad_frames:
                 await ws.close(code=CLOSE_POLICY, reason=f"{bad_in_a_row} bad messages in a row")
                 return
