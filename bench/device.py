@@ -1,7 +1,12 @@
-"""Device-side figures (issue 4): upstream bandwidth by depth ratio and encoding, device CPU.
+"""Device-side figures (issues 4, 13): upstream bandwidth by path, depth ratio and encoding,
+device CPU.
 
     python -m bench.device [--frames 150] [--no-quality] [--real DIR] [--out out/]
 
+- Upstream Mbps at 5 fps, 640x480, depth ÷5, encoder defaults, on both paths (issue 13,
+  target 6: <= 0.5 Mbps with the extension): a plain v1 device sending every frame whole,
+  and the sightings extension (app/protocol/sighting.py), keyframes whole (the shared
+  selector, app.keyframes) and a coarse sighting of each frame between them.
 - Upstream Mbps at 5 fps, 640x480, for depth downsampling ratios 1-5 with the encoder's
   defaults (client_sim/encoder.py), with the semanticxr F-mIoU at each ratio (eval on the
   same scene) so the bandwidth saving is read next to its quality cost.
@@ -46,6 +51,45 @@ class PrerenderedSource(FrameSource):
 
     def frame(self, index: int) -> SourceFrame:
         return self._frames[self._check_index(index)]
+
+
+def upstream_by_path(frames: list[SourceFrame], ratio: int = 5) -> dict[str, dict]:
+    """Upstream at 5 fps for the frames in order, encoder defaults at depth ÷`ratio`: every
+    frame whole ("whole frames"), and keyframes whole with sightings between them ("sightings
+    extension"), keyframes picked by the shared selector at the default interval."""
+    from app.config import Knobs
+    from app.keyframes import is_keyframe
+    from client_sim.encoder import FrameEncoder
+
+    encoder = FrameEncoder(ratio)
+    interval = Knobs().keyframe_interval
+    whole, keyframes, sightings = [], [], []
+    for f in frames:
+        total = encoder.encode_source_frame(f).bytes_by_kind["total"]
+        whole.append(total)
+        if is_keyframe(f.index, interval):
+            keyframes.append(total)
+        else:
+            sightings.append(encoder.encode_source_frame_as_sighting(f).bytes_by_kind["total"])
+    out = {
+        "whole frames": {
+            "bytes_per_frame": float(np.mean(whole)),
+            "mbps_at_5fps": mbps_at_5fps(float(np.mean(whole))),
+        },
+        "sightings extension": {
+            "bytes_per_keyframe": float(np.mean(keyframes)),
+            "bytes_per_sighting": float(np.mean(sightings)),
+            "mbps_at_5fps": mbps_at_5fps((sum(keyframes) + sum(sightings)) / len(frames)),
+        },
+    }
+    ext = out["sightings extension"]
+    print(
+        f"  whole frames: {out['whole frames']['mbps_at_5fps']:.3f} Mbps "
+        f"({out['whole frames']['bytes_per_frame'] / 1e3:.1f} kB a frame); sightings "
+        f"extension: {ext['mbps_at_5fps']:.3f} Mbps (keyframes {ext['bytes_per_keyframe'] / 1e3:.1f}"
+        f" kB, 1 in {interval}; sightings {ext['bytes_per_sighting'] / 1e3:.2f} kB)"
+    )
+    return out
 
 
 def upstream_by_ratio(frames: list[SourceFrame]) -> dict[int, dict]:
@@ -246,13 +290,19 @@ def quality_by_depth_step(scene: str, frames: int) -> tuple[float, dict[int, flo
     return reference, by_step
 
 
-async def device_cpu(server: ServerProcess, source: FrameSource, seconds: float) -> dict:
+async def device_cpu(
+    server: ServerProcess, source: FrameSource, seconds: float, sightings: bool = True
+) -> dict:
+    """A device streaming to a real server at 5 fps: its CPU and what it sent (with the
+    sightings extension, or every frame whole)."""
     from app.client import create_session
     from app.config import Knobs
     from client_sim.streaming import DeviceClient
 
     sid, token, _ = await create_session(server.url, name="cpu-bench")
-    device = DeviceClient(server.url, sid, token, knobs=Knobs(), on_log=lambda m: None)
+    device = DeviceClient(
+        server.url, sid, token, knobs=Knobs(), sightings=sightings, on_log=lambda m: None
+    )
     follower = asyncio.create_task(device.follow_updates())
     n = min(len(source), int(seconds * STREAM_FPS))
     cpu0, wall0 = time.process_time(), time.perf_counter()
@@ -268,7 +318,9 @@ async def device_cpu(server: ServerProcess, source: FrameSource, seconds: float)
         "cpu_s_per_s": cpu / wall,
         "objects_held": len(device.local_map),
         "local_map_bytes": device.local_map.memory_bytes(),
+        "sightings_sent": s.sightings_sent,
         "bytes_up": s.bytes_up_by_kind["total"],
+        "upstream_mbps": s.bytes_up_by_kind["total"] * 8 / wall / 1e6,
         "bytes_down": s.bytes_down,
     }
 
@@ -307,6 +359,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"rendering {args.frames} frames...", file=sys.stderr)
     source = SyntheticSource(args.scene, n_frames=args.frames)
     frames = list(source.frames())
+    print(f"upstream by path at 5 fps, 640x480, depth ÷5 ({len(frames)} frames of {args.scene}):")
+    by_path = upstream_by_path(frames)
     print("upstream bandwidth by depth ratio (encoder defaults):")
     upstream = upstream_by_ratio(frames)
     grid_every = max(1, len(frames) // args.grid_frames)
@@ -326,23 +380,38 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as data_dir:
         server = ServerProcess(data_dir, quiet=False).start()
         try:
-            cpu = asyncio.run(
-                device_cpu(server, PrerenderedSource(frames), args.frames / STREAM_FPS)
-            )
+            cpu_by_path = {
+                name: asyncio.run(
+                    device_cpu(
+                        server, PrerenderedSource(frames), args.frames / STREAM_FPS, sightings
+                    )
+                )
+                for name, sightings in (("whole frames", False), ("sightings extension", True))
+            }
         finally:
             server.stop()
-    print(
-        f"device CPU: {cpu['cpu_s_per_s']:.3f} CPU-s per s of streaming at 5 fps "
-        f"({cpu['frames']} frames, {cpu['objects_held']} objects held)"
-    )
+    for name, run in cpu_by_path.items():
+        print(
+            f"device streaming to a server at 5 fps, {name}: {run['cpu_s_per_s']:.3f} CPU-s per "
+            f"s, upstream {run['upstream_mbps']:.3f} Mbps measured ({run['frames']} frames, "
+            f"{run['sightings_sent']} of them sightings, {run['objects_held']} objects held)"
+        )
+    cpu = cpu_by_path["sightings extension"]
     targets = [
+        check(
+            "6. upstream with the sightings extension, 5 fps, 640x480 (defaults, synthetic)",
+            by_path["sightings extension"]["mbps_at_5fps"],
+            "<=",
+            0.5,
+            " Mbps",
+        ),
         check(
             "upstream at depth ÷5, 5 fps (defaults, synthetic)",
             upstream[5]["mbps_at_5fps"],
             "<=",
             1.25,
             " Mbps",
-        )
+        ),
     ]
     if "7scenes" in by_source:
         levers = by_source["7scenes"]["levers"]
@@ -381,12 +450,14 @@ def main(argv: list[str] | None = None) -> int:
                 "detections_codec": defaults.detections_codec,
                 "zstd_level": defaults.zstd_level,
             },
+            "upstream_by_path": by_path,
             "upstream": upstream,
             "upstream_grid": by_source,
             "f_miou_by_ratio": quality,
             "f_miou_reference_ratio1_1mm": reference,
             "f_miou_by_depth_step_mm": by_step,
             "device_cpu": cpu,
+            "device_cpu_by_path": cpu_by_path,
             "targets": targets,
         },
     )

@@ -41,10 +41,19 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", default="out", help="folder for mapping.json and mapping.png")
     parser.add_argument(
-        "--sightings",
-        action="store_true",
-        help="also count the non-keyframes' detections as sightings towards confirmation "
-        "(issue 13 target 4, MappingEngine.sight; the server does not do it yet)",
+        "--no-sightings",
+        dest="sightings",
+        action="store_false",
+        help="map the keyframes only: do not count the non-keyframes' detections as "
+        "sightings towards confirmation (issue 13 target 4, MappingEngine.sight, which the "
+        "server does)",
+    )
+    parser.add_argument(
+        "--upstream",
+        default="frames",
+        choices=("frames", "sightings"),
+        help="what the device sends between keyframes: every frame whole (any v1 client), or "
+        "the sightings extension's coarse sightings (issue 13, target 6)",
     )
     parser.add_argument(
         "--queries",
@@ -81,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         noise=args.noise,
         queries=queries,
         sightings=args.sightings,
+        upstream=args.upstream,
     )
     caps = [int(c) for c in args.caps.split(",") if c.strip()]
     variants = {f"cap {cap}": ("semanticxr", Knobs(max_object_points_server=cap)) for cap in caps}

@@ -37,7 +37,13 @@ from app.codecs import (
 from app.codecs import PNG_LEVEL as DEFAULT_PNG_LEVEL
 from app.codecs import ZSTD_LEVEL as DEFAULT_ZSTD_LEVEL
 from app.config import Knobs
-from app.protocol import EncodedDepthPatches, Uint16Image, pack_depth_patches, pack_frame
+from app.protocol import (
+    EncodedDepthPatches,
+    Uint16Image,
+    pack_depth_patches,
+    pack_frame,
+    pack_sighting,
+)
 
 DEPTH_DOWNSAMPLING_METHODS: tuple[str, ...] = ("nearest", "min")
 """'nearest': the block's centre pixel; 'min': the block's nearest valid depth."""
@@ -61,6 +67,15 @@ DEFAULT_DETECTIONS_CODEC = "zstd"
 DEFAULT_DEPTH_PATCH_MAX_AREA_PX = Knobs().min_mapping_bbox_area
 """Detections whose box is smaller than this (px) get a full-resolution depth patch: exactly
 the ones the server would otherwise defer (the knob `min_mapping_bbox_area`)."""
+# A sighting (the sightings extension, app/protocol/sighting.py) carries what confirmation
+# needs at coarse resolution; chosen on the 400-frame apartment walk, where these ratios
+# confirm the same objects as whole frames do (issue 13, target 6).
+DEFAULT_SIGHTING_DETECTIONS_RATIO = 8
+"""A sighting's instance image is the RGB size divided by this (80x60 at 640x480, ~250 B)."""
+DEFAULT_SIGHTING_DEPTH_RATIO = 20
+"""A sighting's depth is the RGB size divided by this (32x24 at 640x480, ~700 B), each pixel
+its block's nearest depth: what it hides is behind that surface, so visibility stays
+conservative however coarse the image."""
 # The zstd and PNG levels of uint16 images are the codecs' defaults (app.codecs.ZSTD_LEVEL,
 # PNG_LEVEL), imported above as DEFAULT_ZSTD_LEVEL and DEFAULT_PNG_LEVEL.
 
@@ -190,12 +205,16 @@ class FrameEncoder:
         jpeg_optimize: bool = DEFAULT_JPEG_OPTIMIZE,
         zstd_level: int = DEFAULT_ZSTD_LEVEL,
         depth_patch_max_area_px: int = DEFAULT_DEPTH_PATCH_MAX_AREA_PX,
+        sighting_detections_ratio: int = DEFAULT_SIGHTING_DETECTIONS_RATIO,
+        sighting_depth_ratio: int = DEFAULT_SIGHTING_DEPTH_RATIO,
     ) -> None:
         """depth_scale_m: metres per depth unit on the wire (0 < scale <= 1, the protocol's
         range); depth is rounded to it, so it comes back within scale / 2. zstd_level: 1..22,
         for whichever of depth and detections uses zstd. depth_patch_max_area_px: with a
         depth ratio above 1, each detection whose box is smaller than this also goes up as a
-        full-resolution depth patch of its box (0: none). Bad values raise ValueError."""
+        full-resolution depth patch of its box (0: none). sighting_*_ratio: how much smaller
+        than the RGB image a sighting's instance image and depth are (`encode_sighting`).
+        Bad values raise ValueError."""
         if depth_codec not in DEPTH_CODECS:
             raise ValueError(f"unknown depth codec {depth_codec!r}, expected one of {DEPTH_CODECS}")
         if detections_codec not in DEPTH_CODECS:
@@ -212,6 +231,12 @@ class FrameEncoder:
                 f"depth_downsampling_ratio must be a positive integer, "
                 f"got {depth_downsampling_ratio!r}"
             )
+        for name, ratio in (
+            ("sighting_detections_ratio", sighting_detections_ratio),
+            ("sighting_depth_ratio", sighting_depth_ratio),
+        ):
+            if not _is_int(ratio) or ratio < 1:
+                raise ValueError(f"{name} must be a positive integer, got {ratio!r}")
         if not _is_int(jpeg_quality) or not 1 <= jpeg_quality <= 100:
             raise ValueError(f"jpeg_quality must be an integer in 1..100, got {jpeg_quality!r}")
         if not _is_int(zstd_level) or not 1 <= zstd_level <= MAX_ZSTD_LEVEL:
@@ -239,6 +264,8 @@ class FrameEncoder:
         self.depth_scale_m = float(depth_scale_m)
         self.depth_method = depth_method
         self.zstd_level = int(zstd_level)
+        self.sighting_detections_ratio = int(sighting_detections_ratio)
+        self.sighting_depth_ratio = int(sighting_depth_ratio)
 
     def encode_source_frame(self, frame: SourceFrame, seq: int | None = None) -> EncodedFrame:
         """The wire message of a frame from a FrameSource (seq defaults to its index)."""
@@ -252,6 +279,96 @@ class FrameEncoder:
             instance_ids=frame.instance_ids,
             instances=frame.instances,
         )
+
+    def encode_source_frame_as_sighting(
+        self, frame: SourceFrame, seq: int | None = None
+    ) -> EncodedFrame:
+        """The `sighting` of a frame from a FrameSource (seq defaults to its index); the
+        frame must carry detections."""
+        if frame.instance_ids is None:
+            raise ValueError("a sighting needs the frame's detections (instance_ids)")
+        return self.encode_sighting(
+            seq=frame.index if seq is None else seq,
+            t=frame.t,
+            depth_m=frame.depth_m,
+            pose=frame.pose,
+            intrinsics=frame.intrinsics,
+            instance_ids=frame.instance_ids,
+            instances=frame.instances,
+        )
+
+    def encode_sighting(
+        self,
+        seq: int,
+        t: float,
+        depth_m: np.ndarray,
+        pose: np.ndarray,
+        intrinsics: tuple,
+        instance_ids: np.ndarray,
+        instances: list[dict],
+    ) -> EncodedFrame:
+        """The `sighting` message of one frame that is not a keyframe (the sightings
+        extension): its detections and its depth at coarse resolution, no RGB.
+
+        depth_m: float [H, W] metres at RGB size; instance_ids: integer [H, W] (0 = none)
+        described by `instances` [{"id", "label", "score"}]; pose and intrinsics as in
+        `encode`. The instance image is sampled at the centre of each
+        `sighting_detections_ratio` block, the depth keeps each `sighting_depth_ratio`
+        block's nearest valid depth."""
+        instance_ids = np.asarray(instance_ids)
+        depth_m = np.asarray(depth_m)
+        if instance_ids.ndim != 2 or instance_ids.dtype.kind not in "iu":
+            raise ValueError(
+                f"instance_ids must be an integer [H, W] image, got {instance_ids.dtype} "
+                f"{list(instance_ids.shape)}"
+            )
+        if depth_m.shape != instance_ids.shape:
+            raise ValueError(
+                f"depth {list(depth_m.shape)} must be at the instance image's (RGB) size "
+                f"{list(instance_ids.shape)}"
+            )
+        if instance_ids.size and (instance_ids.min() < 0 or instance_ids.max() > MAX_UINT16):
+            raise ValueError("instance ids must lie in 0..65535 (0 = no instance)")
+        if len(intrinsics) != 4:
+            raise ValueError(f"intrinsics must be (fx, fy, cx, cy), got {intrinsics!r}")
+        height_px, width_px = instance_ids.shape
+        ratio = self.sighting_detections_ratio
+        centre = ratio // 2
+        ids_small = np.ascontiguousarray(
+            instance_ids[centre::ratio, centre::ratio][: height_px // ratio, : width_px // ratio],
+            np.uint16,
+        )
+        depth_units = depth_to_uint16(
+            downsample_depth(depth_m, self.sighting_depth_ratio, "min"), self.depth_scale_m
+        )
+        depth_data = encode_uint16_image_at_level(depth_units, self.depth_codec, self.zstd_level)
+        ids_data = encode_uint16_image_at_level(ids_small, self.detections_codec, self.zstd_level)
+        present = set(np.unique(ids_small).tolist())
+        pose_data = pose_to_bytes(validate_rigid_pose(pose))
+        message = pack_sighting(
+            seq=seq,
+            t=t,
+            pose=pose_data,
+            intrinsics=intrinsics,
+            rgb_size=(width_px, height_px),
+            depth=Uint16Image(
+                self.depth_codec, int(depth_units.shape[1]), int(depth_units.shape[0]), depth_data
+            ),
+            depth_scale_m=self.depth_scale_m,
+            detections=Uint16Image(
+                self.detections_codec, int(ids_small.shape[1]), int(ids_small.shape[0]), ids_data
+            ),
+            # what the coarse image lost is not described
+            instances=[inst for inst in instances if inst["id"] in present],
+        )
+        bytes_by_kind = {
+            "rgb": 0,
+            "depth": len(depth_data),
+            "detections": len(ids_data),
+            "pose": len(pose_data),
+            "total": len(msgpack.packb(message, use_bin_type=True)),
+        }
+        return EncodedFrame(message=message, bytes_by_kind=bytes_by_kind)
 
     def encode(
         self,

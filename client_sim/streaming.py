@@ -5,7 +5,11 @@ forever until `stop()`):
 
 - `/v1/sessions/{sid}/stream` (`DeviceClient.stream`): encoded frames up, acks down. At most
   `max_in_flight` frames wait for their ack. Frames are samples, not a log: a frame due
-  while the link is down is skipped (counted in `dropped`), never queued or resent.
+  while the link is down is skipped (counted in `dropped`), never queued or resent. The
+  device offers the sightings extension (app/protocol/sighting.py); where the server
+  selects it, the device picks the keyframes (`app.keyframes`, the server's own selector)
+  and sends only those whole, and between them a `sighting` of each frame's detections (a
+  frame without detections then has nothing to send). Otherwise every frame goes whole.
 - `/v1/sessions/{sid}/updates` (`DeviceClient.follow_updates`, an
   `app.client.UpdatesSubscriber`): deltas down, applied to the `LocalMap`. After a
   disconnect it resumes from `local_map.seq` (the server sends what changed since, so no
@@ -50,7 +54,14 @@ from app.client import (
 )
 from app.client.connection import describe, sleep_unless, until
 from app.config import Knobs
-from app.protocol import ErrorReply, InputError, unpack_reply, unpack_update
+from app.keyframes import is_keyframe
+from app.protocol import (
+    SIGHTINGS_SUBPROTOCOL,
+    ErrorReply,
+    InputError,
+    unpack_reply,
+    unpack_update,
+)
 from client_sim.encoder import EncodedFrame, FrameEncoder
 from client_sim.local_map import DeltaError, LocalMap
 from client_sim.sources.base import FrameSource
@@ -84,7 +95,9 @@ class DeviceStats:
     """Counters of one device (shared by `stream` and `follow_updates`)."""
 
     frames_sent: int = 0
-    """Frames written to the stream socket."""
+    """Frames written to the stream socket (whole frames and sightings)."""
+    sightings_sent: int = 0
+    """Of `frames_sent`, sightings (the sightings extension: frames between keyframes)."""
     acks: int = 0
     """Acks received (keyframes and others, including keyframes the server superseded)."""
     errors: int = 0
@@ -144,9 +157,11 @@ class DeviceClient:
     knobs: the session's knobs (depth ratio for the encoder; point cap and budget for a
     default local map). encoder_options: FrameEncoder keyword arguments besides the depth
     ratio (jpeg_quality, depth_codec, depth_scale_m, ...); unset ones keep FrameEncoder's
-    defaults. send_every: the device's keyframe-rate knob, send only every n-th source frame. local_map: where deltas go (default: `make_local_map(knobs,
-    embedding_dim)`). on_log: receives one human-readable line per event worth telling
-    (reconnects, server errors, resyncs); default: this module's logger.
+    defaults. send_every: send only every n-th source frame. sightings: offer the sightings
+    extension on the stream socket (keyframes whole, sightings between them, where the
+    server selects it); False: every frame whole. local_map: where deltas go (default:
+    `make_local_map(knobs, embedding_dim)`). on_log: receives one human-readable line per
+    event worth telling (reconnects, server errors, resyncs); default: this module's logger.
     """
 
     def __init__(
@@ -158,6 +173,7 @@ class DeviceClient:
         knobs: Knobs | None = None,
         encoder_options: Mapping[str, Any] | None = None,
         send_every: int = 1,
+        sightings: bool = True,
         local_map: LocalMap | None = None,
         on_log: Callable[[str], None] | None = None,
         embedding_dim: int = DEFAULT_EMBEDDING_DIM,
@@ -172,6 +188,7 @@ class DeviceClient:
         self.encoder_options = dict(encoder_options or {})
         FrameEncoder(self.knobs.depth_downsampling_ratio, **self.encoder_options)  # fail early
         self.send_every = send_every
+        self.sightings = bool(sightings)
         self.local_map = (
             local_map if local_map is not None else make_local_map(self.knobs, embedding_dim)
         )
@@ -365,9 +382,13 @@ class DeviceClient:
                 elif not await link.wait_for_slot(wait_for_link=True):
                     break  # stopped
                 seq, self._next_seq = self._next_seq, self._next_seq + 1
+                # With the extension, a frame the shared selector does not pick is sighted.
+                sighting = link.sightings and not is_keyframe(seq, self.knobs.keyframe_interval)
                 encoded, position = await asyncio.to_thread(
-                    self._capture, source, index, seq, encoder
+                    self._capture, source, index, seq, encoder, sighting
                 )
+                if encoded is None:
+                    continue  # a sighting without detections: nothing to send
                 if not await link.send(encoded):
                     if self.stopped:
                         break
@@ -386,13 +407,18 @@ class DeviceClient:
 
     @staticmethod
     def _capture(
-        source: FrameSource, index: int, seq: int, encoder: FrameEncoder
-    ) -> tuple[EncodedFrame, list[float]]:
-        """In a worker thread: read (render) frame `index` and encode it as frame `seq`
-        (slow: rendering, JPEG, zstd; off the loop so acks and deltas keep flowing)."""
+        source: FrameSource, index: int, seq: int, encoder: FrameEncoder, sighting: bool
+    ) -> tuple[EncodedFrame | None, list[float]]:
+        """In a worker thread: read (render) frame `index` and encode it as frame `seq`, whole
+        or as a sighting (None: a sighting of a frame without detections); slow (rendering,
+        JPEG, zstd): off the loop so acks and deltas keep flowing."""
         frame = source.frame(index)
-        encoded = encoder.encode_source_frame(frame, seq)
-        return encoded, [float(v) for v in frame.pose[:3, 3]]
+        position = [float(v) for v in frame.pose[:3, 3]]
+        if not sighting:
+            return encoder.encode_source_frame(frame, seq), position
+        if frame.instance_ids is None:
+            return None, position
+        return encoder.encode_source_frame_as_sighting(frame, seq), position
 
     # --- map updates down -----------------------------------------------------------------
 
@@ -472,6 +498,8 @@ class _StreamLink:
         """The server answered storage_unavailable and has not acked a keyframe since."""
         self.hold_until_s = 0.0
         """time.monotonic() before which nothing is sent (a storage back-off)."""
+        self.sightings = False
+        """The server selected the sightings extension on the socket now up."""
 
     async def notify(self) -> None:
         async with self.changed:
@@ -486,9 +514,10 @@ class _StreamLink:
         backoff = Backoff()
         ever_up = down_told = False
         path = f"/v1/sessions/{client.session_id}/stream"
+        offer = {"subprotocols": [SIGHTINGS_SUBPROTOCOL]} if client.sightings else {}
         while not self._done():
             try:
-                ws = await client._open(path)
+                ws = await client._open(path, **offer)
             except CONNECTION_ERRORS as exc:
                 if not down_told:
                     client._socket_down("stream", describe(exc), expected=False)
@@ -497,6 +526,7 @@ class _StreamLink:
                 if ws is None:  # stopped while connecting
                     break
                 self.ws = ws
+                self.sightings = ws.subprotocol == SIGHTINGS_SUBPROTOCOL
                 client._socket_up("stream", reconnect=ever_up)
                 ever_up, down_told = True, False
                 backoff.reset()
@@ -512,6 +542,7 @@ class _StreamLink:
                     reason = describe(exc)
                 finally:
                     self.ws = None
+                    self.sightings = False
                     # Sent frames whose ack can no longer come; they are not resent.
                     self.stats.lost_in_flight += len(self.in_flight)
                     self.in_flight.clear()
@@ -620,6 +651,7 @@ class _StreamLink:
             self.in_flight.pop(seq, None)
             return False
         self.stats.frames_sent += 1
+        self.stats.sightings_sent += encoded.message["type"] == "sighting"
         for kind, n_bytes in encoded.bytes_by_kind.items():
             self.stats.bytes_up_by_kind[kind] = self.stats.bytes_up_by_kind.get(kind, 0) + n_bytes
         return True

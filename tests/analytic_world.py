@@ -8,6 +8,7 @@ and the device (`RectSource`, a FrameSource), so server and device tests see one
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,11 +93,12 @@ def render_rects(
 class RectSource(FrameSource):
     """Frames of labelled rectangles seen by a camera at (x, 0, 0), sliding `step_m` along x
     per frame from `start_x_m`. Exact depth at RGB size, exact instance ids (score 0.9), one
-    flat colour per instance."""
+    flat colour per instance. rects: the scene, or a function of the frame index giving the
+    rectangles in view on that frame."""
 
     def __init__(
         self,
-        rects: tuple[Rect, ...],
+        rects: tuple[Rect, ...] | Callable[[int], list[Rect]],
         n_frames: int,
         start_x_m: float = 0.0,
         step_m: float = 0.01,
@@ -112,7 +114,8 @@ class RectSource(FrameSource):
     def frame(self, index: int) -> SourceFrame:
         index = self._check_index(index)
         cam_x_m = self.start_x_m + self.step_m * index
-        depth_m, ids, pose, instances = _rasterize(self.rects, (cam_x_m, 0.0))
+        rects = self.rects(index) if callable(self.rects) else self.rects
+        depth_m, ids, pose, instances = _rasterize(rects, (cam_x_m, 0.0))
         rgb = np.full((HEIGHT_PX, WIDTH_PX, 3), 90, np.uint8)
         rgb[ids > 0] = (np.stack([ids * 70, ids * 130, ids * 40], -1)[ids > 0] % 256).astype(
             np.uint8

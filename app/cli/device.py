@@ -101,6 +101,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument(
         "--max-in-flight", type=int, default=4, metavar="N", help="un-acked frames at most"
     )
+    parser.add_argument(
+        "--whole-frames",
+        dest="sightings",
+        action="store_false",
+        help="send every frame whole, as a plain v1 client does, instead of offering the "
+        "sightings extension (keyframes whole, coarse sightings between them)",
+    )
     add_encoder_flags(parser)
     parser.add_argument(
         "--query",
@@ -336,6 +343,7 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
         knobs=knobs,
         encoder_options=encoder_options_from_args(args),
         send_every=args.send_every,
+        sightings=args.sightings,
         local_map=make_local_map(knobs, embedding["dim"]),
         on_log=lambda message: print(f"[device] {message}", file=sys.stderr, flush=True),
     )
@@ -461,6 +469,7 @@ def _summary(
         "duration_s": duration_s,
         "frames": {
             "sent": stats.frames_sent,
+            "sightings": stats.sightings_sent,
             "acked": stats.acks,
             "keyframes": stats.keyframes_acked,
             "superseded": stats.superseded,

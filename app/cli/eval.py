@@ -59,10 +59,18 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     parser.add_argument("--json", metavar="PATH", help="write the results as JSON here")
     parser.add_argument(
-        "--sightings",
-        action="store_true",
-        help="also count the other frames' detections as sightings towards confirmation "
-        "(MappingEngine.sight), as a server would with a device sending every frame",
+        "--no-sightings",
+        dest="sightings",
+        action="store_false",
+        help="map the keyframes only: do not count the other frames' detections as "
+        "sightings towards confirmation (MappingEngine.sight, which the server does)",
+    )
+    parser.add_argument(
+        "--upstream",
+        default="frames",
+        choices=("frames", "sightings"),
+        help="what the device sends between keyframes: every frame whole (any v1 client), or "
+        "the sightings extension's coarse sightings (default: %(default)s)",
     )
     parser.add_argument(
         "--queries",
@@ -97,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         knobs=knobs_from_args(args),
         queries=queries,
         sightings=args.sightings,
+        upstream=args.upstream,
     )
     print(
         f"[eval] scene {cfg.scene} (seed {cfg.seed}), {cfg.frames} frames at "

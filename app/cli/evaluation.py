@@ -13,6 +13,7 @@ least IN_VIEW_MIN_FRAMES frames; the others are `unobserved_categories`.
 
 from __future__ import annotations
 
+import bisect
 import json
 import sys
 import time
@@ -24,10 +25,11 @@ import msgpack
 import numpy as np
 
 from app.config import MODES, Knobs, Mode
+from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
 from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
 from app.mapping.publish import update_message
-from app.protocol import FrameInput, parse_frame
+from app.protocol import FrameInput, parse_frame, parse_sighting
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, downsample_depth
 from client_sim.sources.synthetic import SyntheticSource
@@ -68,11 +70,15 @@ class EvalConfig:
     encoder_options: dict = field(default_factory=dict)
     """FrameEncoder options besides the depth ratio (which comes from the knobs); unset
     ones keep the device's defaults."""
-    sightings: bool = False
-    """Also hand the engines every non-keyframe's detections as sightings (a v1 device
-    sends every frame whole; DESIGN.md "Keyframes"), so they count towards confirmation.
-    Off by default: the server does not hand non-keyframes to `MappingEngine.sight` yet,
-    and on the 400-frame walk it costs semanticxr 0.9 F-mIoU points."""
+    sightings: bool = True
+    """Also hand the engines every non-keyframe's detections as sightings towards
+    confirmation (`MappingEngine.sight`), as the server does with a device that sends every
+    frame whole or sends sightings between its keyframes (DESIGN.md "Keyframes"). False:
+    keyframes only."""
+    upstream: str = "frames"
+    """What the device sends between keyframes (with `sightings`): "frames", every frame
+    whole (any v1 client); "sightings", the sightings extension's coarse `sighting`
+    messages (app/protocol/sighting.py), parsed and validated as the server does."""
     queries: dict[str, list[str]] | None = None
     """{category: [phrase, ...]} replacing the built-in paraphrases (`load_queries`); None:
     each category's `paraphrases`. Categories of the scene missing here are not asked."""
@@ -125,9 +131,13 @@ def _in_view(detector: DetectionModel, view, frame_index: int) -> set[str]:
     return {inst["label"] for inst in found.instances}
 
 
+UPSTREAMS: tuple[str, ...] = ("frames", "sightings")
+
+
 @dataclass
 class _Sighting:
-    """A non-keyframe, kept compact between rendering and mapping (instance ids compressed)."""
+    """A non-keyframe sent whole, kept compact between rendering and mapping (instance ids
+    compressed)."""
 
     seq: int
     t: float
@@ -152,10 +162,30 @@ class _Sighting:
             instances=self.instances,
         )
 
+    def decode(self, engine: MappingEngine, ratio: int) -> tuple[FrameInput, object]:
+        """(frame, sent) as the server would hand them to `sight`."""
+        frame = self.frame(ratio)
+        return frame, engine.validate_frame(frame)
+
+
+@dataclass
+class _SightingMessage:
+    """A non-keyframe as the device's `sighting` message (the sightings extension)."""
+
+    packed: bytes
+
+    def decode(self, engine: MappingEngine, ratio: int) -> tuple[FrameInput, object]:
+        """(frame, sent) as the server would hand them to `sight` (any depth ratio: a
+        sighting's depth has its own)."""
+        frame = parse_sighting(msgpack.unpackb(self.packed))
+        return frame, engine.validate_sighting(frame)
+
 
 def _encode_keyframes(
     cfg: EvalConfig, ratios: list[int], progress: Progress
-) -> tuple[dict[int, list], object, dict, dict[str, int], dict[int, list[_Sighting]]]:
+) -> tuple[
+    dict[int, list], object, dict, dict[str, int], dict[int, list[_Sighting | _SightingMessage]]
+]:
     """Render the keyframes once and encode them at each depth ratio; every organisation at
     one ratio maps the same bytes. Every other frame of the walk is ray cast for the
     visibility count and, with `cfg.sightings`, its detections. Returns (messages by ratio,
@@ -172,18 +202,28 @@ def _encode_keyframes(
     messages: dict[int, list] = {ratio: [] for ratio in ratios}
     upstream = {"rgb": 0, "depth": 0, "detections": 0, "depth_patches": 0, "total": 0}
     interval = cfg.knobs.keyframe_interval
-    n_keyframes = len(range(0, cfg.frames, interval))
+    keyframes = [index for index in range(cfg.frames) if is_keyframe(index, interval)]
+    n_keyframes = len(keyframes)
     noise_free = DetectionModel(source.scene, "none", cfg.seed)
     in_view: dict[str, int] = dict.fromkeys(source.scene.categories_present, 0)
-    sightings: dict[int, list[_Sighting]] = {}
+    sightings: dict[int, list[_Sighting | _SightingMessage]] = {}
     """By the keyframe (its position) they follow."""
+    device = encoders[cfg.knobs.depth_downsampling_ratio]
     for index in range(cfg.frames):
-        if index % interval == 0:
+        if is_keyframe(index, interval):
             continue
-        if cfg.sightings:
+        after = bisect.bisect_right(keyframes, index) - 1  # the keyframe it follows
+        if cfg.sightings and cfg.upstream == "sightings":
             frame = source.frame(index)
             view = frame.view
-            sightings.setdefault(index // interval, []).append(
+            message = device.encode_source_frame_as_sighting(frame).message
+            sightings.setdefault(after, []).append(
+                _SightingMessage(msgpack.packb(message, use_bin_type=True))
+            )
+        elif cfg.sightings:
+            frame = source.frame(index)
+            view = frame.view
+            sightings.setdefault(after, []).append(
                 _Sighting(
                     seq=index,
                     t=frame.t,
@@ -204,7 +244,7 @@ def _encode_keyframes(
             view = source.renderer.render(source.poses[index], source.camera)
         for name in _in_view(noise_free, view, index):
             in_view[name] = in_view.get(name, 0) + 1
-    for i, frame in enumerate(source.frames(every=interval)):
+    for i, frame in enumerate(source.frame(index) for index in keyframes):
         for name in _in_view(noise_free, frame.view, frame.index):
             in_view[name] = in_view.get(name, 0) + 1
         for ratio, encoder in encoders.items():
@@ -241,7 +281,7 @@ class MappedRun:
     but its "total") and "update" (0 on keyframes without one)."""
 
     sightings_ms: list[float] = field(default_factory=list)
-    """Per non-keyframe handed over as sightings: validate + `MappingEngine.sight`."""
+    """Per non-keyframe handed over as sightings: decode + validate + `MappingEngine.sight`."""
 
     def add_stage(self, stage: str, ms: float) -> None:
         self.stages_ms.setdefault(stage, []).append(ms)
@@ -251,7 +291,7 @@ def map_keyframes(
     messages: dict[str, list[dict]],
     engines: dict[str, MappingEngine],
     progress: Progress,
-    sightings: dict[int, list[_Sighting]] | None = None,
+    sightings: dict[int, list[_Sighting | _SightingMessage]] | None = None,
     ratios: dict[str, int] | None = None,
 ) -> dict[str, MappedRun]:
     """Feed each engine its wire messages through decode + mapping + the downstream update
@@ -285,9 +325,8 @@ def map_keyframes(
                     run.add_stage(stage, ms)
             run.add_stage("update", (t3 - t2) * 1e3)
             for sighting in sightings.get(i, []):
-                frame = sighting.frame(ratios[name])  # type: ignore[index]
                 t4 = time.perf_counter()
-                engine.sight(frame, engine.validate_frame(frame))
+                engine.sight(*sighting.decode(engine, ratios[name]))  # type: ignore[index]
                 run.sightings_ms.append((time.perf_counter() - t4) * 1e3)
         if (i + 1) % 20 == 0 or i + 1 == n_keyframes:
             progress(
@@ -384,6 +423,8 @@ def run_eval(
     baseline at another depth ratio: keyframes are encoded at each ratio the engines use),
     mapped in the same interleaved loop and reported under "variants".
     """
+    if cfg.upstream not in UPSTREAMS:
+        raise ValueError(f"upstream must be one of {', '.join(UPSTREAMS)}, got {cfg.upstream!r}")
     variants = variants or {}
     clash = variants.keys() & set(cfg.modes)
     if clash:
@@ -412,6 +453,7 @@ def run_eval(
         "upstream_bytes_per_keyframe": {k: v / max(n_keyframes, 1) for k, v in upstream.items()},
         "queries": "built-in paraphrases" if cfg.queries is None else "file",
         "sightings": cfg.sightings,
+        "upstream": cfg.upstream,
         "in_view_definition": IN_VIEW_DEFINITION,
         "frames_in_view": {name: in_view.get(name, 0) for name in categories},
         "unobserved_categories": sorted(set(categories) - observed),

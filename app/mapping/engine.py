@@ -56,6 +56,10 @@ SIGHTING_MIN_POINTS = 5
 are visible there (in the image, in front of the camera, not hidden behind nearer depth)..."""
 SIGHTING_COVER = 0.5
 """...and at least this fraction of those fall in one detection carrying one of its labels."""
+SIGHTING_AGREEMENT = 0.5
+"""A candidate is confirmed by sightings only if it was seen on at least this fraction of
+the frames it was in view: a detection with a confused label (the detector calls a window a
+door one frame in twenty) builds a candidate that its frames rarely agree with."""
 SIGHTING_SAMPLE_POINTS = 200
 """Points of each object projected into a non-keyframe (a regular subsample)."""
 SIGHTING_DEPTH_TOLERANCE_M = 0.1
@@ -103,6 +107,20 @@ class IntegrationStats:
 
 
 @dataclass
+class _Glimpses:
+    """What the frames said about one candidate object (frame seqs)."""
+
+    seen: set[int] = field(default_factory=set)
+    """Keyframes where it was observed and non-keyframes where it was sighted."""
+    missed: set[int] = field(default_factory=set)
+    """Non-keyframes where it was in view but no detection of its own sighted it."""
+
+    def update(self, other: _Glimpses) -> None:
+        self.seen |= other.seen
+        self.missed |= other.missed - self.seen
+
+
+@dataclass
 class QueryHit:
     object: MapObject
     score: float
@@ -116,6 +134,44 @@ class _Observation:
     points: np.ndarray
     embedding: np.ndarray
     bbox: np.ndarray
+
+
+def _project(
+    points: np.ndarray, frame: FrameInput
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """World points float32 [N, 3] into the frame's RGB image: (u, v) int pixel, z metres
+    (in front of the camera, inside the image) and the bool [N] mask of those points."""
+    pose = np.asarray(frame.pose, np.float64)
+    cam = (points.astype(np.float64) - pose[:3, 3]) @ pose[:3, :3]
+    fx, fy, cx, cy = frame.intrinsics
+    width, height = frame.rgb_size
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.floor(fx * cam[:, 0] / z + cx + 0.5)
+        v = np.floor(fy * cam[:, 1] / z + cy + 0.5)
+    kept = (z > 1e-3) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    return u[kept].astype(np.int64), v[kept].astype(np.int64), z[kept], kept
+
+
+def _pixels(image: np.ndarray, u: np.ndarray, v: np.ndarray, rgb_width: int) -> np.ndarray:
+    """The values of an image at the RGB size divided by an integer ratio (depth, instance
+    ids) under RGB pixels (u, v): each of its pixels stands for a ratio x ratio block."""
+    ratio = max(1, round(rgb_width / image.shape[1]))
+    return image[
+        np.minimum(v // ratio, image.shape[0] - 1), np.minimum(u // ratio, image.shape[1] - 1)
+    ]
+
+
+def _check_size_ratio(field_name: str, image: np.ndarray, rgb_size: tuple[int, int]) -> None:
+    """InputError unless `image` [h, w] is the RGB size (W, H) divided by an integer ratio."""
+    width, height = rgb_size
+    h, w = image.shape[:2]
+    ratio = max(1, round(width / max(w, 1)))
+    if w == 0 or h == 0 or width // ratio != w or height // ratio != h:
+        raise InputError(
+            field_name,
+            f"is {w}x{h}, which is not the RGB size {width}x{height} divided by an integer ratio",
+        )
 
 
 class MappingEngine:
@@ -151,9 +207,10 @@ class MappingEngine:
         """Objects changed since they were last denoised."""
         self._changed_since_merge_check: set[int] = set()
         """Objects changed since they were last compared with their neighbours for a merge."""
-        self._sightings: dict[int, set[int]] = {}
-        """Candidate (unconfirmed) object id -> the frame seqs it was seen on, keyframes
-        (observations) and non-keyframes (`sight`) alike."""
+        self._sightings: dict[int, _Glimpses] = {}
+        """Candidate (unconfirmed) object id -> the frames it was seen on, keyframes
+        (observations) and non-keyframes (`sight`) alike, and the non-keyframes where it was
+        in view but not sighted."""
         self._sighted: set[int] = set()
         """Candidates sighted since the last keyframe: `_confirm` considers them there."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
@@ -183,6 +240,25 @@ class MappingEngine:
         Returns those detections indexed (None when the frame carries none): what a
         keyframe's perception gets as `sent`. Nothing after this re-validates the frame.
         """
+        self._validate_view(frame)
+        if frame.instance_ids is None:
+            return None
+        return detections_from_instance_image(frame.instance_ids, frame.instances, frame.rgb_size)
+
+    def validate_sighting(self, frame: FrameInput) -> FrameDetections:
+        """The checks of `validate_frame` for a sighting (`app.protocol.parse_sighting`),
+        whose instance image, which it must carry, may be the RGB size divided by an
+        integer ratio, as its depth is. Returns the detections for `sight` (their boxes in
+        the instance image's pixels)."""
+        self._validate_view(frame)
+        if frame.instance_ids is None:
+            raise InputError("detections", "a sighting must carry detections")
+        _check_size_ratio("detections", frame.instance_ids, frame.rgb_size)
+        h, w = frame.instance_ids.shape
+        return detections_from_instance_image(frame.instance_ids, frame.instances, (w, h))
+
+    def _validate_view(self, frame: FrameInput) -> None:
+        """Pose, intrinsics, RGB size and depth of a frame or a sighting."""
         pose = validate_rigid_pose(np.asarray(frame.pose, np.float64))
         if np.abs(pose[:3, 3]).max() > MAX_WORLD_M:
             raise InputError(
@@ -208,16 +284,7 @@ class MappingEngine:
             raise InputError("depth", "must be a 2-D array")
         if depth.dtype != np.float32:
             raise InputError("depth", f"must be float32 metres, got {depth.dtype}")
-        h, w = depth.shape
-        ratio = max(1, round(width / max(w, 1)))
-        if w == 0 or h == 0 or width // ratio != w or height // ratio != h:
-            raise InputError(
-                "depth",
-                f"is {w}x{h}, which is not the RGB size {width}x{height} divided by an integer ratio",
-            )
-        if frame.instance_ids is None:
-            return None
-        return detections_from_instance_image(frame.instance_ids, frame.instances, frame.rgb_size)
+        _check_size_ratio("depth", depth, frame.rgb_size)
 
     # ------------------------------------------------------------------ integration
     def integrate(self, frame: FrameInput) -> IntegrationStats:
@@ -262,7 +329,7 @@ class MappingEngine:
         touched = self._apply(observations, matches, stats)
         for oid in touched:
             if not self.objects[oid].confirmed:
-                self._sightings.setdefault(oid, set()).add(int(frame.seq))
+                self._sightings.setdefault(oid, _Glimpses()).seen.add(int(frame.seq))
         removed: set[int] = set()
         due = self._denoise_due()
         if due or self.keyframes % self.knobs.cleanup_interval == 0:
@@ -496,9 +563,9 @@ class MappingEngine:
         keep.last_seen = max(keep.last_seen, gone.last_seen)
         keep.version += 1
         del self.objects[gone.id]
-        gone_seen = self._sightings.pop(gone.id, set())
-        if not keep.confirmed and gone_seen:
-            self._sightings.setdefault(keep.id, set()).update(gone_seen)
+        gone_seen = self._sightings.pop(gone.id, None)
+        if not keep.confirmed and gone_seen is not None:
+            self._sightings.setdefault(keep.id, _Glimpses()).update(gone_seen)
 
     def _denoise_due(self) -> list[int]:
         """The objects whose outliers this keyframe removes, in id order.
@@ -589,16 +656,21 @@ class MappingEngine:
     def _qualifies(self, obj: MapObject) -> bool:
         """Seen on `min_observations` keyframes, or on `min_observations` frames (keyframes
         and non-keyframe sightings) whose seqs span more than `min_observations` frames
-        (first and last at least that far apart): an object in view for a second or two of
-        a sweep (one keyframe and the frames after it) is confirmed, a detection that lives
-        for `min_observations` frames or fewer (a transient) is not."""
+        (first and last at least that far apart) and that are at least SIGHTING_AGREEMENT of
+        the frames it was in view: an object in view for a second or two of a sweep (one
+        keyframe and the frames after it) is confirmed; a detection that lives for
+        `min_observations` frames or fewer (a transient), and one whose label the other
+        frames mostly contradict (a label confusion), are not."""
         if obj.frames_seen >= self.knobs.min_observations:
             return True
-        seqs = self._sightings.get(obj.id)
+        glimpses = self._sightings.get(obj.id)
+        if glimpses is None:
+            return False
+        seqs = glimpses.seen
         return (
-            seqs is not None
-            and len(seqs) >= self.knobs.min_observations
+            len(seqs) >= self.knobs.min_observations
             and max(seqs) - min(seqs) >= self.knobs.min_observations
+            and len(seqs) >= SIGHTING_AGREEMENT * (len(seqs) + len(glimpses.missed))
         )
 
     def _confirm(self, touched: set[int]) -> set[int]:
@@ -619,67 +691,76 @@ class MappingEngine:
         """Count a non-keyframe's detections as sightings of candidate objects (DESIGN.md
         "Keyframes": a detection sent with a non-keyframe may count towards confirmation).
 
-        frame: validated by `validate_frame`, which returned `sent`. Each unconfirmed object
-        is projected into the frame; it is sighted when enough of its visible points
-        (SIGHTING_MIN_POINTS, SIGHTING_COVER) fall in one detection whose label it carries.
+        frame: validated by `validate_frame`, which returned `sent` (its instance image and
+        depth may be at the RGB size divided by any integer ratio). Every object is projected
+        into the frame (a sample of SIGHTING_SAMPLE_POINTS points); a candidate (unconfirmed
+        object) is in view when at least SIGHTING_MIN_POINTS of them are visible (in the
+        image, in front of the camera, not hidden behind nearer depth). It is sighted when
+        at least SIGHTING_COVER of its visible points fall in one detection that is its own:
+        the detection carries one of its labels, no confirmed object carrying that label is
+        visible in it (the candidate would be a fragment or a duplicate of that object), and
+        no other candidate carrying the label has more points in it. A candidate in view but
+        not sighted is missed there (`_qualifies` weighs sightings against misses).
+
         Nothing is lifted and no geometry changes; a candidate that now qualifies is
-        confirmed, and published, by the next keyframe. A detection sights only the object
-        with the most visible points in it among those carrying its label. Returns the
-        sighted ids."""
-        if sent is None or not sent.detections:
+        confirmed, and published, by the next keyframe. Returns the sighted ids."""
+        if sent is None or not any(not o.confirmed for o in self.objects.values()):
             return []
-        candidates = [o for o in self.objects.values() if not o.confirmed and len(o.points)]
-        if not candidates:
+        objects = [o for o in self.objects.values() if len(o.points)]
+        samples = [o.points[:: max(1, len(o.points) // SIGHTING_SAMPLE_POINTS)] for o in objects]
+        if not samples:
             return []
+        owner = np.repeat(np.arange(len(objects)), [len(p) for p in samples])
+        u, v, z, kept = _project(np.concatenate(samples), frame)
+        owner = owner[kept]
+        width, height = frame.rgb_size
+        sensed = _pixels(frame.depth_m, u, v, width)
+        visible = (sensed > 0) & (np.abs(z - sensed) <= SIGHTING_DEPTH_TOLERANCE_M + 0.05 * z)
+        owner, u, v = owner[visible], u[visible], v[visible]
+        det_ids, column = np.unique(_pixels(sent.instance_image, u, v, width), return_inverse=True)
+        # counts[i, k]: visible sample points of objects[i] in detection det_ids[k] (0: none)
+        counts = np.bincount(
+            owner * len(det_ids) + column, minlength=len(objects) * len(det_ids)
+        ).reshape(len(objects), len(det_ids))
+        n_visible = counts.sum(axis=1)
+        sample_sizes = np.array([len(p) for p in samples])
+        in_view = np.flatnonzero(n_visible >= np.minimum(SIGHTING_MIN_POINTS, sample_sizes))
+
         skip = {label.lower() for label in self.knobs.skip_mapping_set}
         label_of = {d.instance_id: d.label for d in sent.detections if d.label.lower() not in skip}
-        pose = np.asarray(frame.pose, np.float64)
-        rotation, origin = pose[:3, :3], pose[:3, 3]
-        fx, fy, cx, cy = frame.intrinsics
-        width, height = frame.rgb_size
-        depth = frame.depth_m
-        ratio = max(1, round(width / depth.shape[1]))
-        # Every object with a point sample competes for the detections; a candidate is
-        # sighted only by a detection it owns (most visible points among the objects carrying
-        # the detection's label), so a fragment of a confirmed object is not sighted by the
-        # object's own detection.
-        claims: dict[int, list[tuple[int, int]]] = {}  # detection id -> [(points, object id)]
-        best_of: dict[int, int] = {}
-        for obj in self.objects.values():
-            if not len(obj.points):
-                continue
-            points = obj.points[:: max(1, len(obj.points) // SIGHTING_SAMPLE_POINTS)]
-            cam = (points.astype(np.float64) - origin) @ rotation
-            z = cam[:, 2]
-            front = z > 1e-3
-            u = np.floor(fx * cam[front, 0] / z[front] + cx + 0.5).astype(np.int64)
-            v = np.floor(fy * cam[front, 1] / z[front] + cy + 0.5).astype(np.int64)
-            z = z[front]
-            inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-            u, v, z = u[inside], v[inside], z[inside]
-            sensed = depth[
-                np.minimum(v // ratio, depth.shape[0] - 1),
-                np.minimum(u // ratio, depth.shape[1] - 1),
-            ]
-            visible = (sensed > 0) & (np.abs(z - sensed) <= SIGHTING_DEPTH_TOLERANCE_M + 0.05 * z)
-            n_visible = int(visible.sum())
-            if n_visible < min(SIGHTING_MIN_POINTS, len(points)):
-                continue
-            counts = np.bincount(sent.instance_image[v[visible], u[visible]])
-            counts[0] = 0
-            for det_id in np.flatnonzero(counts):
-                if label_of.get(int(det_id)) in obj.label_counts:
-                    claims.setdefault(int(det_id), []).append((int(counts[det_id]), obj.id))
-            best = int(np.argmax(counts))
-            if not obj.confirmed and counts[best] >= SIGHTING_COVER * n_visible:
-                best_of[obj.id] = best
+        labels = [label_of.get(int(d)) for d in det_ids]
+        taken: set[int] = set()  # columns a confirmed object carrying their label is seen in
+        best_candidate: dict[int, tuple[int, int]] = {}  # column -> (points, object index)
+        claim_of: dict[int, int] = {}  # candidate index -> the column it would be sighted by
+        for i in in_view:
+            obj = objects[i]
+            row = counts[i]
+            for k in np.flatnonzero(row):
+                if labels[k] is None or labels[k] not in obj.label_counts:
+                    continue
+                if obj.confirmed:
+                    if row[k] >= SIGHTING_MIN_POINTS:
+                        taken.add(int(k))
+                elif (int(row[k]), int(i)) > best_candidate.get(int(k), (0, -1)):
+                    best_candidate[int(k)] = (int(row[k]), int(i))
+            if not obj.confirmed:
+                k = int(np.argmax(row * (det_ids > 0)))
+                if det_ids[k] and row[k] >= SIGHTING_COVER * n_visible[i]:
+                    claim_of[int(i)] = k
         sighted = []
-        for oid, det_id in best_of.items():
-            if max(claims.get(det_id, [(0, 0)]))[1] != oid:
+        seq = int(frame.seq)
+        for i in in_view:
+            obj = objects[i]
+            if obj.confirmed:
                 continue
-            self._sightings.setdefault(oid, set()).add(int(frame.seq))
-            self._sighted.add(oid)
-            sighted.append(oid)
+            k = claim_of.get(int(i))
+            glimpses = self._sightings.setdefault(obj.id, _Glimpses())
+            if k is None or k in taken or best_candidate.get(k, (0, -1))[1] != i:
+                glimpses.missed.add(seq)
+                continue
+            glimpses.seen.add(seq)
+            self._sighted.add(obj.id)
+            sighted.append(obj.id)
         return sorted(sighted)
 
     # ------------------------------------------------------------------ reading the map

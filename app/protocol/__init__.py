@@ -7,6 +7,8 @@ are raw bytes), JSON over HTTP.
 
     frame.py     device -> server, stream socket: `pack_frame`, `unpack_frame_message`,
                  `parse_frame` -> `FrameInput`
+    sighting.py  device -> server, stream socket, the negotiated sightings extension:
+                 `SIGHTINGS_SUBPROTOCOL`, `pack_sighting`, `parse_sighting` -> `FrameInput`
     replies.py   server -> device, stream socket: `Ack`, `ErrorReply`, `parse_reply`
     delta.py     server -> subscribers, updates socket: `UpsertEntry`, `DeltaMessage`,
                  `pack_delta`, `unpack_update`, `parse_delta` (raises `DeltaError`)
@@ -67,6 +69,7 @@ from app.protocol.rest import (
     UnprocessableBody,
     parse_query_result,
 )
+from app.protocol.sighting import SIGHTINGS_SUBPROTOCOL, pack_sighting, parse_sighting
 
 __all__ = [
     "DEFAULT_EMBEDDING_DIM",
@@ -77,6 +80,7 @@ __all__ = [
     "MAX_REMOVED_PER_DELTA",
     "MAX_UPSERTS_PER_DELTA",
     "PROTOCOL_VERSION",
+    "SIGHTINGS_SUBPROTOCOL",
     "KNOB_CHANGES_SCHEMA",
     "MAX_QUERY_CHARS",
     "Ack",
@@ -105,9 +109,11 @@ __all__ = [
     "pack_delta",
     "pack_depth_patches",
     "pack_frame",
+    "pack_sighting",
     "patch_rows",
     "parse_delta",
     "parse_frame",
+    "parse_sighting",
     "parse_query_result",
     "parse_reply",
     "unpack_frame_message",

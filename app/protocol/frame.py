@@ -232,6 +232,51 @@ def parse_frame(
         raise InputError("message", f"must be a map, got {type(message).__name__}")
     if message.get("type") != "frame":
         raise InputError("type", f"must be 'frame', got {message.get('type')!r}")
+    seq, t, pose, intrinsics = parse_stamp_and_camera(message)
+
+    rgb_msg = _require(message, "rgb", dict)
+    if rgb_msg.get("codec") != "jpeg":
+        raise InputError("rgb.codec", f"must be 'jpeg', got {rgb_msg.get('codec')!r}")
+    rgb_data = _require(rgb_msg, "data", bytes, "rgb.")
+    budget.check_pixels("rgb", *codecs.jpeg_size(rgb_data, field="rgb"))
+    if rgb_pixels:
+        rgb = codecs.decode_jpeg(rgb_data, field="rgb")
+        height, width = rgb.shape[:2]
+    else:
+        rgb = None
+        width, height = codecs.validate_jpeg(rgb_data, field="rgb")
+
+    depth_m = parse_depth(message, budget)
+
+    instance_ids, instances = None, []
+    det_msg = message.get("detections")
+    if det_msg is not None:
+        instance_ids, instances = parse_detections(det_msg, budget, rgb_size=(width, height))
+    scale = float(message["depth"]["scale"])  # validated by parse_depth
+    patches = _parse_depth_patches(message.get("depth_patches"), width, height, scale, budget)
+
+    return FrameInput(
+        seq=seq,
+        t=t,
+        pose=pose,
+        intrinsics=intrinsics,
+        rgb_size=(width, height),
+        depth_m=depth_m,
+        rgb=rgb,
+        instance_ids=instance_ids,
+        instances=instances,
+        depth_patches=patches,
+    )
+
+
+# --- parts shared by the stream socket's messages (frame, and the sighting extension) ---------
+
+
+def parse_stamp_and_camera(
+    message: dict,
+) -> tuple[int, float, np.ndarray, tuple[float, float, float, float]]:
+    """(seq, t, pose [4, 4] camera-to-world, intrinsics (fx, fy, cx, cy)) of a message;
+    InputError naming the first bad field."""
     seq = _require(message, "seq", int)
     t = float(_require(message, "t", (int, float)))
     if not math.isfinite(t):
@@ -248,19 +293,12 @@ def parse_frame(
     fx, fy, cx, cy = (float(v) for v in intrinsics)
     if not (0 < fx < MAX_INTRINSIC_PX and 0 < fy < MAX_INTRINSIC_PX):
         raise InputError("intrinsics", "fx and fy must be positive")
+    return seq, t, pose, (fx, fy, cx, cy)
 
-    rgb_msg = _require(message, "rgb", dict)
-    if rgb_msg.get("codec") != "jpeg":
-        raise InputError("rgb.codec", f"must be 'jpeg', got {rgb_msg.get('codec')!r}")
-    rgb_data = _require(rgb_msg, "data", bytes, "rgb.")
-    budget.check_pixels("rgb", *codecs.jpeg_size(rgb_data, field="rgb"))
-    if rgb_pixels:
-        rgb = codecs.decode_jpeg(rgb_data, field="rgb")
-        height, width = rgb.shape[:2]
-    else:
-        rgb = None
-        width, height = codecs.validate_jpeg(rgb_data, field="rgb")
 
+def parse_depth(message: dict, budget: FrameBudget) -> np.ndarray:
+    """The message's "depth" part -> float32 [h, w] metres (0 = no depth); its declared size
+    is checked against `budget` before it is decoded."""
     depth_msg = _require(message, "depth", dict)
     dw, dh = _image_size(depth_msg, "depth.")
     budget.check_pixels("depth", dw, dh)
@@ -271,43 +309,35 @@ def parse_frame(
     raw_depth = codecs.decode_uint16_image(
         _require(depth_msg, "data", bytes, "depth."), codec, dw, dh, field="depth"
     )
-    depth_m = raw_depth.astype(np.float32) * np.float32(scale)
+    return raw_depth.astype(np.float32) * np.float32(scale)
 
-    instance_ids, instances = None, []
-    det_msg = message.get("detections")
-    if det_msg is not None:
-        if not isinstance(det_msg, dict):
-            raise InputError("detections", "must be a map")
-        iw, ih = _image_size(det_msg, "detections.")
-        if (iw, ih) != (width, height):
-            raise InputError(
-                "detections",
-                f"instance image is {iw}x{ih}, RGB is {width}x{height}; they must match",
-            )
-        instances = _require(det_msg, "instances", list, "detections.")
-        budget.check_instances("detections.instances", len(instances))
-        instance_ids = codecs.decode_uint16_image(
-            _require(det_msg, "data", bytes, "detections."),
-            _require(det_msg, "codec", str, "detections."),
-            iw,
-            ih,
-            field="detections",
+
+def parse_detections(
+    det_msg: Any, budget: FrameBudget, rgb_size: tuple[int, int] | None = None
+) -> tuple[np.ndarray, list]:
+    """A "detections" part -> (uint16 [h, w] instance ids, the instances list as sent, for
+    the engine to validate). Before the image is decoded: its declared size must be
+    `rgb_size` (W, H) where given, and it and the instance count are checked against
+    `budget`."""
+    if not isinstance(det_msg, dict):
+        raise InputError("detections", "must be a map")
+    iw, ih = _image_size(det_msg, "detections.")
+    if rgb_size is not None and (iw, ih) != tuple(rgb_size):
+        raise InputError(
+            "detections",
+            f"instance image is {iw}x{ih}, RGB is {rgb_size[0]}x{rgb_size[1]}; they must match",
         )
-
-    patches = _parse_depth_patches(message.get("depth_patches"), width, height, scale, budget)
-
-    return FrameInput(
-        seq=seq,
-        t=t,
-        pose=pose,
-        intrinsics=(fx, fy, cx, cy),
-        rgb_size=(width, height),
-        depth_m=depth_m,
-        rgb=rgb,
-        instance_ids=instance_ids,
-        instances=instances,
-        depth_patches=patches,
+    budget.check_pixels("detections", iw, ih)
+    instances = _require(det_msg, "instances", list, "detections.")
+    budget.check_instances("detections.instances", len(instances))
+    instance_ids = codecs.decode_uint16_image(
+        _require(det_msg, "data", bytes, "detections."),
+        _require(det_msg, "codec", str, "detections."),
+        iw,
+        ih,
+        field="detections",
     )
+    return instance_ids, instances
 
 
 def _parse_depth_patches(

@@ -49,6 +49,7 @@ import numpy as np
 
 from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
+from app.keyframes import is_keyframe
 from app.mapping.deltas import DeltaLog
 from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
 from app.mapping.export import imported_object
@@ -92,6 +93,9 @@ LAST_USE_SAVE_INTERVAL_S = 60.0
 """Longest a session's last use (of requests only) waits to be saved while it stays resident."""
 RETENTION_CHECK_MAX_INTERVAL_S = 600.0
 """Retention is checked every tenth of the retention period, at least this often."""
+SIGHTINGS_WAITING = 8
+"""Most non-keyframes a session holds for sighting while a keyframe is on its way or a reader
+holds the map; beyond it the oldest is forgotten (frames are samples, not a log)."""
 STORAGE_UNAVAILABLE_MESSAGE = (
     "the server cannot save the map now (storage unavailable), so it did not map this "
     "keyframe; the map so far is safe and queries still work; retry later"
@@ -216,6 +220,8 @@ class Session:
     """Sockets and requests using the session now (counted by `Residency`)."""
     last_used: float = field(default_factory=time.monotonic)
     """time.monotonic() of the last use (frame, request, socket): idleness, LRU order."""
+    _sightings_waiting: deque = field(default_factory=lambda: deque(maxlen=SIGHTINGS_WAITING))
+    """(frame, sent) of validated non-keyframes not yet counted as sightings (`sight`)."""
 
     @property
     def busy(self) -> bool:
@@ -307,6 +313,34 @@ class Session:
         """The update message for a subscriber whose last applied seq is `since`."""
         with self._map_lock:
             return update_message(self.engine, since)
+
+    # ------------------------------------------------------------------ sightings
+    def sight(self, frame: FrameInput, sent: FrameDetections) -> None:
+        """In a decode thread: count a validated non-keyframe's detections as sightings
+        towards confirmation (`MappingEngine.sight`), in frame order and without ever
+        waiting for the map. While a keyframe is on its way (waiting for its turn or
+        mapping) the frame waits behind it, since the keyframe may create the candidates it
+        sights; the next keyframe counts what waits before it maps, and so does the next
+        sighting once the map is free. A sighting changes nothing published: a candidate it
+        qualifies is confirmed, then committed and published, by the next keyframe."""
+        self._sightings_waiting.append((frame, sent))
+        if not self._mapping and self._map_lock.acquire(blocking=False):
+            try:
+                self.sight_waiting()
+            finally:
+                self._map_lock.release()
+
+    def sight_waiting(self) -> None:
+        """Under the map lock: count the waiting sightings, oldest first. A sighting that
+        fails is logged and forgotten; it never fails a keyframe."""
+        while self._sightings_waiting and not self._closed:
+            frame, sent = self._sightings_waiting.popleft()
+            try:
+                self.engine.sight(frame, sent)
+            except Exception:
+                log.exception(
+                    "session %s: counting frame %s as a sighting failed", self.id, frame.seq
+                )
 
     # ------------------------------------------------------------------ publishing
     def wait_published(self) -> asyncio.Event:
@@ -767,10 +801,26 @@ class SessionManager:
         event loop: a hostile message costs a decode thread, not every session's sockets)."""
         return await asyncio.get_running_loop().run_in_executor(self.decode_pool, decode)
 
-    def count_frame(self, session: Session, frame_bytes: dict[str, int]) -> bool:
-        """Count a valid frame; True when it is a keyframe. The counters reach the store with
-        each keyframe, or in a counters-only write when they were last saved more than
-        COUNTERS_SAVE_INTERVAL_S ago."""
+    async def sight(
+        self, session: Session, frame: FrameInput, sent: FrameDetections | None
+    ) -> None:
+        """Count a validated non-keyframe's detections as sightings (`Session.sight`), in the
+        decode pool; only where the session maps the device's own detections."""
+        if sent is None or session.engine.backend.name != DEFAULT_BACKEND:
+            return
+        with contextlib.suppress(RuntimeError):  # the pool shut down: the server is stopping
+            await asyncio.get_running_loop().run_in_executor(
+                self.decode_pool, session.sight, frame, sent
+            )
+
+    def count_frame(
+        self, session: Session, frame_bytes: dict[str, int], keyframe: bool | None = None
+    ) -> bool:
+        """Count a valid frame (or sighting); True when it is a keyframe: the one the device
+        picked (`keyframe`, with the sightings extension), else the shared selector's pick
+        among the frames received (`app.keyframes.is_keyframe`). The counters reach the
+        store with each keyframe, or in a counters-only write when they were last saved more
+        than COUNTERS_SAVE_INTERVAL_S ago."""
         rec = session.record
         rec.frames += 1
         session.touch()
@@ -783,7 +833,9 @@ class SessionManager:
             self.metrics.upstream_bytes.labels(kind=kind).inc(n)
         if now - self._counters_saved_at.get(session.id, 0.0) >= COUNTERS_SAVE_INTERVAL_S:
             self.save_counters_soon(session)
-        return (rec.frames - 1) % session.knobs.keyframe_interval == 0
+        if keyframe is not None:
+            return keyframe
+        return is_keyframe(rec.frames - 1, session.knobs.keyframe_interval)
 
     # ------------------------------------------------------------------ counters and storage
     def save_counters_soon(self, session: Session) -> None:
@@ -1031,6 +1083,7 @@ class SessionManager:
                 raise InputError("session", "the session was deleted")
             if not self.probe_storage():
                 raise StorageUnavailable(StorageHealth.REASON)
+            session.sight_waiting()  # the frames since the last keyframe count first
             t_locked = time.perf_counter()  # waiting for a reader of the map is not mapping
             engine, frame = session.engine, pending.frame
             detections = engine.perceive(frame, pending.sent)  # changes nothing in the map

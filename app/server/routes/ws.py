@@ -16,12 +16,14 @@ from fastapi.responses import JSONResponse
 from app.errors import InputError
 from app.perception.base import FrameDetections
 from app.protocol import (
+    SIGHTINGS_SUBPROTOCOL,
     Ack,
     ErrorReply,
     FrameBudget,
     FrameInput,
     LimitError,
     parse_frame,
+    parse_sighting,
     unpack_frame_message,
 )
 from app.server.auth import authorize_session, bearer
@@ -88,6 +90,8 @@ class _Decoded:
     decode_ms: float
     """What unpacking, decoding and validating took (part of a keyframe's mapping latency)."""
     payload_bytes: dict[str, int]
+    sighting: bool = False
+    """A `sighting` (the sightings extension), not a `frame`."""
 
 
 class _Refused(Exception):
@@ -100,11 +104,15 @@ class _Refused(Exception):
         """False for a message that is not even msgpack within the limits (no seq known)."""
 
 
-def _decode_and_validate(data: bytes, session: Session, budget: FrameBudget) -> _Decoded:
+def _decode_and_validate(
+    data: bytes, session: Session, budget: FrameBudget, sightings: bool = False
+) -> _Decoded:
     """In a decode thread, once per message, never on the event loop: unpack it within the
     protocol's limits, check it against the server's budget before any pixel is decoded,
     decode and validate it, so everything the engine would refuse is refused here, keyframe
-    or not. Perception runs later, on keyframes only. Raises _Refused with the reply."""
+    or not. Perception runs later, on keyframes only. `sightings`: the socket negotiated the
+    sightings extension, so a `sighting` message is welcome. Raises _Refused with the
+    reply."""
     t0 = time.perf_counter()
     try:
         message = unpack_frame_message(data)
@@ -113,19 +121,37 @@ def _decode_and_validate(data: bytes, session: Session, budget: FrameBudget) -> 
     seq = message.get("seq") if isinstance(message, dict) else None
     seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
     engine = session.engine
+    sighting = isinstance(message, dict) and message.get("type") == "sighting"
     try:
-        frame = parse_frame(message, rgb_pixels=engine.backend.needs_rgb, budget=budget)
-        sent = engine.validate_frame(frame)
+        if sighting and not sightings:
+            raise InputError(
+                "type",
+                "a 'sighting' needs the stream socket opened with the WebSocket subprotocol "
+                f"{SIGHTINGS_SUBPROTOCOL!r} (the sightings extension); send frames whole here",
+            )
+        if sighting:
+            frame = parse_sighting(message, budget=budget)
+            sent = engine.validate_sighting(frame)
+        else:
+            frame = parse_frame(message, rgb_pixels=engine.backend.needs_rgb, budget=budget)
+            sent = engine.validate_frame(frame)
     except LimitError as exc:
         raise _Refused(ErrorReply(seq, "over_limit", str(exc)), is_frame=True) from None
     except InputError as exc:
         raise _Refused(ErrorReply(seq, "bad_frame", str(exc)), is_frame=True) from None
-    return _Decoded(frame, sent, (time.perf_counter() - t0) * 1e3, _payload_bytes(message))
+    return _Decoded(
+        frame, sent, (time.perf_counter() - t0) * 1e3, _payload_bytes(message), sighting
+    )
 
 
 @router.websocket("/sessions/{sid}/stream")
 async def stream(ws: WebSocket, sid: str) -> None:
-    """Frames in, exactly one ack or error out per frame."""
+    """Frames in, exactly one ack or error out per frame.
+
+    A device offering the WebSocket subprotocol SIGHTINGS_SUBPROTOCOL gets it selected: it
+    then picks the keyframes (every `frame` it sends is mapped) and sends `sighting`s between
+    them (app/protocol/sighting.py). Otherwise the server picks the keyframes among the
+    frames it receives (app.keyframes)."""
     session = await _authorize(ws, sid)
     if session is None:
         return
@@ -138,7 +164,8 @@ async def stream(ws: WebSocket, sid: str) -> None:
 async def _stream_frames(ws: WebSocket, session: Session) -> None:
     manager: SessionManager = ws.app.state.manager
     settings = manager.settings
-    await ws.accept()
+    sightings = SIGHTINGS_SUBPROTOCOL in ws.scope.get("subprotocols", [])
+    await ws.accept(subprotocol=SIGHTINGS_SUBPROTOCOL if sightings else None)
     send_lock = asyncio.Lock()
 
     async def reply(message: dict) -> None:
@@ -174,7 +201,9 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
             else:
                 try:
                     decoded = await manager.decode(
-                        functools.partial(_decode_and_validate, data, session, manager.frame_budget)
+                        functools.partial(
+                            _decode_and_validate, data, session, manager.frame_budget, sightings
+                        )
                     )
                 except _Refused as refused:
                     if refused.is_frame:
@@ -185,12 +214,17 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
                     bad_in_a_row = 0
                     manager.metrics.frames.labels(outcome="ok").inc()
                     frame = decoded.frame
-                    if manager.count_frame(session, decoded.payload_bytes):
+                    # With the extension the device picks the keyframes: its whole frames.
+                    picked = (not decoded.sighting) if sightings else None
+                    if manager.count_frame(session, decoded.payload_bytes, picked):
                         await manager.submit_keyframe(
                             session, frame, reply, decoded.sent, decoded.decode_ms
                         )
                     else:
+                        # Acked first: a sighting changes nothing the device waits for, and
+                        # its ack time is an RTT sample (the SQ/LQ switch).
                         await reply(Ack(frame.seq, keyframe=False).pack())
+                        await manager.sight(session, frame, decoded.sent)
             if bad_in_a_row >= settings.max_bad_frames:
                 await ws.close(code=CLOSE_POLICY, reason=f"{bad_in_a_row} bad messages in a row")
                 return

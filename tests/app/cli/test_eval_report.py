@@ -110,8 +110,9 @@ def test_eval_exits_2_naming_the_query_file_before_any_work(tmp_path):
     assert "keyframes" not in proc.stderr  # refused before rendering anything
 
 
-def test_sightings_hand_the_non_keyframes_to_the_engines(encoder, report):
-    assert report["sightings"] is False and report["modes"]["semanticxr"]["sightings_ms"] is None
+def test_sightings_hand_the_non_keyframes_to_the_engines_unless_turned_off(encoder, report):
+    assert report["sightings"] is True
+    assert {"p50", "p95", "mean"} <= report["modes"]["semanticxr"]["sightings_ms"].keys()
     cfg = EvalConfig(
         scene="kitchen",
         frames=30,
@@ -119,8 +120,25 @@ def test_sightings_hand_the_non_keyframes_to_the_engines(encoder, report):
         height=120,
         modes=("semanticxr",),
         knobs=Knobs(min_mapping_bbox_area=150),
-        sightings=True,
+        sightings=False,
     )
     result = run_eval(cfg, encoder, progress=lambda _: None)
-    assert result["sightings"] is True
+    assert result["sightings"] is False
+    assert result["modes"]["semanticxr"]["sightings_ms"] is None
+
+
+def test_the_sightings_extension_path_hands_the_engines_parsed_sighting_messages(encoder):
+    cfg = EvalConfig(
+        scene="kitchen",
+        frames=30,
+        width=160,
+        height=120,
+        modes=("semanticxr",),
+        knobs=Knobs(min_mapping_bbox_area=150),
+        upstream="sightings",
+    )
+    result = run_eval(cfg, encoder, progress=lambda _: None)
+    assert result["upstream"] == "sightings"
     assert {"p50", "p95", "mean"} <= result["modes"]["semanticxr"]["sightings_ms"].keys()
+    with pytest.raises(ValueError, match="upstream must be one of frames, sightings"):
+        run_eval(EvalConfig(upstream="carrier pigeon"), encoder, progress=lambda _: None)

@@ -13,6 +13,8 @@ from app.mapping.engine import MappingEngine
 CHAIR = Rect(1, "chair", -0.6, -0.3, -0.1, 0.3, 2.0)
 MUG = Rect(2, "mug", 0.2, -0.1, 0.4, 0.1, 1.5)
 BOWL = Rect(2, "bowl", 0.2, -0.1, 0.4, 0.1, 1.5)  # the same place, another label
+WINDOW = Rect(3, "window", -0.8, -0.6, 0.8, -0.35, 3.0)
+DOOR = Rect(3, "door", -0.8, -0.6, 0.8, -0.35, 3.0)  # the window, under a confused label
 FRAMES = 40
 
 
@@ -62,6 +64,16 @@ def test_a_sighting_needs_the_objects_label(encoder):
         engine, lambda seq: [CHAIR, MUG] if seq == 10 else [CHAIR, BOWL] if seq < 18 else [CHAIR]
     )
     assert "mug" not in {o.label for o in engine.confirmed_objects()}
+
+
+def test_a_label_the_other_frames_contradict_is_not_confirmed(encoder):
+    # The detector calls the window a door on a keyframe and on two later frames, spread
+    # over more than min_observations frames; every other frame calls it a window. The door
+    # is seen on 3 frames, but contradicted on the 6 others it was in view in between.
+    engine = make_engine(encoder)
+    published = stream(engine, lambda seq: [CHAIR, DOOR if seq in (10, 13, 17) else WINDOW])
+    assert {o.label for o in engine.confirmed_objects()} == {"chair", "window"}
+    assert "door" not in labels_of(engine, published)
 
 
 def test_sightings_do_not_change_the_map(encoder):

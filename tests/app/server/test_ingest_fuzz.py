@@ -18,11 +18,13 @@ import msgpack
 import numpy as np
 import pytest
 import websockets
-from analytic_world import Rect
+from analytic_world import Rect, RectSource
 from devices import TIMEOUT_S, frame_message
 
 from app.config import Knobs
 from app.mapping.engine import MAX_WORLD_M
+from app.protocol import SIGHTINGS_SUBPROTOCOL
+from client_sim.encoder import FrameEncoder
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -113,3 +115,50 @@ def test_every_mutated_frame_gets_one_answer_and_the_map_stays_finite(live_serve
         assert np.isfinite(obj["bbox"]).all() and np.isfinite(obj["points"]).all(), obj["id"]
         # A bit-flipped pose may still be a plausible one; never one beyond the world's edge.
         assert np.abs(obj["bbox"]).max() <= MAX_WORLD_M + Knobs().max_depth_m, obj["bbox"]
+
+
+def test_every_mutated_sighting_gets_one_answer_and_the_map_stays_finite(live_server):
+    # the sightings extension: a whole frame (a keyframe), then sightings, all mutated
+    server = live_server(max_bad_frames=10**6)
+    source = RectSource([CHAIR, TABLE], 4, step_m=0.03)
+    valid = [frame_message([CHAIR, TABLE], 0)] + [
+        FrameEncoder(2).encode_source_frame_as_sighting(source.frame(seq)).message
+        for seq in range(1, 4)
+    ]
+    rng = random.Random(2)
+    with httpx.Client(base_url=server.url) as c:
+        knobs = {"min_observations": 2, "min_mapping_bbox_area": 100}
+        sid = c.post("/v1/sessions", json={"knobs": knobs}).json()["session_id"]
+
+        async def run() -> list[tuple[int, dict]]:
+            answers = []
+            url = f"{server.ws_url}/v1/sessions/{sid}/stream"
+            async with websockets.connect(
+                url, max_size=None, subprotocols=[SIGHTINGS_SUBPROTOCOL]
+            ) as ws:
+                assert ws.subprotocol == SIGHTINGS_SUBPROTOCOL
+                for i in range(200):
+                    message = _mutate(valid[i % len(valid)], rng)
+                    await ws.send(msgpack.packb(message))
+                    answers.append(
+                        (i, msgpack.unpackb(await asyncio.wait_for(ws.recv(), TIMEOUT_S)))
+                    )
+                for message in valid * 2:  # still serving, and still mapping
+                    await ws.send(msgpack.packb(message))
+                    answers.append(
+                        (-1, msgpack.unpackb(await asyncio.wait_for(ws.recv(), TIMEOUT_S)))
+                    )
+            return answers
+
+        answers = asyncio.run(run())
+        objects = c.get(f"/v1/sessions/{sid}/objects", params={"points": "true"}).json()
+
+    for i, answer in answers:
+        assert answer["type"] in ("ack", "error"), (i, answer)
+        if answer["type"] == "error":
+            assert answer["code"] == "bad_frame" and FIELD.match(answer["message"]), (i, answer)
+    assert all(answer["type"] == "ack" for i, answer in answers if i < 0)
+    assert sum(answer["type"] == "error" for _, answer in answers) > 50  # the fuzzer bites
+    assert {o["label"] for o in objects} >= {"chair", "table"}
+    for obj in objects:
+        assert np.isfinite(obj["bbox"]).all() and np.isfinite(obj["points"]).all(), obj["id"]
