@@ -60,6 +60,10 @@ class BodyLimitMiddleware:
         await send_json(send, "http.response", 413, f"request body over {self.max_bytes} bytes")
 
 
+SOCKETS_FULL_RETRY_AFTER_S = 1
+"""Retry-After (seconds) of a handshake refused at max_connections: sockets come and go."""
+
+
 class SocketLimitMiddleware:
     """Pure ASGI middleware: at most `max_sockets` WebSockets open at once; a handshake
     beyond it is answered HTTP 503. (uvicorn's `limit_concurrency` answers 503 to HTTP
@@ -88,18 +92,27 @@ class SocketLimitMiddleware:
             await send({"type": "websocket.close", "code": 1013})  # the client sees 403
             return
         await send_json(
-            send, "websocket.http.response", 503, f"over {self.max_sockets} open connections"
+            send,
+            "websocket.http.response",
+            503,
+            f"over {self.max_sockets} open connections",
+            retry_after_s=SOCKETS_FULL_RETRY_AFTER_S,
         )
 
 
-async def send_json(send: Send, kind: str, status: int, detail: str) -> None:
+async def send_json(
+    send: Send, kind: str, status: int, detail: str, retry_after_s: int | None = None
+) -> None:
     """A whole JSON answer {"detail": ...}; kind: "http.response" or, to refuse a WebSocket
-    handshake, "websocket.http.response". The connection closes after it."""
+    handshake, "websocket.http.response". The connection closes after it. retry_after_s:
+    a Retry-After header (every 503 carries one, DESIGN.md)."""
     body = json.dumps({"detail": detail}).encode()
     headers = [
         (b"content-type", b"application/json"),
         (b"content-length", str(len(body)).encode()),
         (b"connection", b"close"),
     ]
+    if retry_after_s is not None:
+        headers.append((b"retry-after", str(retry_after_s).encode()))
     await send({"type": f"{kind}.start", "status": status, "headers": headers})
     await send({"type": f"{kind}.body", "body": body})

@@ -352,6 +352,7 @@ def test_connections_beyond_max_connections_get_503_until_one_closes(live_server
             with pytest.raises(websockets.InvalidStatus) as refused:
                 await stack.enter_async_context(websockets.connect(url))
             assert refused.value.response.status_code == 503
+            assert refused.value.response.headers["Retry-After"] == "1"
         async with httpx.AsyncClient(base_url=server.url) as c:  # all closed: served again
             for _ in range(50):
                 if (await c.get("/healthz")).status_code == 200:
