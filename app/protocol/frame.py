@@ -115,6 +115,32 @@ class Uint16Image:
     data: bytes
 
 
+def pack_depth_part(depth: Uint16Image, depth_scale_m: float) -> dict:
+    """The "depth" part of a stream message: a uint16 image in units of `depth_scale_m` metres."""
+    return {
+        "codec": depth.codec,
+        "w": int(depth.w),
+        "h": int(depth.h),
+        "scale": float(depth_scale_m),
+        "data": depth.data,
+    }
+
+
+def pack_detections_part(detections: Uint16Image, instances: Sequence[dict]) -> dict:
+    """The "detections" part of a stream message: an instance-id image and its instances
+    [{"id", "label", "score"}]."""
+    return {
+        "codec": detections.codec,
+        "w": int(detections.w),
+        "h": int(detections.h),
+        "data": detections.data,
+        "instances": [
+            {"id": int(inst["id"]), "label": str(inst["label"]), "score": float(inst["score"])}
+            for inst in instances
+        ],
+    }
+
+
 def pack_frame(
     seq: int,
     t: float,
@@ -143,25 +169,10 @@ def pack_frame(
         "pose": pose,
         "intrinsics": [float(value) for value in intrinsics],
         "rgb": {"codec": "jpeg", "data": rgb_jpeg},
-        "depth": {
-            "codec": depth.codec,
-            "w": int(depth.w),
-            "h": int(depth.h),
-            "scale": float(depth_scale_m),
-            "data": depth.data,
-        },
+        "depth": pack_depth_part(depth, depth_scale_m),
     }
     if detections is not None:
-        message["detections"] = {
-            "codec": detections.codec,
-            "w": int(detections.w),
-            "h": int(detections.h),
-            "data": detections.data,
-            "instances": [
-                {"id": int(inst["id"]), "label": str(inst["label"]), "score": float(inst["score"])}
-                for inst in instances
-            ],
-        }
+        message["detections"] = pack_detections_part(detections, instances)
     if depth_patches is not None and depth_patches.boxes:
         message["depth_patches"] = {
             "codec": depth_patches.codec,

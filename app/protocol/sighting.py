@@ -31,6 +31,8 @@ from app.protocol.frame import (
     Uint16Image,
     _image_size,
     _require,
+    pack_depth_part,
+    pack_detections_part,
     parse_depth,
     parse_detections,
     parse_stamp_and_camera,
@@ -67,23 +69,8 @@ def pack_sighting(
         "pose": pose,
         "intrinsics": [float(value) for value in intrinsics],
         "size": [int(rgb_size[0]), int(rgb_size[1])],
-        "depth": {
-            "codec": depth.codec,
-            "w": int(depth.w),
-            "h": int(depth.h),
-            "scale": float(depth_scale_m),
-            "data": depth.data,
-        },
-        "detections": {
-            "codec": detections.codec,
-            "w": int(detections.w),
-            "h": int(detections.h),
-            "data": detections.data,
-            "instances": [
-                {"id": int(inst["id"]), "label": str(inst["label"]), "score": float(inst["score"])}
-                for inst in instances
-            ],
-        },
+        "depth": pack_depth_part(depth, depth_scale_m),
+        "detections": pack_detections_part(detections, instances),
     }
 
 
