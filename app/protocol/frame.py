@@ -73,8 +73,6 @@ class EncodedDepthPatches:
     """One of `app.codecs.DEPTH_CODECS`."""
     boxes: list[tuple[int, int, int, int]]
     """(x0, y0, x1, y1) per patch, RGB pixels, half-open."""
-    rows: int
-    """Rows of the padded image (its width is the RGB width)."""
     data: bytes
 
 
@@ -101,7 +99,7 @@ def pack_depth_patches(
     padded = np.zeros(rows * width, np.uint16)
     padded[: len(pixels)] = pixels
     data = codecs.encode_uint16_image(padded.reshape(rows, width), codec, level)
-    return EncodedDepthPatches(codec, [tuple(int(v) for v in b) for b in boxes], rows, data)
+    return EncodedDepthPatches(codec, [tuple(int(v) for v in b) for b in boxes], data)
 
 
 @dataclass(frozen=True)
