@@ -410,6 +410,39 @@ def score_map(
     }
 
 
+def label_ceiling(
+    encoder: TextEncoder, names: list[str], queries: dict[str, list[str]] | None = None
+) -> dict:
+    """The query top-1 a perfect map would score: one object per category of `names`, each
+    carrying its category's name as its only label. An object's embedding is its labels'
+    text embedding, so the queries this misses are lost between label texts, where no
+    mapping can win them back.
+
+    queries: phrases by category (None: the built-in paraphrases); those of categories
+    outside `names` are not asked. Returns {"query_top1_observed": %, "queries_asked",
+    "query_failures": [{"query", "expected", "got"}]}."""
+    names = sorted(names)
+    asked = [
+        (text, name)
+        for name in names
+        for text in (CATEGORIES[name].paraphrases if queries is None else queries.get(name, []))
+    ]
+    failures = []
+    if names and asked:
+        phrases = np.stack([encoder.encode_query(text) for text, _ in asked])  # as a map query
+        best = (phrases @ encoder.encode(names).T).argmax(1)
+        failures = [
+            {"query": text, "expected": name, "got": names[k]}
+            for (text, name), k in zip(asked, best, strict=True)
+            if names[k] != name
+        ]
+    return {
+        "query_top1_observed": 100.0 * (len(asked) - len(failures)) / max(len(asked), 1),
+        "queries_asked": len(asked),
+        "query_failures": failures,
+    }
+
+
 def run_eval(
     cfg: EvalConfig,
     encoder: TextEncoder,
@@ -457,6 +490,7 @@ def run_eval(
         "in_view_definition": IN_VIEW_DEFINITION,
         "frames_in_view": {name: in_view.get(name, 0) for name in categories},
         "unobserved_categories": sorted(set(categories) - observed),
+        "label_ceiling": label_ceiling(encoder, sorted(observed), cfg.queries),
         "modes": {},
     }
     engines = {

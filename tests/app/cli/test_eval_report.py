@@ -9,7 +9,13 @@ import sys
 
 import pytest
 
-from app.cli.evaluation import IN_VIEW_MIN_FRAMES, EvalConfig, load_queries, run_eval
+from app.cli.evaluation import (
+    IN_VIEW_MIN_FRAMES,
+    EvalConfig,
+    label_ceiling,
+    load_queries,
+    run_eval,
+)
 from app.config import Knobs
 from client_sim.world.rooms import make_scene
 
@@ -71,6 +77,34 @@ def test_latency_is_reported_as_p50_p95_and_mean(report):
     assert {"p50", "p95", "mean"} <= lat.keys()
     assert 0 < lat["p50"] <= lat["p95"]
     assert report["modes"]["semanticxr"]["mapping_total_ms"] >= lat["mean"]
+
+
+def test_the_label_ceiling_ranks_the_queries_against_the_observed_names_only(encoder):
+    queries = {
+        "armchair": ["armchair", "a chair"],  # the second is lost to "chair" between labels
+        "chair": ["chair"],
+        "sofa": ["sofa"],  # not among the names: not asked
+    }
+    ceiling = label_ceiling(encoder, ["chair", "armchair"], queries)
+    assert ceiling["queries_asked"] == 3
+    assert ceiling["query_failures"] == [
+        {"query": "a chair", "expected": "armchair", "got": "chair"}
+    ]
+    assert ceiling["query_top1_observed"] == pytest.approx(200 / 3)
+    assert label_ceiling(encoder, [], queries)["queries_asked"] == 0
+
+
+def test_the_report_carries_the_label_ceiling_over_the_observed_categories(report, kitchen_queries):
+    ceiling = report["label_ceiling"]
+    observed = set(kitchen_queries) - set(report["unobserved_categories"])
+    assert ceiling["queries_asked"] == sum(len(kitchen_queries[name]) for name in observed)
+    assert all(
+        f["expected"] in observed and f["got"] in observed for f in ceiling["query_failures"]
+    )
+    failed = len(ceiling["query_failures"])
+    assert ceiling["query_top1_observed"] == pytest.approx(
+        100.0 * (ceiling["queries_asked"] - failed) / ceiling["queries_asked"]
+    )
 
 
 @pytest.mark.parametrize(
