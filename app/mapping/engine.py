@@ -359,11 +359,17 @@ class MappingEngine:
     def _observe(
         self, frame: FrameInput, detections: FrameDetections, stats: IntegrationStats
     ) -> list[_Observation]:
-        """Filter (skip set, deferral), lift, de-duplicate and embed the frame's detections."""
+        """Filter (skip set, deferral), lift, de-duplicate and embed the frame's detections.
+
+        semanticxr lifts a detection from the frame's full-resolution depth patch over its box
+        when it is too small to map at the downsampled depth: its box is under
+        `min_mapping_bbox_area` (deferred without a patch), or the downsampled depth lifts it
+        to fewer than `min_detection_points` (a thin or partly visible thing: a picture frame
+        at the image border)."""
         skip = {label.lower() for label in self.knobs.skip_mapping_set}
         kept: list[Detection] = []
         patch_of: dict[int, DepthPatch] = {}
-        """Small detections lifted from a full-resolution depth patch, by instance id."""
+        """Detections under the deferral area and the patch each is lifted from."""
         for det in detections.detections:
             if det.label.lower() in skip:
                 stats.skipped += 1
@@ -384,16 +390,21 @@ class MappingEngine:
         if self.mode == "semanticxr":
             ids = [d.instance_id for d in kept if d.instance_id not in patch_of]
             lifted = geo.lift_instances_batched(detections.instance_image, ids, *args)
-            for iid, patch in patch_of.items():
-                lifted[iid] = geo.lift_in_patch(
-                    detections.instance_image,
-                    iid,
-                    patch.box_px,
-                    patch.depth_m,
-                    frame.intrinsics,
-                    pose,
-                    self.knobs.max_depth_m,
-                )
+            for det in kept:
+                if len(lifted.get(det.instance_id, ())) < self.knobs.min_detection_points:
+                    patch = patch_of.get(det.instance_id) or _patch_covering(
+                        frame.depth_patches, det.bbox_px
+                    )
+                    if patch is not None:
+                        lifted[det.instance_id] = geo.lift_in_patch(
+                            detections.instance_image,
+                            det.instance_id,
+                            patch.box_px,
+                            patch.depth_m,
+                            frame.intrinsics,
+                            pose,
+                            self.knobs.max_depth_m,
+                        )
             points = [lifted[d.instance_id] for d in kept]
         else:
             points = [geo.lift_detection(detections.mask(d), *args) for d in kept]

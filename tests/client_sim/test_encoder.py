@@ -253,7 +253,11 @@ def test_bytes_by_kind_payloads_add_up_to_just_under_the_packed_total() -> None:
     assert sizes["pose"] == 64
     assert sizes["rgb"] == len(encoded.message["rgb"]["data"])
     assert sizes["depth"] == len(encoded.message["depth"]["data"])
-    payload = sizes["rgb"] + sizes["depth"] + sizes["detections"] + sizes["pose"]
+    # the 50 x 50 px detection is small enough to carry a full-resolution depth patch
+    assert sizes["depth_patches"] == len(encoded.message["depth_patches"]["data"]) > 0
+    payload = (
+        sizes["rgb"] + sizes["depth"] + sizes["detections"] + sizes["depth_patches"] + sizes["pose"]
+    )
     assert sizes["total"] == len(msgpack.packb(encoded.message))
     # framing (keys, headers, intrinsics) is small next to the payloads
     assert payload < sizes["total"] < payload + 512

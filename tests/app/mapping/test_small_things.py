@@ -65,3 +65,50 @@ def test_the_baseline_ignores_depth_patches(encoder):
     engine.integrate(parse_frame(message, rgb_pixels=False))
     # At ÷5 the cup lifts to 4 depth pixels, under min_detection_points: not mapped.
     assert "mug" not in {o.label for o in engine.objects.values()}
+
+
+FRAME = Rect(3, "picture frame", 0.30, -0.30, 0.34, 0.05, 2.5)
+"""4 cm x 35 cm at 2.5 m: a box of about 5 x 39 = 195 px, over a deferral area of 150 px,
+but 1 x 8 depth pixels at ÷5: a thin thing the downsampled depth cannot map."""
+THIN_KNOBS = dict(min_mapping_bbox_area=150, min_detection_points=20)
+
+
+def thin_walk(encoder, frame_encoder: FrameEncoder) -> MappingEngine:
+    engine = MappingEngine(encoder, Knobs(min_observations=2, cleanup_interval=1000, **THIN_KNOBS))
+    source = RectSource((WALL, FRAME), n_frames=4, step_m=0.02)
+    for index in range(4):
+        message = frame_encoder.encode_source_frame(source.frame(index))
+        stats = engine.integrate(parse_frame(message.message, rgb_pixels=False))
+        assert stats.deferred == 0  # its box is over the deferral area
+    return engine
+
+
+def test_a_thin_thing_the_downsampled_depth_lifts_too_few_points_of_is_mapped_from_its_patch(
+    encoder,
+):
+    engine = thin_walk(encoder, FrameEncoder(5, depth_patch_max_area_px=400))
+    [frame] = [o for o in engine.confirmed_objects() if o.label == "picture frame"]
+    assert np.abs(frame.points[:, 2] - FRAME.depth_m).max() < 0.03
+    assert (
+        FRAME.y0 - 0.03 <= frame.points[:, 1].min() and frame.points[:, 1].max() <= FRAME.y1 + 0.03
+    )
+
+
+def test_without_its_patch_the_thin_thing_is_too_small_to_map(encoder):
+    engine = thin_walk(encoder, FrameEncoder(5, depth_patch_max_area_px=100))
+    assert "picture frame" not in {o.label for o in engine.objects.values()}
+
+
+def test_the_device_sends_patches_up_to_twice_the_deferral_area():
+    area = Knobs().min_mapping_bbox_area
+    px_per_m = 277.0 / 2.5  # at 2.5 m
+    height_m = area / px_per_m**2 / 0.5  # a 0.5 m wide rectangle of `area` pixels
+    under = Rect(4, "painting", -1.2, -0.2, -0.7, -0.2 + 1.5 * height_m, 2.5)
+    over = Rect(5, "window", 0.2, -0.2, 0.7, -0.2 + 2.5 * height_m, 2.5)
+    source_frame = RectSource((under, over), n_frames=1).frame(0)
+    message = FrameEncoder(5).encode_source_frame(source_frame)
+    frame = parse_frame(message.message, rgb_pixels=False)
+    ys, xs = np.nonzero(source_frame.instance_ids == under.instance_id)
+    box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    assert area < (box[2] - box[0]) * (box[3] - box[1]) < 2 * area
+    assert [tuple(p.box_px) for p in frame.depth_patches] == [box]  # not the window's
