@@ -64,13 +64,27 @@ DEFAULT_DEPTH_SCALE_M = 0.01
 bits of finer units are mostly that noise, which no lossless codec can compress."""
 DEFAULT_DETECTIONS_CODEC = "zstd"
 """zstd beats PNG on instance-id images (large flat regions)."""
-DEFAULT_DEPTH_PATCH_MAX_AREA_PX = 2 * Knobs().min_mapping_bbox_area
-"""Detections whose box is smaller than this (px) get a full-resolution depth patch: the ones
-the server would otherwise defer (under the knob `min_mapping_bbox_area`), and up to twice
-that area, where thin or partly visible things (a picture frame at the image border) still
-lift to too few points at depth ÷5. On the 400-frame apartment walk the second half maps
-the picture frame (query top-1 +2.3 points on both paraphrase sets) for 3.6 kB more per
-keyframe; 3x the area gained nothing more."""
+PATCH_AREA_FACTOR = 2
+"""Detections whose box is smaller than this many times the session's `min_mapping_bbox_area`
+get a full-resolution depth patch: the ones the server would otherwise defer (under the
+knob), and up to twice it, where thin or partly visible things (a picture frame at the image
+border) still lift to too few points at depth ÷5. On the 400-frame apartment walk the second
+half maps the picture frame (query top-1 +2.3 points on both paraphrase sets) for 3.6 kB more
+per keyframe; three times the knob gained nothing more."""
+DEFAULT_DEPTH_PATCH_MAX_AREA_PX = PATCH_AREA_FACTOR * Knobs().min_mapping_bbox_area
+"""The patch threshold (px) for the default knobs."""
+
+
+def session_encoder_options(knobs: Knobs, options: dict | None = None) -> dict:
+    """FrameEncoder options (besides the depth ratio) for a session with these knobs: `options`,
+    with depth patches for boxes under PATCH_AREA_FACTOR x its `min_mapping_bbox_area`
+    unless they set `depth_patch_max_area_px` themselves."""
+    return {
+        "depth_patch_max_area_px": PATCH_AREA_FACTOR * knobs.min_mapping_bbox_area,
+        **(options or {}),
+    }
+
+
 # A sighting (the sightings extension, app/protocol/sighting.py) carries what confirmation
 # needs at coarse resolution; chosen on the 400-frame apartment walk, where these ratios
 # confirm the same objects as whole frames do (issue 13, target 6).

@@ -62,7 +62,7 @@ from app.protocol import (
     unpack_reply,
     unpack_update,
 )
-from client_sim.encoder import EncodedFrame, FrameEncoder
+from client_sim.encoder import EncodedFrame, FrameEncoder, session_encoder_options
 from client_sim.local_map import DeltaError, LocalMap
 from client_sim.sources.base import FrameSource
 
@@ -186,7 +186,10 @@ class DeviceClient:
         self.token = token
         self.knobs = knobs or Knobs()
         self.encoder_options = dict(encoder_options or {})
-        FrameEncoder(self.knobs.depth_downsampling_ratio, **self.encoder_options)  # fail early
+        FrameEncoder(
+            self.knobs.depth_downsampling_ratio,
+            **session_encoder_options(self.knobs, self.encoder_options),
+        )  # fail early
         self.send_every = send_every
         self.sightings = bool(sightings)
         self.local_map = (
@@ -361,7 +364,10 @@ class DeviceClient:
             raise ValueError(f"max_in_flight must be >= 1, got {max_in_flight!r}")
         if isinstance(start, bool) or not isinstance(start, int) or start < 0:
             raise ValueError(f"start must be a non-negative integer, got {start!r}")
-        encoder = FrameEncoder(self.knobs.depth_downsampling_ratio, **self.encoder_options)
+        encoder = FrameEncoder(
+            self.knobs.depth_downsampling_ratio,
+            **session_encoder_options(self.knobs, self.encoder_options),
+        )
         n_frames = len(source) if limit is None else min(len(source), max(0, limit))
         link = _StreamLink(self, max_in_flight)
         self._links.add(link)

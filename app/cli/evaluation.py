@@ -31,7 +31,7 @@ from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, se
 from app.mapping.publish import update_message
 from app.protocol import FrameInput, parse_frame, parse_sighting
 from app.semantics import TextEncoder
-from client_sim.encoder import FrameEncoder, downsample_depth
+from client_sim.encoder import FrameEncoder, downsample_depth, session_encoder_options
 from client_sim.sources.synthetic import SyntheticSource
 from client_sim.world.categories import BACKGROUND_CLASSES, CATEGORIES
 from client_sim.world.gt import gt_point_cloud
@@ -69,7 +69,7 @@ class EvalConfig:
     knobs: Knobs = field(default_factory=Knobs)
     encoder_options: dict = field(default_factory=dict)
     """FrameEncoder options besides the depth ratio (which comes from the knobs); unset
-    ones keep the device's defaults."""
+    ones are the device's for these knobs (`session_encoder_options`)."""
     sightings: bool = True
     """Also hand the engines every non-keyframe's detections as sightings towards
     confirmation (`MappingEngine.sight`), as the server does with a device that sends every
@@ -198,7 +198,8 @@ def _encode_keyframes(
         noise=cfg.noise,
         seed=cfg.seed,
     )
-    encoders = {ratio: FrameEncoder(ratio, **cfg.encoder_options) for ratio in ratios}
+    options = session_encoder_options(cfg.knobs, cfg.encoder_options)
+    encoders = {ratio: FrameEncoder(ratio, **options) for ratio in ratios}
     messages: dict[int, list] = {ratio: [] for ratio in ratios}
     upstream = {"rgb": 0, "depth": 0, "detections": 0, "depth_patches": 0, "total": 0}
     interval = cfg.knobs.keyframe_interval

@@ -70,8 +70,9 @@ def test_both_organisations_build_maps_of_equal_quality_on_a_small_scene(encoder
     assert set(sx["stages_ms"]) == set(bl["stages_ms"]) == stages
     assert sx["objects"] >= 15 and bl["objects"] >= 15
     assert sx["F_mIoU"] > 35 and bl["F_mIoU"] > 35
-    assert abs(sx["F_mIoU"] - bl["F_mIoU"]) < 3.0
-    assert abs(sx["mAcc"] - bl["mAcc"]) < 6.0
+    # semanticxr may map more than the baseline (depth patches), never much less
+    assert sx["F_mIoU"] > bl["F_mIoU"] - 3.0
+    assert sx["mAcc"] > bl["mAcc"] - 6.0
 
 
 def test_a_variant_named_like_a_mode_is_refused_before_any_work(encoder):

@@ -112,3 +112,13 @@ def test_the_device_sends_patches_up_to_twice_the_deferral_area():
     box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
     assert area < (box[2] - box[0]) * (box[3] - box[1]) < 2 * area
     assert [tuple(p.box_px) for p in frame.depth_patches] == [box]  # not the window's
+
+
+def test_the_device_follows_the_session_s_deferral_area_unless_told_otherwise():
+    from client_sim.encoder import session_encoder_options
+
+    knobs = Knobs(min_mapping_bbox_area=150)
+    assert session_encoder_options(knobs) == {"depth_patch_max_area_px": 300}
+    assert session_encoder_options(knobs, {"depth_patch_max_area_px": 0}) == {
+        "depth_patch_max_area_px": 0
+    }
