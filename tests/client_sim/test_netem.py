@@ -206,6 +206,14 @@ def test_cli_refuses_a_non_loopback_target(capsys):
     assert "loopback" in capsys.readouterr().err
 
 
+def _ctrl_c_as_from_a_terminal() -> None:
+    """In the CLI's child process: SIGINT at its default, as a shell's foreground job has it.
+    A suite started in the background of a non-interactive shell (`make test &`) runs with
+    SIGINT ignored, every child inherits that, and a Python started so never raises
+    KeyboardInterrupt: the Ctrl-C below would then never arrive."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_cli_proxies_and_takes_commands_on_stdin(echo_port):
     command = [sys.executable, "-m", "client_sim.netem", "--target", f"127.0.0.1:{echo_port}"]
     with subprocess.Popen(
@@ -214,6 +222,7 @@ def test_cli_proxies_and_takes_commands_on_stdin(echo_port):
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
+        preexec_fn=_ctrl_c_as_from_a_terminal,
     ) as process:
 
         def read_line() -> str:
