@@ -75,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
+    from app.cli.eval import format_label_ceiling
     from app.cli.evaluation import IN_VIEW_MIN_FRAMES, EvalConfig, load_queries, run_eval
     from app.config import Knobs
     from app.semantics import get_text_encoder
@@ -172,13 +173,7 @@ def main(argv: list[str] | None = None) -> int:
         f"    mapping total s        {sx['mapping_total_ms'] / 1e3:10.1f} "
         f"{bl['mapping_total_ms'] / 1e3:11.1f}"
     )
-    ceiling = result["label_ceiling"]
-    print(
-        f"  label-text ceiling: {ceiling['query_top1_observed']:.1f} % of the observed categories' "
-        f"queries, for a perfect map (one object per observed category, labelled with its name);"
-        f" lost between labels: "
-        + ", ".join(f"{f['expected']} -> {f['got']}" for f in ceiling["query_failures"])
-    )
+    print(f"  {format_label_ceiling(result['label_ceiling'])}")
     print(
         f"  not in view ({len(result['unobserved_categories'])}): "
         f"{', '.join(result['unobserved_categories']) or 'none'}"

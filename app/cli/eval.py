@@ -139,6 +139,18 @@ def format_eval_table(result: dict) -> str:
         "query@1 over every category of the scene; observed: over those in view "
         f"(not in view: {', '.join(unobserved) or 'none'})"
     )
+    if "label_ceiling" in result:
+        lines.append(format_label_ceiling(result["label_ceiling"]))
     if "speedup_p50" in result:
         lines.append(f"speed-up (baseline p50 / semanticxr p50): {result['speedup_p50']:.2f}x")
     return "\n".join(lines)
+
+
+def format_label_ceiling(ceiling: dict) -> str:
+    """One line for the report's `label_ceiling` (`app.cli.evaluation.label_ceiling`)."""
+    lost = ", ".join(f"{f['expected']} -> {f['got']}" for f in ceiling["query_failures"])
+    return (
+        f"label-text ceiling: {ceiling['query_top1_observed']:.1f}% of the observed queries "
+        "for a perfect map (one object per category in view, labelled with its name)"
+        + (f"; lost between labels: {lost}" if lost else "")
+    )

@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from app.cli.eval import format_eval_table
 from app.cli.evaluation import (
     IN_VIEW_MIN_FRAMES,
     EvalConfig,
@@ -105,6 +106,10 @@ def test_the_report_carries_the_label_ceiling_over_the_observed_categories(repor
     assert ceiling["query_top1_observed"] == pytest.approx(
         100.0 * (ceiling["queries_asked"] - failed) / ceiling["queries_asked"]
     )
+    table = format_eval_table(report)
+    assert f"label-text ceiling: {ceiling['query_top1_observed']:.1f}%" in table
+    for f in ceiling["query_failures"]:
+        assert f"{f['expected']} -> {f['got']}" in table
 
 
 @pytest.mark.parametrize(
