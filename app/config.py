@@ -88,6 +88,51 @@ class Knobs:
     transient_max_age: int = 10
     """Unconfirmed objects not seen for this many keyframes are pruned as transients."""
 
+    negative_evidence: bool = True
+    """The living map: keyframes that show an object's place without it count as evidence of
+    its absence; objects are then removed, or merged with their new place (moved)."""
+
+    absence_min_depth_m: float = 0.3
+    """Negative evidence: an object's place counts as in view from this distance..."""
+
+    absence_max_depth_m: float = 4.0
+    """...up to this one (farther, depth is too coarse to tell)."""
+
+    absence_depth_tolerance_m: float = 0.03
+    """A projected point matches the sensed depth within this plus `absence_depth_tolerance_rel`
+    of its depth; the sensed depth beyond that sees through it, nearer depth occludes it."""
+
+    absence_depth_tolerance_rel: float = 0.01
+    """The part of the depth tolerance that grows with distance (1 % of depth)."""
+
+    absence_min_visible: float = 0.3
+    """A keyframe tells about an object only if at least this fraction of its projected
+    points are visible (matching or seen through, not occluded): occlusion is no evidence."""
+
+    absence_min_seen_through: float = 0.7
+    """Depth evidence of absence: at least this fraction of the visible points seen through."""
+
+    min_absence_area_px: int = 400
+    """Thin things (a laptop on a table barely changes depth) count as absent when in view,
+    unoccluded, projected at least this big (px at RGB size) and not detected; that weaker
+    evidence needs two viewpoints."""
+
+    removal_min_evidence: int = 3
+    """Keyframes of evidence before an object is removed (or found moved)..."""
+
+    removal_min_span_s: float = 1.5
+    """...spanning at least this much device time, or seen from two viewpoints..."""
+
+    removal_min_baseline_m: float = 0.5
+    """...at least this far apart..."""
+
+    removal_min_angle_deg: float = 20.0
+    """...or this many degrees apart in viewing direction."""
+
+    move_min_similarity: float = 0.8
+    """A new object merges with a suspect (or removed-by-evidence) one as a move when their
+    labels agree or their embeddings are at least this similar."""
+
 
 KNOB_RANGES: dict[str, tuple[float, float]] = {  # inclusive bounds of numeric knobs
     "net_latency_switch_threshold_ms": (0, 60_000),
@@ -108,6 +153,18 @@ KNOB_RANGES: dict[str, tuple[float, float]] = {  # inclusive bounds of numeric k
     "min_detection_points": (1, 1_000_000),
     "cleanup_interval": (1, 10_000),
     "transient_max_age": (1, 1_000_000),
+    "absence_min_depth_m": (0, 100),
+    "absence_max_depth_m": (0.1, 100),
+    "absence_depth_tolerance_m": (0.001, 1),
+    "absence_depth_tolerance_rel": (0, 1),
+    "absence_min_visible": (0, 1),
+    "absence_min_seen_through": (0, 1),
+    "min_absence_area_px": (1, 100_000_000),
+    "removal_min_evidence": (1, 1000),
+    "removal_min_span_s": (0, 1_000_000),
+    "removal_min_baseline_m": (0, 1000),
+    "removal_min_angle_deg": (0, 180),
+    "move_min_similarity": (-1, 1),
 }
 
 KNOB_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Knobs))
@@ -140,6 +197,8 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
         if len(value) > 1000 or any(len(v) > 200 for v in value):
             raise KnobError(f"knob {name!r} is too long")
         return [v.strip() for v in value]
+    if isinstance(default, bool):
+        return _coerce_bool(name, value)
     if value is None:
         if name in NULLABLE_KNOBS:
             return None
@@ -161,6 +220,18 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
     if not lo <= number <= hi:
         raise KnobError(f"knob {name!r} must be within [{lo:g}, {hi:g}], got {value!r}")
     return number
+
+
+_BOOL_WORDS = {"true": True, "1": True, "on": True, "false": False, "0": False, "off": False}
+
+
+def _coerce_bool(name: str, value: Any) -> bool:
+    """A boolean knob from a boolean, or (from a flag) true/false, on/off, 1/0."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in _BOOL_WORDS:
+        return _BOOL_WORDS[value.strip().lower()]
+    raise KnobError(f"knob {name!r} must be true or false, got {value!r}")
 
 
 def updated_knobs(knobs: Knobs, changes: dict[str, Any]) -> Knobs:

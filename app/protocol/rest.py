@@ -110,6 +110,8 @@ def _knob_changes_schema() -> dict[str, Any]:
                     {"type": "string", "description": "comma-separated"},
                 ]
             }
+        elif isinstance(default, bool):
+            prop = {"anyOf": [{"type": "boolean"}, {"type": "string", "enum": ["true", "false"]}]}
         else:
             lo, hi = KNOB_RANGES[f.name]
             kind = "integer" if isinstance(default, int) else "number"
