@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,8 +28,9 @@ import numpy as np
 from app.codecs import validate_rigid_pose
 from app.config import MODES, Knobs, Mode
 from app.mapping import geometry as geo
+from app.mapping import living
 from app.mapping.deltas import Delta, DeltaLog
-from app.mapping.object import MapObject
+from app.mapping.object import Change, MapObject
 from app.perception import DEFAULT_BACKEND, make_backend
 from app.perception.base import (
     Detection,
@@ -67,6 +69,13 @@ SIGHTING_DEPTH_TOLERANCE_M = 0.1
 BASELINE_RESOLUTION_M = 0.01
 """The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
 a depth pixel at mapping range, so repeated views do not stack identical points."""
+REMEMBERED_VIEWS = 600
+"""Keyframes remembered (coarse, ~3 KB each) to tell whether a new object's place was seen
+empty before: ten minutes of keyframes at one a second."""
+REMEMBERED_VIEW_BLOCK = 4
+"""Remembered depth keeps the nearest surface of each 4 x 4 block of the uploaded depth."""
+RECENT_CHANGES = 256
+"""Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
 
 
 def _patch_covering(
@@ -102,7 +111,14 @@ class IntegrationStats:
     published_ids: list[int] = field(default_factory=list)
     """Confirmed objects this keyframe created or changed (at log seq `seq`)."""
     removed_ids: list[int] = field(default_factory=list)
-    """Published objects this keyframe removed."""
+    """Published objects this keyframe removed (merged, moved into another, or retired)."""
+    retired: list[MapObject] = field(default_factory=list)
+    """Objects this keyframe found gone from the world: out of the present map (their ids are
+    in removed_ids), kept as history with state "removed"."""
+    changes: list[Change] = field(default_factory=list)
+    """What this keyframe concluded about the world (added, moved, removed)."""
+    retracted_added: list[int] = field(default_factory=list)
+    """Published objects merged into another: an `added` change of theirs no longer stands."""
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -200,6 +216,15 @@ class MappingEngine:
         self.keyframes = 0
         self.last_pose: np.ndarray | None = None
         """Camera-to-world [4, 4] of the newest mapped keyframe (where the device is)."""
+        self.last_t: float | None = None
+        """Device-clock time (frame `t`) of the newest mapped keyframe: what "ago" counts from."""
+        self._suspects: dict[int, list[living.Evidence]] = {}
+        """Confirmed object id -> the keyframes that showed its place without it (in memory,
+        like sightings: suspicion starts over after a restart)."""
+        self._views: deque[living.EvidenceView] = deque(maxlen=REMEMBERED_VIEWS)
+        """Coarse copies of recent keyframes, oldest first (for `added`)."""
+        self.recent_changes: deque[Change] = deque(maxlen=RECENT_CHANGES)
+        """The newest changes, with the seq that published them (for deltas)."""
         self.next_object_id = 1
         self.max_objects = max_objects
         self._at_cap = False
@@ -217,10 +242,22 @@ class MappingEngine:
         geo.preload_outlier_removal()
 
     def restore(
-        self, objects: list[MapObject], log: DeltaLog, keyframes: int, next_object_id: int
+        self,
+        objects: list[MapObject],
+        log: DeltaLog,
+        keyframes: int,
+        next_object_id: int,
+        last_t: float | None = None,
+        recent_changes: list[Change] | None = None,
     ) -> None:
-        """Resume from persisted state (confirmed objects and the delta log)."""
+        """Resume from persisted state (confirmed objects and the delta log, the newest
+        keyframe's time and the newest changes)."""
         self.objects = {o.id: o for o in objects}
+        self.last_t = last_t
+        self._suspects.clear()
+        self._views.clear()
+        self.recent_changes.clear()
+        self.recent_changes.extend(recent_changes or [])
         self.log = log
         self.keyframes = keyframes
         self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
@@ -315,6 +352,7 @@ class MappingEngine:
         t1 = time.perf_counter()
         self.keyframes += 1
         self.last_pose = np.asarray(frame.pose, np.float64)
+        self.last_t = float(frame.t)
         stats = IntegrationStats(seq=self.log.seq, keyframe=self.keyframes)
         stats.detections = len(detections.detections)
         observations = self._observe(frame, detections, stats)
@@ -331,17 +369,31 @@ class MappingEngine:
             if not self.objects[oid].confirmed:
                 self._sightings.setdefault(oid, _Glimpses()).seen.add(int(frame.seq))
         removed: set[int] = set()
+        view = None
+        if self.knobs.negative_evidence:
+            view = self._evidence_view(frame, detections)
+            removed |= self._gather_evidence(view, touched, stats)
         due = self._denoise_due()
         if due or self.keyframes % self.knobs.cleanup_interval == 0:
-            removed = self._cleanup(touched, due)
+            merged_away = self._cleanup(touched, due)
+            stats.retracted_added.extend(sorted(merged_away))
+            removed |= merged_away
             stats.cleanup = True
         t4 = time.perf_counter()
 
-        published = self._confirm((touched | self._sighted) - removed)
+        published = self._confirm((touched | self._sighted) - removed, stats)
         self._sighted.clear()
+        published -= removed
+        for oid in published:
+            self.objects[oid].refresh_stay()
+        if view is not None:
+            self._views.append(living.coarse_view(view, REMEMBERED_VIEW_BLOCK))
         stats.removed = len(removed)
         stats.seq = self.log.commit(published, removed)
         stats.published_ids, stats.removed_ids = sorted(published), sorted(removed)
+        for change in stats.changes:
+            change.seq = stats.seq
+        self.recent_changes.extend(stats.changes)
         if published or removed:
             self._confirmed_matrix = None
         stats.objects = len(self.objects)
@@ -527,22 +579,23 @@ class MappingEngine:
                 stats.over_cap += 1
                 continue
             if match is None:
-                obj = MapObject(id=self.next_object_id, first_seen=self.keyframes)
+                obj = MapObject(
+                    id=self.next_object_id, first_seen=self.keyframes, first_seen_t=self.last_t
+                )
                 self.next_object_id += 1
                 self.objects[obj.id] = obj
                 obj.set_points(*self._cap(obs.points))
-                obj.embedding_sum = obs.embedding.copy()
                 stats.created += 1
             else:
                 obj = self.objects[match]
                 obj.set_points(
                     *self._cap(np.concatenate([obj.points, obs.points]), obj.resolution_m)
                 )
-                obj.embedding_sum = obj.embedding_sum + obs.embedding
                 stats.matched += 1
-            obj.label_counts[obs.detection.label] += 1
+            obj.observe_label(obs.detection.label, obs.embedding)
             obj.n_obs += 1
             obj.last_seen = self.keyframes
+            obj.last_seen_t = self.last_t
             obj.version += 1
             if obj.id not in seen_this_frame:
                 obj.frames_seen += 1
@@ -566,14 +619,16 @@ class MappingEngine:
                 max(keep.resolution_m, gone.resolution_m),
             )
         )
-        keep.embedding_sum = keep.embedding_sum + gone.embedding_sum
-        keep.label_counts.update(gone.label_counts)
+        keep.absorb_labels(gone)
         keep.n_obs += gone.n_obs
         keep.frames_seen += gone.frames_seen
-        keep.first_seen = min(keep.first_seen, gone.first_seen)
-        keep.last_seen = max(keep.last_seen, gone.last_seen)
+        if gone.first_seen < keep.first_seen:
+            keep.first_seen, keep.first_seen_t = gone.first_seen, gone.first_seen_t
+        if gone.last_seen > keep.last_seen:
+            keep.last_seen, keep.last_seen_t = gone.last_seen, gone.last_seen_t
         keep.version += 1
         del self.objects[gone.id]
+        self._suspects.pop(gone.id, None)
         gone_seen = self._sightings.pop(gone.id, None)
         if not keep.confirmed and gone_seen is not None:
             self._sightings.setdefault(keep.id, _Glimpses()).update(gone_seen)
@@ -684,19 +739,184 @@ class MappingEngine:
             and len(seqs) >= SIGHTING_AGREEMENT * (len(seqs) + len(glimpses.missed))
         )
 
-    def _confirm(self, touched: set[int]) -> set[int]:
-        """Confirm objects seen often enough; returns the confirmed ids that changed."""
+    def _confirm(self, touched: set[int], stats: IntegrationStats) -> set[int]:
+        """Confirm objects seen often enough; returns the confirmed ids that changed.
+
+        With negative evidence, a candidate that qualifies while a like object is suspect
+        (same label, or embeddings `move_min_similarity` alike, and not seen since the
+        candidate appeared) is that object at its new place: it merges into it as a move and
+        its own id is never published. Otherwise it is confirmed, `added` when remembered
+        keyframes had shown its place empty (`living.place_seen_empty`)."""
         published = set()
-        for oid in touched:
+        for oid in sorted(touched):
             obj = self.objects.get(oid)
             if obj is None:
                 continue
             if not obj.confirmed and self._qualifies(obj):
-                obj.confirmed = True
                 self._sightings.pop(oid, None)
+                suspect = self._like_object(obj, self._suspected_objects(), obj_is_new=True)
+                if suspect is not None:
+                    self._move(suspect, obj, stats)
+                    published.add(suspect.id)
+                    continue
+                obj.confirmed = True
+                if self.knobs.negative_evidence and self._place_seen_empty(obj):
+                    centroid, _ = obj.place()
+                    stats.changes.append(
+                        Change(obj.id, "added", self._now, obj.label, to_xyz=centroid)
+                    )
             if obj.confirmed:
                 published.add(oid)
         return published
+
+    # ------------------------------------------------------------------ the living map
+    @property
+    def _now(self) -> float:
+        return self.last_t if self.last_t is not None else 0.0
+
+    def _evidence_view(self, frame: FrameInput, detections: FrameDetections) -> living.EvidenceView:
+        """The keyframe as the evidence test reads it: its depth and every detection it
+        carried (deferred and skipped ones too: a thing detected is not absent)."""
+        return living.EvidenceView(
+            pose=np.asarray(frame.pose, np.float64),
+            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
+            rgb_size=frame.rgb_size,
+            depth_m=frame.depth_m,
+            label_image=detections.instance_image,
+            labels={d.instance_id: d.label for d in detections.detections},
+            t=self._now,
+            keyframe=self.keyframes,
+        )
+
+    def _gather_evidence(
+        self, view: living.EvidenceView, observed: set[int], stats: IntegrationStats
+    ) -> set[int]:
+        """Negative evidence for one keyframe (DESIGN.md "The living map"): an observation
+        clears suspicion and drops the points the keyframe sees through (a short move does
+        not smear an object over both places); every other confirmed object whose place the
+        keyframe shows without it gathers evidence, and is removed, or found moved, once
+        `living.removal_due`. Returns the published ids it took out of the present map."""
+        for oid in observed:
+            self._suspects.pop(oid, None)
+            obj = self.objects[oid]
+            if obj.confirmed and len(obj.points):
+                through = living.classify_points(obj.points, view, self.knobs).seen_through
+                if through.any() and not through.all():
+                    obj.set_points(obj.points[~through], obj.resolution_m)
+        floor = self.keyframes - living.SUSPICION_MAX_KEYFRAMES
+        for oid in list(self._suspects):
+            kept = [e for e in self._suspects[oid] if e.keyframe > floor]
+            if kept:
+                self._suspects[oid] = kept
+            else:
+                del self._suspects[oid]
+        tested = [
+            o
+            for o in self.objects.values()
+            if o.confirmed and o.id not in observed and len(o.points)
+        ]
+        kinds = living.absence_evidence_batched(
+            [living.object_sample(o.points) for o in tested],
+            [list(o.label_counts) for o in tested],
+            view,
+            self.knobs,
+        )
+        removed: set[int] = set()
+        for obj, kind in zip(tested, kinds, strict=True):
+            if kind is None or obj.id not in self.objects:
+                continue
+            evidence = self._suspects.setdefault(obj.id, [])
+            evidence.append(
+                living.Evidence(kind, view.t, view.keyframe, view.position, view.direction)
+            )
+            if living.removal_due(evidence, self.knobs):
+                removed |= self._conclude_absent(obj, stats)
+        return removed
+
+    def _suspected_objects(self) -> list[MapObject]:
+        return [self.objects[i] for i in sorted(self._suspects) if i in self.objects]
+
+    def _like_object(
+        self, obj: MapObject, others: list[MapObject], obj_is_new: bool
+    ) -> MapObject | None:
+        """The object among `others` that is `obj` at another place (obj_is_new: `obj` is
+        the new place, `others` old ones; else the other way round): same label (first) or
+        embeddings `move_min_similarity` alike, and the old one not observed since the new
+        one appeared (two like things seen at once are two things); the most alike, then
+        the nearest."""
+        best, best_key = None, None
+        centroid = obj.centroid
+        for other in others:
+            old, new = (other, obj) if obj_is_new else (obj, other)
+            if old.id == new.id or old.last_seen >= new.first_seen:
+                continue
+            similarity = float(old.embedding @ new.embedding)
+            same = old.label == new.label
+            if not same and similarity < self.knobs.move_min_similarity:
+                continue
+            key = (same, similarity, -float(np.linalg.norm(other.centroid - centroid)))
+            if best_key is None or key > best_key:
+                best, best_key = other, key
+        return best
+
+    def _move(self, old: MapObject, new: MapObject, stats: IntegrationStats) -> None:
+        """`old` is found at `new`'s place: it keeps its id and history, takes `new`'s
+        geometry and observations (its old points are dropped), starts a new stay; `new`
+        leaves the map. A `moved` change."""
+        old.refresh_stay()
+        from_xyz, _ = old.place()
+        old.set_points(new.points.copy(), new.resolution_m)
+        old.absorb_labels(new)
+        old.n_obs += new.n_obs
+        old.frames_seen += new.frames_seen
+        old.last_seen, old.last_seen_t = new.last_seen, new.last_seen_t
+        t_from = new.first_seen_t if new.first_seen_t is not None else self._now
+        old.start_stay(t_from)
+        old.version += 1
+        del self.objects[new.id]
+        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
+            ids.discard(new.id)
+            ids.add(old.id)
+        self._sightings.pop(new.id, None)
+        self._suspects.pop(new.id, None)
+        self._suspects.pop(old.id, None)
+        to_xyz, _ = old.place()
+        stats.changes.append(Change(old.id, "moved", self._now, old.label, from_xyz, to_xyz))
+
+    def _conclude_absent(self, obj: MapObject, stats: IntegrationStats) -> set[int]:
+        """The evidence removes `obj` from its place: moved, when a like object appeared
+        elsewhere since it was last seen (that one merges into it and its id is removed),
+        else removed from the present map (kept as history). Returns the ids removed."""
+        self._suspects.pop(obj.id, None)
+        appeared = [o for o in self.objects.values() if o.confirmed and o.id not in self._suspects]
+        new = self._like_object(obj, appeared, obj_is_new=False)
+        if new is not None:
+            self._move(obj, new, stats)
+            stats.retracted_added.append(new.id)
+            return {new.id}
+        obj.refresh_stay()
+        from_xyz, _ = obj.place()
+        obj.state = "removed"
+        obj.version += 1
+        del self.objects[obj.id]
+        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
+            ids.discard(obj.id)
+        stats.retired.append(obj)
+        stats.changes.append(Change(obj.id, "removed", self._now, obj.label, from_xyz=from_xyz))
+        return {obj.id}
+
+    def _place_seen_empty(self, obj: MapObject) -> bool:
+        """Whether keyframes from before `obj` was first seen showed its place without it."""
+        earlier = [v for v in self._views if v.keyframe < obj.first_seen]
+        if not earlier:
+            return False
+        seeing = living.views_seeing(obj.centroid, earlier, self.knobs)
+        return living.place_seen_empty(
+            living.object_sample(obj.points),
+            list(obj.label_counts),
+            [earlier[i] for i in seeing],
+            self.knobs,
+        )
 
     def sight(self, frame: FrameInput, sent: FrameDetections | None) -> list[int]:
         """Count a non-keyframe's detections as sightings of candidate objects (DESIGN.md
@@ -715,7 +935,9 @@ class MappingEngine:
 
         Nothing is lifted and no geometry changes; a candidate that now qualifies is
         confirmed, and published, by the next keyframe. Returns the sighted ids."""
-        if sent is None or not any(not o.confirmed for o in self.objects.values()):
+        if sent is None or not (
+            self._suspects or any(not o.confirmed for o in self.objects.values())
+        ):
             return []
         objects = [o for o in self.objects.values() if len(o.points)]
         samples = [o.points[:: max(1, len(o.points) // SIGHTING_SAMPLE_POINTS)] for o in objects]
@@ -752,6 +974,7 @@ class MappingEngine:
                 if obj.confirmed:
                     if row[k] >= SIGHTING_MIN_POINTS:
                         taken.add(int(k))
+                        self._suspects.pop(obj.id, None)  # seen: not absent
                 elif (int(row[k]), int(i)) > best_candidate.get(int(k), (0, -1)):
                     best_candidate[int(k)] = (int(row[k]), int(i))
             if not obj.confirmed:

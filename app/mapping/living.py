@@ -1,0 +1,340 @@
+"""The living map's evidence: does a keyframe show an object's place without the object?
+
+Pure functions and small records, no I/O (the engine calls them; tests call them directly).
+
+A keyframe gives **evidence of absence** for a confirmed object when its place is in view at
+`absence_min_depth_m`..`absence_max_depth_m` and the keyframe sees through it. Each of a
+sample of the object's points is projected into the keyframe's depth and is
+
+- *matching* when the sensed depth lies within tau of it (tau = `absence_depth_tolerance_m`
+  + `absence_depth_tolerance_rel` x depth), anywhere in its 3 x 3 depth neighbourhood (an
+  edge or a thin part at the uploaded resolution is not seen through);
+- *seen through* when even the nearest depth of that neighbourhood lies beyond it by more
+  than tau;
+- *occluded* otherwise: something lies in front, or there is no depth. **Occlusion is never
+  evidence**: a thing hidden behind or inside something new stays.
+
+Two kinds of evidence (DESIGN.md "The living map: settled before work starts"):
+
+- `depth`: at least `absence_min_visible` of the in-view points are visible (matching or
+  seen through), at least `absence_min_seen_through` of those are seen through, and no
+  detection carrying one of the object's labels lies under its points.
+- `thin`: things lying on a surface barely change depth (a laptop on a table), so: at least
+  THIN_MIN_VISIBLE of the in-view points visible, projected at least `min_absence_area_px`,
+  and no detection of any label the object has carried nor any detection covering at least
+  THIN_MAX_COVER of its points. Weaker: a removal that uses it needs two viewpoints.
+
+An object is removed (`removal_due`) after `removal_min_evidence` keyframes of evidence that
+span `removal_min_span_s` of device time or two viewpoints (`removal_min_baseline_m` or
+`removal_min_angle_deg` apart); thin evidence always needs the two viewpoints.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from app.config import Knobs
+
+EvidenceKind = Literal["depth", "thin"]
+
+ABSENCE_SAMPLE_POINTS = 100
+"""Points of each object projected into a keyframe (a regular subsample)."""
+MIN_IN_VIEW = 0.5
+"""An object is in view when at least this fraction of its sample projects into the image
+within the depth range."""
+THIN_MIN_VISIBLE = 0.8
+"""Thin evidence: at least this fraction of the in-view points visible (not occluded)."""
+THIN_MAX_COVER = 0.5
+"""Thin evidence: no detection of any label may cover this fraction of the in-view points."""
+SUSPICION_MAX_KEYFRAMES = 20
+"""Evidence older than this many keyframes is forgotten: a removal needs its evidence close
+together, not sporadic doubts gathered over a long session."""
+
+
+@dataclass
+class EvidenceView:
+    """What one keyframe shows, as the evidence test reads it.
+
+    pose:        float64 [4, 4] camera-to-world (OpenCV camera frame)
+    intrinsics:  (fx, fy, cx, cy) of the RGB image; rgb_size (W, H)
+    depth_m:     float32 [h, w] metres, 0 = no depth, the RGB size divided by an integer ratio
+    label_image: integer [h', w'] detection ids (0 = none), the RGB size divided by an integer
+                 ratio; labels: detection id -> its label
+    neighbourhood: look at each point's 3 x 3 depth neighbourhood (a keyframe's own depth);
+                 False for a coarse remembered view, whose pixels are already block minima
+    """
+
+    pose: np.ndarray
+    intrinsics: tuple[float, float, float, float]
+    rgb_size: tuple[int, int]
+    depth_m: np.ndarray
+    label_image: np.ndarray
+    labels: dict[int, str]
+    t: float = 0.0
+    keyframe: int = 0
+    neighbourhood: bool = True
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.asarray(self.pose, np.float64)[:3, 3]
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit viewing direction (the camera's +z) in the world."""
+        return np.asarray(self.pose, np.float64)[:3, 2]
+
+
+@dataclass
+class Evidence:
+    """One keyframe's evidence of an object's absence."""
+
+    kind: EvidenceKind
+    t: float
+    keyframe: int
+    position: np.ndarray
+    direction: np.ndarray
+
+
+@dataclass
+class PointVerdicts:
+    """How a keyframe sees a set of points. Bool arrays [N]: in view (in the image, within
+    the depth range), matching, seen through (subsets of in view); (u, v) pixel of each."""
+
+    in_view: np.ndarray
+    matching: np.ndarray
+    seen_through: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+
+def object_sample(points: np.ndarray, n: int = ABSENCE_SAMPLE_POINTS) -> np.ndarray:
+    """A regular subsample of about `n` of an object's points float32 [N, 3]."""
+    return points[:: max(1, len(points) // n)]
+
+
+def _gather(image: np.ndarray, u: np.ndarray, v: np.ndarray, width: int) -> np.ndarray:
+    """Values of an image at the RGB size divided by an integer ratio under RGB pixels."""
+    ratio = max(1, round(width / image.shape[1]))
+    rows = np.minimum(v // ratio, image.shape[0] - 1)
+    cols = np.minimum(u // ratio, image.shape[1] - 1)
+    return image[rows, cols]
+
+
+def classify_points(points: np.ndarray, view: EvidenceView, knobs: Knobs) -> PointVerdicts:
+    """Project world points float32 [N, 3] into the view and classify each (module doc)."""
+    pose = np.asarray(view.pose, np.float64)
+    cam = (points.astype(np.float64) - pose[:3, 3]) @ pose[:3, :3]
+    fx, fy, cx, cy = view.intrinsics
+    width, height = view.rgb_size
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.floor(fx * cam[:, 0] / z + cx + 0.5)
+        v = np.floor(fy * cam[:, 1] / z + cy + 0.5)
+    in_view = (
+        (z >= knobs.absence_min_depth_m)
+        & (z <= knobs.absence_max_depth_m)
+        & (u >= 0)
+        & (u < width)
+        & (v >= 0)
+        & (v < height)
+    )
+    n = len(points)
+    matching = np.zeros(n, bool)
+    seen_through = np.zeros(n, bool)
+    ui = np.where(in_view, u, 0).astype(np.int64)
+    vi = np.where(in_view, v, 0).astype(np.int64)
+    idx = np.flatnonzero(in_view)
+    if len(idx):
+        zi = z[idx]
+        tau = knobs.absence_depth_tolerance_m + knobs.absence_depth_tolerance_rel * zi
+        depth = view.depth_m
+        ratio = max(1, round(width / depth.shape[1]))
+        rows, cols = vi[idx] // ratio, ui[idx] // ratio
+        offsets = (-1, 0, 1) if view.neighbourhood else (0,)
+        nearest = np.full(len(idx), np.inf)
+        match = np.zeros(len(idx), bool)
+        for dr in offsets:
+            r = np.clip(rows + dr, 0, depth.shape[0] - 1)
+            for dc in offsets:
+                c = np.clip(cols + dc, 0, depth.shape[1] - 1)
+                sensed = depth[r, c].astype(np.float64)
+                valid = sensed > 0
+                match |= valid & (np.abs(sensed - zi) <= tau)
+                nearest = np.where(valid, np.minimum(nearest, sensed), nearest)
+        centre = depth[np.minimum(rows, depth.shape[0] - 1), np.minimum(cols, depth.shape[1] - 1)]
+        through = ~match & (centre > 0) & np.isfinite(nearest) & (nearest - zi > tau)
+        matching[idx] = match
+        seen_through[idx] = through
+    return PointVerdicts(in_view, matching, seen_through, ui, vi)
+
+
+def absence_evidence(
+    sample: np.ndarray, labels: Sequence[str], view: EvidenceView, knobs: Knobs
+) -> EvidenceKind | None:
+    """The evidence of absence one view gives for one object: "depth", "thin" or None.
+
+    sample: float32 [N, 3] of the object's points (`object_sample`); labels: every label the
+    object has carried."""
+    return absence_evidence_batched([sample], [labels], view, knobs)[0]
+
+
+def absence_evidence_batched(
+    samples: Sequence[np.ndarray],
+    labels: Sequence[Sequence[str]],
+    view: EvidenceView,
+    knobs: Knobs,
+) -> list[EvidenceKind | None]:
+    """`absence_evidence` for many objects at once (one projection for all samples)."""
+    if not samples:
+        return []
+    sizes = np.array([len(s) for s in samples])
+    owner = np.repeat(np.arange(len(samples)), sizes)
+    verdicts = classify_points(np.concatenate(samples).astype(np.float32), view, knobs)
+    width, height = view.rgb_size
+    det = _gather(view.label_image, verdicts.u, verdicts.v, width).astype(np.int64)
+    det = np.where(verdicts.in_view, det, 0)
+    n = len(samples)
+    in_view = np.bincount(owner, verdicts.in_view, n)
+    matching = np.bincount(owner, verdicts.matching, n)
+    through = np.bincount(owner, verdicts.seen_through, n)
+    out: list[EvidenceKind | None] = []
+    for i in range(n):
+        if sizes[i] == 0 or in_view[i] < MIN_IN_VIEW * sizes[i]:
+            out.append(None)
+            continue
+        visible = matching[i] + through[i]
+        if visible < knobs.absence_min_visible * in_view[i]:
+            out.append(None)  # occluded: never evidence
+            continue
+        mine = owner == i
+        ids = det[mine & verdicts.in_view]
+        own = set(labels[i])
+        detected_ids = ids[ids > 0]
+        own_label_seen = any(view.labels.get(int(d)) in own for d in np.unique(detected_ids))
+        if own_label_seen:
+            out.append(None)
+            continue
+        if through[i] >= knobs.absence_min_seen_through * visible:
+            out.append("depth")
+            continue
+        covered = (
+            np.bincount(detected_ids).max() >= THIN_MAX_COVER * in_view[i]
+            if len(detected_ids)
+            else False
+        )
+        if covered or visible < THIN_MIN_VISIBLE * in_view[i]:
+            out.append(None)
+            continue
+        pts = mine & verdicts.in_view
+        us, vs = verdicts.u[pts], verdicts.v[pts]
+        area = (us.max() - us.min() + 1) * (vs.max() - vs.min() + 1)
+        out.append("thin" if area >= knobs.min_absence_area_px else None)
+    return out
+
+
+def viewpoints_apart(evidence: Sequence[Evidence], knobs: Knobs) -> bool:
+    """Whether two of the evidence keyframes saw from viewpoints `removal_min_baseline_m` or
+    `removal_min_angle_deg` apart."""
+    cos_limit = math.cos(math.radians(knobs.removal_min_angle_deg))
+    for i, a in enumerate(evidence):
+        for b in evidence[i + 1 :]:
+            if float(np.linalg.norm(a.position - b.position)) >= knobs.removal_min_baseline_m:
+                return True
+            if float(a.direction @ b.direction) <= cos_limit:
+                return True
+    return False
+
+
+def removal_due(evidence: Sequence[Evidence], knobs: Knobs) -> bool:
+    """Whether the evidence gathered removes the object (module doc)."""
+    if len(evidence) < knobs.removal_min_evidence:
+        return False
+    if viewpoints_apart(evidence, knobs):
+        return True
+    if any(e.kind == "thin" for e in evidence):
+        return False
+    times = [e.t for e in evidence]
+    return max(times) - min(times) >= knobs.removal_min_span_s
+
+
+def coarse_view(view: EvidenceView, factor: int) -> EvidenceView:
+    """A small copy of a keyframe's view to remember (for telling later whether a place was
+    seen empty): depth as block minima (nearest surface, float16), detections sampled at
+    block centres. factor: blocks of factor x factor depth pixels."""
+    depth = view.depth_m
+    h, w = depth.shape[0] // factor, depth.shape[1] // factor
+    if h == 0 or w == 0:
+        factor, h, w = 1, depth.shape[0], depth.shape[1]
+    blocks = depth[: h * factor, : w * factor].reshape(h, factor, w, factor)
+    blocks = np.where(blocks > 0, blocks, np.inf).min(axis=(1, 3))
+    small_depth = np.where(np.isfinite(blocks), blocks, 0).astype(np.float16)
+    width, height = view.rgb_size
+    ratio = max(1, round(width / w))
+    us = np.arange(w) * ratio + ratio // 2
+    vs = np.arange(h) * ratio + ratio // 2
+    label_ratio = max(1, round(width / view.label_image.shape[1]))
+    ids = view.label_image[
+        np.minimum(vs // label_ratio, view.label_image.shape[0] - 1)[:, None],
+        np.minimum(us // label_ratio, view.label_image.shape[1] - 1)[None, :],
+    ]
+    present = np.unique(ids)
+    labels = {int(d): view.labels[int(d)] for d in present if int(d) in view.labels}
+    return EvidenceView(
+        pose=np.asarray(view.pose, np.float64).copy(),
+        intrinsics=view.intrinsics,
+        rgb_size=view.rgb_size,
+        depth_m=small_depth,
+        label_image=ids.astype(np.uint16),
+        labels=labels,
+        t=view.t,
+        keyframe=view.keyframe,
+        neighbourhood=False,
+    )
+
+
+def place_seen_empty(
+    sample: np.ndarray,
+    labels: Sequence[str],
+    views: Sequence[EvidenceView],
+    knobs: Knobs,
+) -> bool:
+    """Whether remembered views (from before an object was first seen) showed its place
+    without it: two views with depth evidence, or three with any evidence from two
+    viewpoints apart. What makes a new object `added` rather than found on a first look."""
+    evidence = []
+    for view in views:
+        kind = absence_evidence(sample, labels, view, knobs)
+        if kind is not None:
+            evidence.append(Evidence(kind, view.t, view.keyframe, view.position, view.direction))
+    if sum(e.kind == "depth" for e in evidence) >= 2:
+        return True
+    return len(evidence) >= 3 and viewpoints_apart(evidence, knobs)
+
+
+def views_seeing(point: np.ndarray, views: Sequence[EvidenceView], knobs: Knobs) -> list[int]:
+    """Indices of the views whose image holds `point` [3] within the depth range (a cheap
+    prefilter before `place_seen_empty`)."""
+    if not views:
+        return []
+    poses = np.stack([np.asarray(v.pose, np.float64) for v in views])
+    cam = np.einsum("kji,kj->ki", poses[:, :3, :3], point[None, :] - poses[:, :3, 3])
+    intr = np.array([v.intrinsics for v in views], np.float64)
+    size = np.array([v.rgb_size for v in views], np.float64)
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = intr[:, 0] * cam[:, 0] / z + intr[:, 2]
+        v = intr[:, 1] * cam[:, 1] / z + intr[:, 3]
+    ok = (
+        (z >= knobs.absence_min_depth_m)
+        & (z <= knobs.absence_max_depth_m)
+        & (u >= 0)
+        & (u < size[:, 0])
+        & (v >= 0)
+        & (v < size[:, 1])
+    )
+    return [int(i) for i in np.flatnonzero(ok)]
