@@ -9,6 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from app.store.base import (
+    CHANGE_KINDS,
     COUNTER_NAMES,
     SessionRecord,
     Store,
@@ -19,6 +20,7 @@ from app.store.base import (
 )
 
 __all__ = [
+    "CHANGE_KINDS",
     "COUNTER_NAMES",
     "SessionRecord",
     "Store",

@@ -16,15 +16,20 @@ sessions' rows only, never their maps.
 from __future__ import annotations
 
 import abc
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # annotations only: settings check store URLs without loading the mapping
+    import numpy as np
+
     from app.mapping.deltas import DeltaLog
-    from app.mapping.object import MapObject
+    from app.mapping.object import Change, MapObject
 
 COUNTER_NAMES: tuple[str, ...] = ("frames", "keyframes", "bytes_in", "bytes_out")
 """Per-session counters a store keeps (absolute values, set by the server)."""
+CHANGE_KINDS: tuple[str, ...] = ("added", "moved", "removed")
+"""The kinds of `Change` a store keeps."""
 
 
 class StoreError(RuntimeError):
@@ -63,6 +68,11 @@ class SessionRecord:
     last_used_at: float | None = None
     """Unix time (seconds) of the session's last frame or use: what retention measures
     idleness by. None (when made) means `created_at`."""
+    last_t: float | None = None
+    """Device-clock time (frame `t`, seconds) of the session's last committed keyframe;
+    None before its first (or in a store from before it was kept)."""
+    last_pose: list[float] | None = None
+    """That keyframe's camera-to-world pose: 16 floats (float32 values), row-major 4x4."""
 
     def __post_init__(self) -> None:
         if self.last_used_at is None:
@@ -75,7 +85,8 @@ class StoredSession:
 
     record: SessionRecord
     objects: int
-    """Confirmed objects stored."""
+    """Confirmed objects stored in the present map (removed ones kept as history not
+    counted)."""
     seq: int
     """The delta log's seq (the session's update seq)."""
 
@@ -106,7 +117,7 @@ class Store(abc.ABC):
 
     @abc.abstractmethod
     def delete_session(self, session_id: str) -> None:
-        """Remove the session with its objects and tombstones (no-op if unknown)."""
+        """Remove the session with its objects, tombstones and changes (no-op if unknown)."""
 
     @abc.abstractmethod
     def list_sessions(self) -> list[SessionRecord]:
@@ -154,35 +165,90 @@ class Store(abc.ABC):
         counters: dict[str, int],
         next_object_id: int,
         last_used_at: float | None = None,
+        *,
+        retired: Collection[MapObject] = (),
+        changes: Collection[Change] = (),
+        retracted_added: Collection[int] = (),
+        last_t: float | None = None,
+        last_pose: np.ndarray | None = None,
     ) -> None:
         """Persist one keyframe's changes at once; returns once they survive a crash.
 
         upserts: confirmed objects changed at `seq` (the delta log's seq after the commit),
-                 stored with their current fields; removed: ids removed at `seq` (tombstoned).
-        An id in both ends up removed, as in `DeltaLog.commit`. A keyframe that changed
-        nothing passes the unchanged seq and empty lists (to persist the counters).
+                 stored with their current fields, state "present"; removed: ids removed
+                 from the present map at `seq` (tombstoned, and their rows deleted unless
+                 retired). An id in both ends up removed, as in `DeltaLog.commit`. A keyframe
+                 that changed nothing passes the unchanged seq and empty lists (to persist
+                 the counters).
         last_used_at: the session's new `last_used_at`, if given.
+        retired: removed objects kept as history (each id also in `removed`, each object
+                 confirmed with state "removed"): their rows are kept with their final
+                 fields and leave every read of the present map.
+        changes: the keyframe's changes, stored with seq = `seq` (their own seq ignored),
+                 after every earlier one (arrival order).
+        retracted_added: object ids whose `added` changes are deleted (a published object
+                 merged into another: no `added` change stays for it).
+        last_t, last_pose: the keyframe's frame `t` and camera-to-world pose (float [4, 4]
+                 or [16], row-major), kept on the session row when given.
         Raises ValueError (and changes nothing) on a seq older than the stored one, changes
-        without a newer seq, an unconfirmed object, an id not below `next_object_id`, or
-        arrays that are not float32 points [N, 3] / embedding [d]; KeyError on an unknown
-        session; StoreUnavailableError (and changes nothing) when the storage cannot take it.
+        to objects or change entries without a newer seq, an unconfirmed object, an upsert
+        that is not present or a retired object that is not removed or not in `removed`, an
+        id not below `next_object_id`, more than MAX_STAYS stays, a time that is not finite,
+        a change of an unknown kind, or arrays that are not float32 points [N, 3] /
+        embedding [d] / per-label sums [d] of the object's labels / a pose of 16 values;
+        KeyError on an unknown session; StoreUnavailableError (and changes nothing) when the
+        storage cannot take it.
         """
 
     @abc.abstractmethod
     def load_objects(self, session_id: str) -> list[MapObject]:
-        """The session's confirmed objects in id order, exactly as last committed."""
+        """The session's present map: its confirmed objects with state "present" in id
+        order, exactly as last committed."""
+
+    @abc.abstractmethod
+    def load_removed_objects(self, session_id: str) -> list[MapObject]:
+        """The session's removed objects (state "removed", kept as history with their stays
+        and last points) in id order, exactly as last committed."""
+
+    @abc.abstractmethod
+    def load_object(self, session_id: str, object_id: int) -> MapObject | None:
+        """One object of the session, present or removed, as last committed; None if the
+        session has no such object (never had it, or it was deleted: merged, pruned)."""
+
+    @abc.abstractmethod
+    def load_changes(
+        self,
+        session_id: str,
+        *,
+        since_t: float | None = None,
+        until_t: float | None = None,
+        since_seq: int | None = None,
+        kinds: Collection[str] | None = None,
+        limit: int | None = None,
+    ) -> list[Change]:
+        """The session's changes in arrival order (the order they were committed, which is
+        the time order unless the device clock went backwards), each with its commit's seq.
+
+        since_t, until_t: keep changes with since_t <= t <= until_t (device clock, seconds)
+        since_seq:        keep changes committed after that update seq (seq > since_seq)
+        kinds:            keep these kinds only ("added", "moved", "removed")
+        limit:            keep the newest `limit` of the rest (still returned oldest first)
+        ValueError on an unknown kind, a NaN bound or a negative limit.
+        """
 
     @abc.abstractmethod
     def load_delta_log(self, session_id: str) -> DeltaLog:
-        """The session's delta log: each object's change seq, the tombstones, seq and floor."""
+        """The session's delta log: each present object's change seq, the tombstones (of
+        deleted and of removed objects alike), seq and floor."""
 
     @abc.abstractmethod
     def trim_tombstones(self, session_id: str, floor: int) -> None:
         """Forget the removals at or before seq `floor` and raise the stored floor to it.
 
         Mirrors `DeltaLog.floor`: a subscriber resuming from before the floor gets a full
-        snapshot, so those tombstones can no longer reach anyone. A floor at or below the
-        stored one changes nothing; ValueError on a floor beyond the stored seq.
+        snapshot, so those tombstones can no longer reach anyone. Removed objects kept as
+        history stay. A floor at or below the stored one changes nothing; ValueError on a
+        floor beyond the stored seq.
         """
 
     # ------------------------------------------------------------------ health

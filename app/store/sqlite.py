@@ -15,7 +15,15 @@ each; run on storage with a battery-backed cache or switch to `synchronous=FULL`
 must be covered (a one-line change in `SqliteStore.__init__`).
 
 Arrays are stored as raw little-endian float32 bytes whose shape the schema records (never
-pickle): points [n_points, 3], embedding_sum [embedding_dim]. Knobs and label counts are JSON.
+pickle): points [n_points, 3], embedding_sum [embedding_dim], label_embeddings [labels,
+embedding_dim] (one row per label of label_counts, in its order), a session's last pose [16];
+stays are `stays_to_bytes` records. Knobs and label counts are JSON.
+
+The living map (schema 4): an object removed from the map but kept as history keeps its row
+with state 'removed' (its last fields: stays, last points); every read of the present map
+(objects, counts, the delta log) takes state 'present' only, and its removal stays in
+`tombstones` like any other. Changes are rows of `changes` in arrival (rowid) order, written
+in the keyframe's transaction.
 
 One connection, shared by all threads (mapping runs in a thread pool) and serialised by a lock:
 SQLite allows one writer at a time anyway, and one connection keeps the ordering of commits
@@ -34,11 +42,12 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import sqlite3
 import threading
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
@@ -46,8 +55,17 @@ from typing import Any, TypeVar
 import numpy as np
 
 from app.mapping.deltas import DeltaLog
-from app.mapping.object import MapObject
+from app.mapping.object import (
+    MAX_STAYS,
+    OBJECT_STATES,
+    STAY_BYTES,
+    Change,
+    MapObject,
+    stays_from_bytes,
+    stays_to_bytes,
+)
 from app.store.base import (
+    CHANGE_KINDS,
     COUNTER_NAMES,
     SessionRecord,
     Store,
@@ -122,6 +140,48 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
         "UPDATE sessions SET last_used_at = (julianday('now') - 2440587.5) * 86400.0",
         "CREATE INDEX sessions_by_last_use ON sessions (last_used_at)",
     ),
+    # 3 -> 4: the living map. Objects removed from the map stay as history (state), with
+    # when they were seen on the device clock, where they stayed, and per-label evidence;
+    # the changes the map concluded; the session's last keyframe time and pose. Rows from
+    # before it are present objects with no times, stays or per-label sums.
+    (
+        "ALTER TABLE objects ADD COLUMN state TEXT NOT NULL DEFAULT 'present'"
+        " CHECK (state IN ('present', 'removed'))",
+        "ALTER TABLE objects ADD COLUMN first_seen_t REAL",  # device clock, seconds
+        "ALTER TABLE objects ADD COLUMN last_seen_t REAL",
+        # stays_to_bytes records, oldest first: at most MAX_STAYS (<= 2 KB); NULL for none
+        f"ALTER TABLE objects ADD COLUMN stays BLOB CHECK (stays IS NULL OR"
+        f" (length(stays) % {STAY_BYTES} = 0 AND length(stays) <= {MAX_STAYS * STAY_BYTES}))",
+        # float32 little-endian [labels, embedding_dim], a row per label of label_counts in
+        # its order (all NaN: no sum for that label); NULL for none
+        "ALTER TABLE objects ADD COLUMN label_embeddings BLOB CHECK (label_embeddings IS NULL"
+        " OR (embedding_dim > 0 AND length(label_embeddings) % (4 * embedding_dim) = 0))",
+        # The present map's reads (delta log, counts) and the removed objects' from the index.
+        "CREATE INDEX objects_by_state ON objects (session_id, state, object_id, change_seq)",
+        "ALTER TABLE sessions ADD COLUMN last_t REAL",  # frame t of the last keyframe
+        "ALTER TABLE sessions ADD COLUMN last_pose BLOB"  # float32 LE [16], row-major 4x4
+        " CHECK (last_pose IS NULL OR length(last_pose) = 64)",
+        """
+        CREATE TABLE changes (
+            session_id TEXT NOT NULL REFERENCES sessions (session_id) ON DELETE CASCADE,
+            object_id  INTEGER NOT NULL,
+            kind       TEXT NOT NULL CHECK (kind IN ('added', 'moved', 'removed')),
+            t          REAL NOT NULL,             -- frame t that concluded it (device clock)
+            label      TEXT NOT NULL,
+            from_x     REAL,                      -- the old place, NULL where none
+            from_y     REAL,
+            from_z     REAL,
+            to_x       REAL,                      -- the new place, NULL where none
+            to_y       REAL,
+            to_z       REAL,
+            seq        INTEGER NOT NULL,          -- the update seq of the commit
+            CHECK ((from_x IS NULL) = (from_y IS NULL) AND (from_x IS NULL) = (from_z IS NULL)),
+            CHECK ((to_x IS NULL) = (to_y IS NULL) AND (to_x IS NULL) = (to_z IS NULL))
+        )
+        """,  # rowid order is arrival order
+        "CREATE INDEX changes_by_seq ON changes (session_id, seq)",
+        "CREATE INDEX changes_by_t ON changes (session_id, t)",
+    ),
 )
 """_MIGRATIONS[i] takes a store from schema version i + 1 to i + 2; a new store is created
 at version 1 (`_SCHEMA`) and migrated like any other, so there is one path to each version."""
@@ -142,12 +202,15 @@ _STORAGE_ERROR_CODES = frozenset(
 
 _SESSION_COLUMNS = (
     "session_id, name, mode, perception, knobs, token_hash, created_at, "
-    "frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at"
+    "frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, last_pose"
 )
 _OBJECT_COLUMNS = (
     "object_id, version, n_obs, frames_seen, first_seen, last_seen, resolution_m, "
-    "label_counts, n_points, points, embedding_dim, embedding_sum"
+    "label_counts, n_points, points, embedding_dim, embedding_sum, "
+    "state, first_seen_t, last_seen_t, stays, label_embeddings"
 )
+_N_OBJECT_COLUMNS = len(_OBJECT_COLUMNS.split(","))
+_CHANGE_COLUMNS = "object_id, kind, t, label, from_x, from_y, from_z, to_x, to_y, to_z, seq"
 
 
 class SqliteStore(Store):
@@ -290,12 +353,14 @@ class SqliteStore(Store):
             int(rec.bytes_out),
             int(rec.next_object_id),
             float(rec.last_used_at if rec.last_used_at is not None else rec.created_at),
+            _checked_time("last_t", rec.last_t),
+            None if rec.last_pose is None else _pose_to_blob(rec.last_pose),
         )
         try:
             self._write(
                 lambda conn: conn.execute(
                     f"INSERT INTO sessions ({_SESSION_COLUMNS}, seq, delta_floor)"
-                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
+                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
                     row,
                 )
             )
@@ -333,7 +398,7 @@ class SqliteStore(Store):
         self._write(update)
 
     def delete_session(self, session_id: str) -> None:
-        """Remove the session with its objects and tombstones (no-op if unknown)."""
+        """Remove the session with its objects, tombstones and changes (no-op if unknown)."""
         self._write(
             lambda conn: conn.execute("DELETE FROM sessions WHERE session_id = ?", (session_id,))
         )
@@ -357,13 +422,13 @@ class SqliteStore(Store):
             return conn.execute("SELECT count(*) FROM sessions").fetchone()[0]
 
     def list_stored(self) -> list[StoredSession]:
-        """Every session with its object count and update seq, oldest first; objects are
-        counted on the primary key's index, no map is read."""
+        """Every session with its present object count and update seq, oldest first; objects
+        are counted on the index by state, no map is read."""
         with self._transaction(write=False) as conn:
             rows = conn.execute(
                 f"SELECT {_SESSION_COLUMNS}, seq, (SELECT count(*) FROM objects AS o"
-                " WHERE o.session_id = s.session_id) FROM sessions AS s"
-                " ORDER BY created_at, session_id"
+                " WHERE o.session_id = s.session_id AND o.state = 'present')"
+                " FROM sessions AS s ORDER BY created_at, session_id"
             ).fetchall()
         return [StoredSession(_session_from_row(row[:-2]), row[-1], row[-2]) for row in rows]
 
@@ -386,6 +451,12 @@ class SqliteStore(Store):
         counters: dict[str, int],
         next_object_id: int,
         last_used_at: float | None = None,
+        *,
+        retired: Collection[MapObject] = (),
+        changes: Collection[Change] = (),
+        retracted_added: Collection[int] = (),
+        last_t: float | None = None,
+        last_pose: np.ndarray | None = None,
     ) -> None:
         """`Store.commit_keyframe`, in one SQLite transaction (WAL, synchronous): returns
         once the changes survive kill -9; storage errors raise StoreUnavailableError."""
@@ -393,19 +464,45 @@ class SqliteStore(Store):
         removed_ids = sorted({int(oid) for oid in removed})
         gone = set(removed_ids)
         kept = [obj for obj in upserts if int(obj.id) not in gone]
+        retired = list(retired)
+        retired_ids = [int(obj.id) for obj in retired]
+        for obj in kept:
+            if obj.state != "present":
+                raise ValueError(
+                    f"object {obj.id}: an upsert must be present, not {obj.state!r} (a removed "
+                    "object kept as history is retired)"
+                )
+        for obj in retired:
+            if obj.state != "removed":
+                raise ValueError(
+                    f"object {obj.id}: a retired object must be removed, not {obj.state!r}"
+                )
+        if len(set(retired_ids)) != len(retired_ids) or not gone.issuperset(retired_ids):
+            raise ValueError(
+                f"session {session_id!r}: retired ids {retired_ids} must be distinct and in "
+                f"removed {removed_ids}"
+            )
+        kept_as_history = set(retired_ids)
+        change_rows = [_change_to_row(change, seq) for change in changes]
+        retracted_ids = sorted({int(oid) for oid in retracted_added})
         assignments: dict[str, Any] = _checked_counters(counters)
         if last_used_at is not None:
             assignments["last_used_at"] = float(last_used_at)
+        if last_t is not None:
+            assignments["last_t"] = _checked_time("last_t", last_t)
+        if last_pose is not None:
+            assignments["last_pose"] = _pose_to_blob(last_pose)
 
         def commit(conn: sqlite3.Connection) -> None:
             stored_seq, stored_next_id = _session_row(conn, session_id, "seq, next_object_id")
             # Resuming subscribers rely on "changed after S" meaning "seq > S": a change
-            # stored at a seq they may already have seen would never reach them.
-            if seq < stored_seq or ((kept or removed_ids) and seq == stored_seq):
+            # stored at a seq they may already have seen would never reach them (and
+            # neither would a change entry read with since_seq).
+            if seq < stored_seq or ((kept or removed_ids or change_rows) and seq == stored_seq):
                 raise ValueError(
                     f"session {session_id!r}: seq {seq} does not follow the stored seq {stored_seq}"
                 )
-            touched_ids = [int(obj.id) for obj in kept] + removed_ids
+            touched_ids = [int(obj.id) for obj in kept] + removed_ids + [r[0] for r in change_rows]
             if next_object_id < stored_next_id or any(i >= next_object_id for i in touched_ids):
                 raise ValueError(
                     f"session {session_id!r}: next_object_id {next_object_id} would reuse an id"
@@ -416,9 +513,10 @@ class SqliteStore(Store):
                 f"UPDATE sessions SET {columns} WHERE session_id = ?",
                 (*assignments.values(), session_id),
             )
+            # Retired objects are rewritten below with state 'removed': only the others go.
             conn.executemany(
                 "DELETE FROM objects WHERE session_id = ? AND object_id = ?",
-                [(session_id, oid) for oid in removed_ids],
+                [(session_id, oid) for oid in removed_ids if oid not in kept_as_history],
             )
             conn.executemany(
                 "INSERT OR REPLACE INTO tombstones (session_id, object_id, seq) VALUES (?, ?, ?)",
@@ -432,28 +530,101 @@ class SqliteStore(Store):
             # twice, and a bad object aborts the transaction (rolling back the rows before it).
             conn.executemany(
                 f"INSERT OR REPLACE INTO objects (session_id, change_seq, {_OBJECT_COLUMNS})"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                ((session_id, seq, *_object_to_row(obj)) for obj in kept),
+                f" VALUES (?, ?, {', '.join('?' * _N_OBJECT_COLUMNS)})",
+                ((session_id, seq, *_object_to_row(obj)) for obj in [*kept, *retired]),
+            )
+            conn.executemany(
+                f"INSERT INTO changes (session_id, {_CHANGE_COLUMNS})"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [(session_id, *row) for row in change_rows],
+            )
+            # After the inserts: no `added` change stays for a retracted id, this one's too.
+            conn.executemany(
+                "DELETE FROM changes WHERE session_id = ? AND object_id = ? AND kind = 'added'",
+                [(session_id, oid) for oid in retracted_ids],
             )
 
         self._write(commit)
 
     def load_objects(self, session_id: str) -> list[MapObject]:
-        """The session's confirmed objects in id order, exactly as last committed."""
+        """The session's present map: confirmed objects, state "present", in id order."""
+        return self._load_in_state(session_id, "present")
+
+    def load_removed_objects(self, session_id: str) -> list[MapObject]:
+        """The session's removed objects kept as history, in id order."""
+        return self._load_in_state(session_id, "removed")
+
+    def _load_in_state(self, session_id: str, state: str) -> list[MapObject]:
         with self._transaction(write=False) as conn:
             _session_row(conn, session_id, "1")
             rows = conn.execute(
-                f"SELECT {_OBJECT_COLUMNS} FROM objects WHERE session_id = ? ORDER BY object_id",
-                (session_id,),
+                f"SELECT {_OBJECT_COLUMNS} FROM objects WHERE session_id = ? AND state = ?"
+                " ORDER BY object_id",
+                (session_id, state),
             ).fetchall()
         return [_object_from_row(row) for row in rows]
 
+    def load_object(self, session_id: str, object_id: int) -> MapObject | None:
+        """One object, present or removed, as last committed; None if there is none."""
+        with self._transaction(write=False) as conn:
+            _session_row(conn, session_id, "1")
+            row = conn.execute(
+                f"SELECT {_OBJECT_COLUMNS} FROM objects WHERE session_id = ? AND object_id = ?",
+                (session_id, int(object_id)),
+            ).fetchone()
+        return None if row is None else _object_from_row(row)
+
+    def load_changes(
+        self,
+        session_id: str,
+        *,
+        since_t: float | None = None,
+        until_t: float | None = None,
+        since_seq: int | None = None,
+        kinds: Collection[str] | None = None,
+        limit: int | None = None,
+    ) -> list[Change]:
+        """`Store.load_changes`: one indexed query, newest first when limited."""
+        where, params = ["session_id = ?"], [session_id]
+        for name, bound, op in (("since_t", since_t, ">="), ("until_t", until_t, "<=")):
+            if bound is not None:
+                if math.isnan(bound):
+                    raise ValueError(f"{name} must be a number, not NaN")
+                where.append(f"t {op} ?")
+                params.append(float(bound))
+        if since_seq is not None:
+            where.append("seq > ?")
+            params.append(int(since_seq))
+        if kinds is not None:
+            kinds = sorted(set(kinds))
+            unknown = [kind for kind in kinds if kind not in CHANGE_KINDS]
+            if unknown:
+                raise ValueError(
+                    f"unknown change kinds {unknown}; kinds: {', '.join(CHANGE_KINDS)}"
+                )
+            where.append(f"kind IN ({', '.join('?' * len(kinds))})")
+            params.extend(kinds)
+        if limit is not None and int(limit) < 0:
+            raise ValueError(f"limit must be >= 0, got {limit}")
+        query = f"SELECT {_CHANGE_COLUMNS} FROM changes WHERE {' AND '.join(where)}"
+        with self._transaction(write=False) as conn:
+            _session_row(conn, session_id, "1")
+            if limit is None:
+                rows = conn.execute(f"{query} ORDER BY rowid", params).fetchall()
+            else:
+                rows = conn.execute(f"{query} ORDER BY rowid DESC LIMIT ?", (*params, int(limit)))
+                rows = rows.fetchall()[::-1]
+        return [_change_from_row(row) for row in rows]
+
     def load_delta_log(self, session_id: str) -> DeltaLog:
-        """The session's delta log: each object's change seq, the tombstones, seq and floor."""
+        """The session's delta log: each present object's change seq, the tombstones (removed
+        objects kept as history are tombstones too), seq and floor."""
         with self._transaction(write=False) as conn:
             seq, floor = _session_row(conn, session_id, "seq, delta_floor")
             upserted = conn.execute(
-                "SELECT object_id, change_seq FROM objects WHERE session_id = ?", (session_id,)
+                "SELECT object_id, change_seq FROM objects"
+                " WHERE session_id = ? AND state = 'present'",
+                (session_id,),
             ).fetchall()
             removed = conn.execute(
                 "SELECT object_id, seq FROM tombstones WHERE session_id = ?", (session_id,)
@@ -463,7 +634,8 @@ class SqliteStore(Store):
         )
 
     def trim_tombstones(self, session_id: str, floor: int) -> None:
-        """Forget the removals at or before `floor`; raise the stored floor to it."""
+        """Forget the removals at or before `floor`; raise the stored floor to it (removed
+        objects kept as history stay)."""
         floor = int(floor)
 
         def trim(conn: sqlite3.Connection) -> None:
@@ -515,9 +687,27 @@ def _checked_counters(counters: dict[str, int]) -> dict[str, int]:
     return {name: int(value) for name, value in counters.items()}
 
 
+def _checked_time(name: str, t: float | None) -> float | None:
+    """`t` as a float (None stays None); ValueError naming it when it is not finite."""
+    if t is None:
+        return None
+    t = float(t)
+    if not math.isfinite(t):
+        raise ValueError(f"{name} must be a finite time in seconds, got {t}")
+    return t
+
+
+def _pose_to_blob(pose: Any) -> bytes:
+    """A camera-to-world pose ([4, 4] or [16], row-major) as 16 float32 little-endian."""
+    values = np.ascontiguousarray(pose, dtype=_FLOAT32_LE).reshape(-1)
+    if values.size != 16 or not np.isfinite(values).all():
+        raise ValueError(f"last_pose must be 16 finite values (4x4), got {np.shape(pose)}")
+    return values.tobytes()
+
+
 def _session_from_row(row: tuple) -> SessionRecord:
     sid, name, mode, perception, knobs, token_hash, created_at, *counters = row
-    frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at = counters
+    frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, pose = counters
     return SessionRecord(
         session_id=sid,
         name=name,
@@ -532,11 +722,14 @@ def _session_from_row(row: tuple) -> SessionRecord:
         bytes_out=bytes_out,
         next_object_id=next_object_id,
         last_used_at=last_used_at,
+        last_t=last_t,
+        last_pose=None if pose is None else _float32_from_blob(pose, (16,)).tolist(),
     )
 
 
 def _object_to_row(obj: MapObject) -> tuple:
-    """The columns of _OBJECT_COLUMNS for one object; ValueError on badly shaped arrays."""
+    """The columns of _OBJECT_COLUMNS for one object; ValueError on badly shaped arrays,
+    an unknown state, more than MAX_STAYS stays or a time that is not finite."""
     points = np.ascontiguousarray(obj.points, dtype=_FLOAT32_LE)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"object {obj.id}: points must be [N, 3], got shape {points.shape}")
@@ -552,6 +745,14 @@ def _object_to_row(obj: MapObject) -> tuple:
     # Counter keeps insertion order and JSON objects keep theirs: label ties (first seen
     # wins) resolve the same way after a reload.
     labels = _to_json({str(label): int(count) for label, count in obj.label_counts.items()})
+    if obj.state not in OBJECT_STATES:
+        raise ValueError(f"object {obj.id}: state {obj.state!r} is not one of {OBJECT_STATES}")
+    if len(obj.stays) > MAX_STAYS:
+        raise ValueError(f"object {obj.id}: {len(obj.stays)} stays, over MAX_STAYS={MAX_STAYS}")
+    for stay in obj.stays:
+        if not np.isfinite([stay.t_from, stay.t_to, *stay.centroid, *stay.bbox]).all():
+            raise ValueError(f"object {obj.id}: a stay holds a value that is not finite")
+    stays = stays_to_bytes(obj.stays) if obj.stays else None
     return (
         int(obj.id),
         int(obj.version),
@@ -565,7 +766,38 @@ def _object_to_row(obj: MapObject) -> tuple:
         points.tobytes(),
         embedding_dim,
         embedding_bytes,
+        obj.state,
+        _checked_time(f"object {obj.id}: first_seen_t", obj.first_seen_t),
+        _checked_time(f"object {obj.id}: last_seen_t", obj.last_seen_t),
+        stays,
+        _label_embeddings_to_blob(obj, embedding_dim),
     )
+
+
+def _label_embeddings_to_blob(obj: MapObject, embedding_dim: int | None) -> bytes | None:
+    """float32 LE [labels, embedding_dim], a row per label of label_counts in its order (NaN
+    for a label without a sum); None when the object has no per-label sums."""
+    if not obj.label_embeddings:
+        return None
+    unknown = [label for label in obj.label_embeddings if label not in obj.label_counts]
+    if unknown or embedding_dim is None:
+        raise ValueError(
+            f"object {obj.id}: per-label embedding sums need an embedding_sum and labels that "
+            f"are counted (not counted: {unknown})"
+        )
+    rows = np.full((len(obj.label_counts), embedding_dim), np.nan, _FLOAT32_LE)
+    for i, label in enumerate(obj.label_counts):
+        vector = obj.label_embeddings.get(label)
+        if vector is None:
+            continue
+        vector = np.asarray(vector, dtype=_FLOAT32_LE)
+        if vector.shape != (embedding_dim,):
+            raise ValueError(
+                f"object {obj.id}: the embedding sum of {label!r} must be [{embedding_dim}], "
+                f"got {vector.shape}"
+            )
+        rows[i] = vector
+    return rows.tobytes()
 
 
 def _float32_from_blob(blob: bytes, shape: tuple[int, ...]) -> np.ndarray:
@@ -590,19 +822,72 @@ def _object_from_row(row: tuple) -> MapObject:
         points,
         embedding_dim,
         embedding_sum,
+        state,
+        first_seen_t,
+        last_seen_t,
+        stays,
+        label_embeddings,
     ) = row
+    label_counts = Counter(json.loads(labels))
     obj = MapObject(
         id=object_id,
         embedding_sum=(
             None if embedding_sum is None else _float32_from_blob(embedding_sum, (embedding_dim,))
         ),
-        label_counts=Counter(json.loads(labels)),
+        label_counts=label_counts,
         n_obs=n_obs,
         frames_seen=frames_seen,
         first_seen=first_seen,
         last_seen=last_seen,
         version=version,
         confirmed=True,
+        label_embeddings=_label_embeddings_from_blob(label_embeddings, label_counts, embedding_dim),
+        first_seen_t=first_seen_t,
+        last_seen_t=last_seen_t,
+        state=state,
+        stays=[] if stays is None else stays_from_bytes(stays),
     )
     obj.set_points(_float32_from_blob(points, (n_points, 3)), resolution_m)
     return obj
+
+
+def _label_embeddings_from_blob(
+    blob: bytes | None, label_counts: Counter, embedding_dim: int | None
+) -> dict[str, np.ndarray]:
+    if blob is None:
+        return {}
+    rows = _float32_from_blob(blob, (len(label_counts), embedding_dim or 0))
+    return {
+        label: row for label, row in zip(label_counts, rows, strict=True) if not np.isnan(row).all()
+    }
+
+
+def _change_to_row(change: Change, seq: int) -> tuple:
+    """The columns of _CHANGE_COLUMNS for one change at `seq`; ValueError on an unknown kind,
+    a time that is not finite or a place that is not 3 finite numbers."""
+    if change.kind not in CHANGE_KINDS:
+        raise ValueError(f"change of object {change.id}: unknown kind {change.kind!r}")
+    places: list[float | None] = []
+    for name, xyz in (("from", change.from_xyz), ("to", change.to_xyz)):
+        if xyz is None:
+            places += [None, None, None]
+            continue
+        values = [float(v) for v in xyz]
+        if len(values) != 3 or not all(math.isfinite(v) for v in values):
+            raise ValueError(f"change of object {change.id}: {name} must be 3 finite numbers")
+        places += values
+    t = _checked_time(f"change of object {change.id}: t", change.t)
+    return (int(change.id), change.kind, t, str(change.label), *places, seq)
+
+
+def _change_from_row(row: tuple) -> Change:
+    object_id, kind, t, label, fx, fy, fz, tx, ty, tz, seq = row
+    return Change(
+        id=object_id,
+        kind=kind,
+        t=t,
+        label=label,
+        from_xyz=None if fx is None else (fx, fy, fz),
+        to_xyz=None if tx is None else (tx, ty, tz),
+        seq=seq,
+    )

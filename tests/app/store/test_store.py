@@ -22,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.mapping.deltas import DeltaLog
-from app.mapping.object import MapObject
+from app.mapping.object import Change, MapObject
 from app.server.settings import ServerSettings
 from app.store import (
     SessionRecord,
@@ -60,6 +60,9 @@ def make_object(oid: int, version: int = 1, n_points: int = 50, seed: int = 0) -
 def fields(obj: MapObject) -> tuple:
     """Everything persisted about an object, arrays compared bit for bit (dtype included)."""
     emb = obj.embedding_sum
+    by_label = sorted(
+        (label, v.dtype.str, v.tobytes()) for label, v in obj.label_embeddings.items()
+    )
     return (
         obj.id,
         obj.version,
@@ -74,6 +77,11 @@ def fields(obj: MapObject) -> tuple:
         obj.points.shape,
         obj.points.tobytes(),
         None if emb is None else (emb.dtype.str, emb.shape, emb.tobytes()),
+        by_label,
+        obj.first_seen_t,
+        obj.last_seen_t,
+        obj.state,
+        obj.stays,
     )
 
 
@@ -295,9 +303,10 @@ def test_a_refused_commit_leaves_the_store_exactly_as_before(
     assert [o.id for o in store.load_objects("s1")] == [1, 4]
 
 
-def test_deleting_a_session_removes_its_objects_and_tombstones(store):
+def test_deleting_a_session_removes_its_objects_tombstones_and_changes(store):
     seeded(store, "gone")
     seeded(store, "kept")
+    store.commit_keyframe("gone", 3, [], [1], {}, 4, changes=[Change(1, "removed", 9.0, "x")])
     kept_before = everything(store)[1]["kept"]
 
     store.delete_session("gone")
@@ -306,7 +315,7 @@ def test_deleting_a_session_removes_its_objects_and_tombstones(store):
     assert [s.session_id for s in store.list_sessions()] == ["kept"]
     assert everything(store)[1]["kept"] == kept_before
     with sqlite3.connect(store.path) as db:
-        for table in ("objects", "tombstones"):
+        for table in ("objects", "tombstones", "changes"):
             count = db.execute(f"SELECT count(*) FROM {table} WHERE session_id = 'gone'")
             assert count.fetchone()[0] == 0, table
     store.create_session(record("gone"))
@@ -364,12 +373,24 @@ def test_the_database_is_created_in_wal_mode_with_its_parent_dirs(tmp_path):
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
 
+def back_to_version_3(db: sqlite3.Connection) -> None:
+    """Undo migration 3 -> 4 (the living map) on a store holding no history."""
+    db.execute("DROP TABLE changes")
+    db.execute("DROP INDEX objects_by_state")
+    for column in ("state", "first_seen_t", "last_seen_t", "stays", "label_embeddings"):
+        db.execute(f"ALTER TABLE objects DROP COLUMN {column}")
+    for column in ("last_t", "last_pose"):
+        db.execute(f"ALTER TABLE sessions DROP COLUMN {column}")
+    db.execute("PRAGMA user_version = 3")
+
+
 def test_a_version_1_store_opens_with_its_sessions_on_the_detections_backend(tmp_path):
     path = tmp_path / "semanticxr.db"
     with SqliteStore(path) as store:
         seeded(store)
         before = everything(store)
     with sqlite3.connect(path) as db:  # what a server before the perception column wrote
+        back_to_version_3(db)
         db.execute("DROP INDEX sessions_by_last_use")
         db.execute("ALTER TABLE sessions DROP COLUMN last_used_at")
         db.execute("ALTER TABLE sessions DROP COLUMN perception")
@@ -381,7 +402,7 @@ def test_a_version_1_store_opens_with_its_sessions_on_the_detections_backend(tmp
     with SqliteStore(path) as store:
         assert [s.perception for s in store.list_sessions()] == ["detections", "models"]
     with sqlite3.connect(path) as db:
-        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 3
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 4
 
 
 def test_a_version_2_store_counts_its_sessions_as_used_at_the_upgrade(tmp_path):
@@ -392,6 +413,7 @@ def test_a_version_2_store_counts_its_sessions_as_used_at_the_upgrade(tmp_path):
         seeded(store)
         before = everything(store)
     with sqlite3.connect(path) as db:  # what a server before the last-use column wrote
+        back_to_version_3(db)
         db.execute("DROP INDEX sessions_by_last_use")
         db.execute("ALTER TABLE sessions DROP COLUMN last_used_at")
         db.execute("PRAGMA user_version = 2")
