@@ -27,6 +27,7 @@ import numpy as np
 from app.config import MODES, Knobs, Mode
 from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
+from app.mapping.object import Change
 from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
 from app.mapping.publish import update_message
 from app.protocol import FrameInput, parse_frame, parse_sighting
@@ -284,6 +285,9 @@ class MappedRun:
     sightings_ms: list[float] = field(default_factory=list)
     """Per non-keyframe handed over as sightings: decode + validate + `MappingEngine.sight`."""
 
+    changes: list[Change] = field(default_factory=list)
+    """What the living map concluded on the walk (added, moved, removed), in order."""
+
     def add_stage(self, stage: str, ms: float) -> None:
         self.stages_ms.setdefault(stage, []).append(ms)
 
@@ -313,6 +317,7 @@ def map_keyframes(
             frame = parse_frame(messages[name][i], engine.backend.needs_rgb)
             t1 = time.perf_counter()
             stats = engine.integrate(frame)
+            run.changes.extend(stats.changes)
             t2 = time.perf_counter()
             if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
                 update = update_message(engine, published[name])
@@ -516,6 +521,9 @@ def run_eval(
         scored["stages_ms"] = {stage: _percentiles(ms) for stage, ms in run.stages_ms.items()}
         scored["downstream_bytes_per_update"] = _percentiles(update_bytes) if update_bytes else None
         scored["downstream_bytes_total"] = int(sum(update_bytes))
+        scored["changes_concluded"] = {
+            kind: sum(c.kind == kind for c in run.changes) for kind in ("added", "moved", "removed")
+        }
         if keep_latencies:
             scored["latencies_ms"] = latencies
         result["variants" if mode in variants else "modes"][mode] = scored

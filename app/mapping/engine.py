@@ -798,11 +798,14 @@ class MappingEngine:
         `living.removal_due`. Returns the published ids it took out of the present map."""
         for oid in observed:
             self._suspects.pop(oid, None)
-            obj = self.objects[oid]
-            if obj.confirmed and len(obj.points):
-                through = living.classify_points(obj.points, view, self.knobs).seen_through
-                if through.any() and not through.all():
-                    obj.set_points(obj.points[~through], obj.resolution_m)
+        seen = [self.objects[i] for i in sorted(observed) if self.objects[i].confirmed]
+        worth = living.seen_through_any_batched(
+            [living.object_sample(o.points) for o in seen], view, self.knobs
+        )
+        for obj in (o for o, w in zip(seen, worth, strict=True) if w):
+            through = living.classify_points(obj.points, view, self.knobs).seen_through
+            if not through.all():
+                obj.set_points(obj.points[~through], obj.resolution_m)
         floor = self.keyframes - living.SUSPICION_MAX_KEYFRAMES
         for oid in list(self._suspects):
             kept = [e for e in self._suspects[oid] if e.keyframe > floor]

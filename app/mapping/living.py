@@ -189,52 +189,68 @@ def absence_evidence_batched(
     view: EvidenceView,
     knobs: Knobs,
 ) -> list[EvidenceKind | None]:
-    """`absence_evidence` for many objects at once (one projection for all samples)."""
-    if not samples:
+    """`absence_evidence` for many objects at once: one projection for all samples, the
+    per-object counts by bincount, Python only over the (object, detection) pairs seen."""
+    n = len(samples)
+    if not n:
         return []
     sizes = np.array([len(s) for s in samples])
-    owner = np.repeat(np.arange(len(samples)), sizes)
+    owner = np.repeat(np.arange(n), sizes)
     verdicts = classify_points(np.concatenate(samples).astype(np.float32), view, knobs)
-    width, height = view.rgb_size
-    det = _gather(view.label_image, verdicts.u, verdicts.v, width).astype(np.int64)
-    det = np.where(verdicts.in_view, det, 0)
-    n = len(samples)
-    in_view = np.bincount(owner, verdicts.in_view, n)
-    matching = np.bincount(owner, verdicts.matching, n)
-    through = np.bincount(owner, verdicts.seen_through, n)
-    out: list[EvidenceKind | None] = []
-    for i in range(n):
-        if sizes[i] == 0 or in_view[i] < MIN_IN_VIEW * sizes[i]:
-            out.append(None)
+    seen = verdicts.in_view
+    in_view = np.bincount(owner[seen], minlength=n)
+    matching = np.bincount(owner[verdicts.matching], minlength=n)
+    through = np.bincount(owner[verdicts.seen_through], minlength=n)
+    visible = matching + through
+    out: list[EvidenceKind | None] = [None] * n
+    # occlusion is never evidence: only objects in view with enough of it visible go on
+    candidates = (sizes > 0) & (in_view >= MIN_IN_VIEW * sizes) & (in_view > 0)
+    candidates &= visible >= knobs.absence_min_visible * in_view
+    if not candidates.any():
+        return out
+    keep = seen & candidates[owner]
+    owner_v, u, v = owner[keep], verdicts.u[keep], verdicts.v[keep]
+    det = _gather(view.label_image, u, v, view.rgb_size[0]).astype(np.int64)
+    # (object, detection) pairs under the objects' points, with their point counts
+    pairs, counts = np.unique(owner_v * (int(det.max()) + 1) + det, return_counts=True)
+    pair_owner, pair_det = np.divmod(pairs, int(det.max()) + 1)
+    own_label_seen = np.zeros(n, bool)
+    largest_cover = np.zeros(n, np.int64)
+    for i, d, c in zip(pair_owner.tolist(), pair_det.tolist(), counts.tolist(), strict=True):
+        if d == 0:
             continue
-        visible = matching[i] + through[i]
-        if visible < knobs.absence_min_visible * in_view[i]:
-            out.append(None)  # occluded: never evidence
-            continue
-        mine = owner == i
-        ids = det[mine & verdicts.in_view]
-        own = set(labels[i])
-        detected_ids = ids[ids > 0]
-        own_label_seen = any(view.labels.get(int(d)) in own for d in np.unique(detected_ids))
-        if own_label_seen:
-            out.append(None)
-            continue
-        if through[i] >= knobs.absence_min_seen_through * visible:
-            out.append("depth")
-            continue
-        covered = (
-            np.bincount(detected_ids).max() >= THIN_MAX_COVER * in_view[i]
-            if len(detected_ids)
-            else False
-        )
-        if covered or visible < THIN_MIN_VISIBLE * in_view[i]:
-            out.append(None)
-            continue
-        pts = mine & verdicts.in_view
-        us, vs = verdicts.u[pts], verdicts.v[pts]
-        area = (us.max() - us.min() + 1) * (vs.max() - vs.min() + 1)
-        out.append("thin" if area >= knobs.min_absence_area_px else None)
+        if view.labels.get(d) in labels[i]:
+            own_label_seen[i] = True
+        largest_cover[i] = max(largest_cover[i], c)
+    # projected extent (px) of each candidate's in-view points: owner_v is sorted
+    starts = np.flatnonzero(np.r_[True, owner_v[1:] != owner_v[:-1]])
+    who = owner_v[starts]
+    area = np.zeros(n, np.int64)
+    area[who] = (np.maximum.reduceat(u, starts) - np.minimum.reduceat(u, starts) + 1) * (
+        np.maximum.reduceat(v, starts) - np.minimum.reduceat(v, starts) + 1
+    )
+    for i in np.flatnonzero(candidates & ~own_label_seen).tolist():
+        if through[i] >= knobs.absence_min_seen_through * visible[i]:
+            out[i] = "depth"
+        elif (
+            largest_cover[i] < THIN_MAX_COVER * in_view[i]
+            and visible[i] >= THIN_MIN_VISIBLE * in_view[i]
+            and area[i] >= knobs.min_absence_area_px
+        ):
+            out[i] = "thin"
     return out
+
+
+def seen_through_any_batched(
+    samples: Sequence[np.ndarray], view: EvidenceView, knobs: Knobs
+) -> np.ndarray:
+    """bool [len(samples)]: whether the view sees through any point of each sample (one
+    projection for all): the objects whose whole clouds are worth classifying."""
+    if not samples:
+        return np.zeros(0, bool)
+    owner = np.repeat(np.arange(len(samples)), [len(s) for s in samples])
+    through = classify_points(np.concatenate(samples).astype(np.float32), view, knobs)
+    return np.bincount(owner[through.seen_through], minlength=len(samples)) > 0
 
 
 def viewpoints_apart(evidence: Sequence[Evidence], knobs: Knobs) -> bool:

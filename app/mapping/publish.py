@@ -14,7 +14,8 @@ from app.mapping.deltas import Delta
 from app.mapping.engine import MappingEngine
 from app.mapping.geometry import cap_points
 from app.mapping.object import MapObject
-from app.protocol import DeltaMessage, UpsertEntry
+from app.protocol import ChangeEntry, DeltaMessage, UpsertEntry
+from app.protocol.limits import MAX_CHANGES_PER_DELTA
 
 MIN_CAP_RESOLUTION_M = Knobs().voxel_size_m
 """Capping never thins an object finer than the default voxel size."""
@@ -47,6 +48,8 @@ def object_upsert(obj: MapObject, max_points: int | None) -> UpsertEntry:
         points=client_points(obj, max_points),
         bbox=tuple(float(v) for v in obj.bbox),  # type: ignore[arg-type]
         n_obs=obj.n_obs,
+        first_seen_t=obj.first_seen_t,
+        last_seen_t=obj.last_seen_t,
     )
 
 
@@ -78,4 +81,10 @@ def update_message(engine: MappingEngine, since: int | None) -> dict:
         max_points = engine.knobs.max_object_points_client
         message = _delta(engine.delta_since(since), engine.objects, max_points)
     message.device_pose = engine.last_pose
+    if not message.full and since is not None:
+        message.changes = [
+            ChangeEntry(c.id, c.kind, c.t, c.label, c.from_xyz, c.to_xyz)
+            for c in engine.recent_changes
+            if c.seq > since
+        ][-MAX_CHANGES_PER_DELTA:]
     return message.pack()

@@ -22,6 +22,7 @@ mapping or the server.
 
 from app.errors import InputError
 from app.protocol.delta import (
+    ChangeEntry,
     DeltaError,
     DeltaMessage,
     UpsertEntry,
@@ -89,6 +90,7 @@ __all__ = [
     "KnobsBody",
     "UnprocessableBody",
     "DeltaError",
+    "ChangeEntry",
     "DeltaMessage",
     "DepthPatch",
     "EncodedDepthPatches",

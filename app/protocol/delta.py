@@ -5,8 +5,10 @@ and the viewer parse them with `parse_delta`, which validates everything and rai
 `DeltaError` naming the first wrong field. Whether a delta is in order (its seq against the
 one last applied) is the subscriber's state, so the subscriber checks it.
 
-Extension of v1 (an optional field): "device_pose", the newest mapped keyframe's
-camera-to-world pose in the frame's own encoding (16 float32 LE, row-major).
+Extensions of v1 (optional fields): "device_pose", the newest mapped keyframe's
+camera-to-world pose in the frame's own encoding (16 float32 LE, row-major); the living map's
+"first_seen_t" and "last_seen_t" on upserts (device clock, seconds) and "changes" (at most
+MAX_CHANGES_PER_DELTA, never in a full snapshot).
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from app.codecs import (
 )
 from app.errors import InputError
 from app.protocol.limits import (
+    MAX_CHANGES_PER_DELTA,
+    MAX_LABEL_CHARS,
     MAX_REMOVED_PER_DELTA,
     MAX_UPSERTS_PER_DELTA,
     UPDATE_LIMITS,
@@ -39,6 +43,8 @@ _INT64_MAX = 2**63 - 1
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 UPSERT_KEYS = ("id", "version", "label", "embedding", "points", "bbox", "n_obs")
 """The keys of every `upserts[]` entry."""
+CHANGE_KINDS = ("added", "moved", "removed")
+"""The kinds of a `changes[]` entry (the living map)."""
 
 
 class DeltaError(InputError):
@@ -60,10 +66,14 @@ class UpsertEntry:
     bbox: tuple[float, float, float, float, float, float]
     """[x0, y0, z0, x1, y1, z1] metres, minimum corner first."""
     n_obs: int
+    first_seen_t: float | None = None
+    """Extension (living map): device-clock time of the first keyframe that observed it."""
+    last_seen_t: float | None = None
+    """Extension (living map): device-clock time of the newest keyframe that observed it."""
 
     def pack(self) -> dict:
         """The wire `upserts[]` entry (embedding and points as little-endian float16 bytes)."""
-        return {
+        entry = {
             "id": self.id,
             "version": self.version,
             "label": self.label,
@@ -72,17 +82,51 @@ class UpsertEntry:
             "bbox": [float(v) for v in self.bbox],
             "n_obs": self.n_obs,
         }
+        if self.first_seen_t is not None:
+            entry["first_seen_t"] = float(self.first_seen_t)
+        if self.last_seen_t is not None:
+            entry["last_seen_t"] = float(self.last_seen_t)
+        return entry
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, UpsertEntry):
             return NotImplemented
         return (
-            (self.id, self.version, self.label, self.n_obs)
-            == (other.id, other.version, other.label, other.n_obs)
+            (self.id, self.version, self.label, self.n_obs, self.first_seen_t, self.last_seen_t)
+            == (
+                other.id,
+                other.version,
+                other.label,
+                other.n_obs,
+                other.first_seen_t,
+                other.last_seen_t,
+            )
             and tuple(self.bbox) == tuple(other.bbox)
             and np.array_equal(self.embedding, other.embedding)
             and np.array_equal(self.points, other.points)
         )
+
+
+@dataclass
+class ChangeEntry:
+    """One `changes[]` entry (the living map): what the map concluded about the world."""
+
+    id: int
+    kind: str
+    """"added", "moved" or "removed"."""
+    t: float
+    """Device-clock time of the keyframe at which the map concluded it."""
+    label: str
+    from_xyz: tuple[float, float, float] | None = None
+    to_xyz: tuple[float, float, float] | None = None
+
+    def pack(self) -> dict:
+        entry: dict = {"id": self.id, "kind": self.kind, "t": float(self.t), "label": self.label}
+        if self.from_xyz is not None:
+            entry["from"] = [float(v) for v in self.from_xyz]
+        if self.to_xyz is not None:
+            entry["to"] = [float(v) for v in self.to_xyz]
+        return entry
 
 
 @dataclass(eq=False)
@@ -96,6 +140,9 @@ class DeltaMessage:
     removed: list[int] = field(default_factory=list)
     device_pose: np.ndarray | None = None
     """Extension: float [4, 4] camera-to-world of the newest mapped keyframe, if any."""
+    changes: list[ChangeEntry] = field(default_factory=list)
+    """Extension (living map): changes concluded after the subscriber's seq, oldest first,
+    at most MAX_CHANGES_PER_DELTA (the newest); never in a full snapshot."""
 
     def pack(self) -> dict:
         """The v1 `delta` message, ready for `msgpack.packb`."""
@@ -108,6 +155,8 @@ class DeltaMessage:
         }
         if self.device_pose is not None:
             message["device_pose"] = pose_to_bytes(self.device_pose)
+        if self.changes:
+            message["changes"] = [change.pack() for change in self.changes]
         return message
 
     def __eq__(self, other: object) -> bool:
@@ -119,6 +168,7 @@ class DeltaMessage:
             (self.seq, self.full, list(self.removed))
             == (other.seq, other.full, list(other.removed))
             and list(self.upserts) == list(other.upserts)
+            and list(self.changes) == list(other.changes)
             and (self.device_pose is None or np.array_equal(self.device_pose, other.device_pose))
         )
 
@@ -210,7 +260,60 @@ def _upsert(value: Any, dim: int | None, field: str) -> UpsertEntry:
         points = float16_points_from_bytes(value["points"], f"{field}.points")
     except CodecError as exc:
         raise DeltaError(exc.field, exc.message) from exc
-    return UpsertEntry(oid, version, label, embedding, points, bbox, n_obs)
+    first_seen_t = _optional_time(value.get("first_seen_t"), f"{field}.first_seen_t")
+    last_seen_t = _optional_time(value.get("last_seen_t"), f"{field}.last_seen_t")
+    return UpsertEntry(
+        oid, version, label, embedding, points, bbox, n_obs, first_seen_t, last_seen_t
+    )
+
+
+def _optional_time(value: Any, field: str) -> float | None:
+    """None, or a finite number of seconds."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise DeltaError(field, f"expected a number, got {type(value).__name__}")
+    if not math.isfinite(value):
+        raise DeltaError(field, "not finite (NaN or inf)")
+    return float(value)
+
+
+def _point(value: Any, field: str) -> tuple[float, float, float] | None:
+    if value is None:
+        return None
+    if (
+        not isinstance(value, list | tuple)
+        or len(value) != 3
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        raise DeltaError(field, f"expected 3 numbers [x, y, z], got {value!r}")
+    if not all(math.isfinite(v) and abs(v) <= _FLOAT32_MAX for v in value):
+        raise DeltaError(field, "not finite (NaN, inf or beyond float32)")
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def _change(value: Any, field: str) -> ChangeEntry:
+    if not isinstance(value, dict):
+        raise DeltaError(field, f"expected a map, got {type(value).__name__}")
+    for key in ("id", "kind", "t", "label"):
+        if key not in value:
+            raise DeltaError(field, f"missing {key}")
+    if value["kind"] not in CHANGE_KINDS:
+        raise DeltaError(f"{field}.kind", f"expected one of {', '.join(CHANGE_KINDS)}")
+    label = value["label"]
+    if not isinstance(label, str) or len(label) > MAX_LABEL_CHARS:
+        raise DeltaError(f"{field}.label", f"expected a string of at most {MAX_LABEL_CHARS}")
+    t = _optional_time(value["t"], f"{field}.t")
+    if t is None:
+        raise DeltaError(f"{field}.t", "missing")
+    return ChangeEntry(
+        _int(value["id"], f"{field}.id"),
+        value["kind"],
+        t,
+        label,
+        _point(value.get("from"), f"{field}.from"),
+        _point(value.get("to"), f"{field}.to"),
+    )
 
 
 def parse_delta(message: Any, dim: int | None = None) -> DeltaMessage:
@@ -257,4 +360,8 @@ def parse_delta(message: Any, dim: int | None = None) -> DeltaMessage:
             raise DeltaError(exc.field, exc.message) from exc
         if not np.all(np.isfinite(device_pose)):
             raise DeltaError("device_pose", "not finite (NaN or inf)")
-    return DeltaMessage(seq, full, upserts, removed, device_pose)
+    changes = [
+        _change(raw, f"changes[{i}]")
+        for i, raw in enumerate(_list(message.get("changes", []), "changes", MAX_CHANGES_PER_DELTA))
+    ]
+    return DeltaMessage(seq, full, upserts, removed, device_pose, changes)

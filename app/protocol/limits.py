@@ -24,6 +24,7 @@ __all__ = [
     "LimitError",
     "MAX_IMAGE_SIDE_PX",
     "MAX_INSTANCES_PER_FRAME",
+    "MAX_CHANGES_PER_DELTA",
     "MAX_INTRINSIC_PX",
     "MAX_LABEL_CHARS",
     "MAX_REMOVED_PER_DELTA",
@@ -62,6 +63,10 @@ for (DESIGN's device target: 50k objects)."""
 
 MAX_REMOVED_PER_DELTA = 100_000
 """Most `removed` ids one delta may hold: the tombstones the delta log keeps at most."""
+
+MAX_CHANGES_PER_DELTA = 32
+"""Most `changes` one delta carries (the newest; a subscriber that needs them all reads
+`GET .../changes?since_seq=`). Small enough to fit the items budget beside a 50k snapshot."""
 
 MAX_STR_BYTES = 4096
 """Longest string (labels, codec names, error messages) in any message, UTF-8 bytes."""

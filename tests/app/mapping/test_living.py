@@ -282,3 +282,25 @@ def test_stays_are_bounded_and_merge_oldest_first():
         obj.start_stay(float(i))
     assert len(obj.stays) == MAX_STAYS
     assert obj.stays[0].t_from == 0.0 and obj.stays[-1].t_from == 39.0
+
+
+# ---------------------------------------------------------------------- what deltas carry
+def test_deltas_carry_times_and_the_changes_since_their_seq_never_a_snapshot(encoder):
+    from app.mapping.publish import update_message
+    from app.protocol import parse_delta
+
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 3)
+    (mug,) = mug_ids(engine)
+    before = engine.log.seq
+    first = parse_delta(update_message(engine, 0))
+    entry = next(u for u in first.upserts if u.id == mug)
+    assert (entry.first_seen_t, entry.last_seen_t) == (0.0, 2.0)
+    walk.t = 600.0
+    walk.walk([WALL], 4)
+    delta = parse_delta(update_message(engine, before))
+    assert mug in delta.removed
+    assert [(c.id, c.kind, c.t) for c in delta.changes] == [(mug, "removed", 602.0)]
+    assert parse_delta(update_message(engine, engine.log.seq)).changes == []
+    assert parse_delta(update_message(engine, None)).changes == []  # a full snapshot

@@ -13,6 +13,7 @@ from hypothesis.extra import numpy as hnp
 from app.errors import InputError
 from app.protocol import (
     MAX_UPSERTS_PER_DELTA,
+    ChangeEntry,
     DeltaError,
     DeltaMessage,
     UpsertEntry,
@@ -40,6 +41,23 @@ def upserts(draw, oid):
         ),
         bbox=(*lo, *(a + b for a, b in zip(lo, size, strict=True))),
         n_obs=draw(st.integers(0, 10**6)),
+        first_seen_t=draw(st.none() | st.floats(-1e9, 1e9)),
+        last_seen_t=draw(st.none() | st.floats(-1e9, 1e9)),
+    )
+
+
+points3 = st.none() | st.tuples(*[st.floats(-1000, 1000, width=32)] * 3)
+
+
+@st.composite
+def change_entries(draw):
+    return ChangeEntry(
+        id=draw(ids),
+        kind=draw(st.sampled_from(["added", "moved", "removed"])),
+        t=draw(st.floats(-1e9, 1e9)),
+        label=draw(st.text(max_size=20)),
+        from_xyz=draw(points3),
+        to_xyz=draw(points3),
     )
 
 
@@ -56,6 +74,7 @@ def deltas(draw):
         upserts=[draw(upserts(oid)) for oid in object_ids[:split]],
         removed=object_ids[split:],
         device_pose=pose,
+        changes=draw(st.lists(change_entries(), max_size=4)),
     )
 
 
@@ -150,6 +169,18 @@ MALFORMED = [
     ("removed", _top("removed", [21])),
     ("device_pose", _top("device_pose", b"\x00" * 10)),
     ("device_pose", _top("device_pose", np.full(16, np.nan, "<f4").tobytes())),
+    ("upserts[1].last_seen_t", _second("last_seen_t", float("nan"))),
+    ("upserts[1].first_seen_t", _second("first_seen_t", "yesterday")),
+    ("changes", _top("changes", {"id": 1})),
+    ("changes", _top("changes", [{}] * 33)),
+    ("changes[0]", _top("changes", [{"id": 1, "kind": "moved", "t": 1.0}])),
+    ("changes[0].kind", _top("changes", [{"id": 1, "kind": "teleported", "t": 1, "label": ""}])),
+    ("changes[0].t", _top("changes", [{"id": 1, "kind": "moved", "t": None, "label": ""}])),
+    (
+        "changes[0].from",
+        _top("changes", [{"id": 1, "kind": "moved", "t": 1, "label": "", "from": [1, 2]}]),
+    ),
+    ("changes[0].id", _top("changes", [{"id": -1, "kind": "added", "t": 1, "label": ""}])),
 ]
 
 
