@@ -27,8 +27,8 @@ import numpy as np
 from app.config import MODES, Knobs, Mode
 from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
-from app.mapping.object import Change
 from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
+from app.mapping.object import Change
 from app.mapping.publish import update_message
 from app.protocol import FrameInput, parse_frame, parse_sighting
 from app.semantics import TextEncoder
