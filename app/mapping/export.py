@@ -4,18 +4,24 @@ Export rounds the way the wire does (points to 0.1 mm, embeddings to 1e-6), and 
 derived from the points (box, centroid) is computed from the rounded points, so an export
 imported and exported again gives the same text: float32 holds a 0.1 mm coordinate (under
 MAX_WORLD_M) and a 1e-6 embedding component closely enough to round back to it.
+
+The living map's history travels too: each object's device-clock first/last seen and its
+stays (places rounded to 0.1 mm from their float32 form, the form a store keeps, so an
+export reads the same before and after a restart), the removed objects kept as history, and
+the changes with their update seq. Times are exported exactly.
 """
 
 from __future__ import annotations
 
 import io
+import json
 import zlib
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-from app.mapping.object import MapObject
+from app.mapping.object import Change, MapObject, Stay
 
 POINT_DECIMALS = 4
 """0.1 mm, as on the wire."""
@@ -56,7 +62,52 @@ def export_record(obj: MapObject, with_embedding: bool) -> dict:
     }
     if with_embedding:
         record["embedding"] = exported_embedding(obj)
+    if obj.first_seen_t is not None:
+        record["first_seen_t"] = obj.first_seen_t
+    if obj.last_seen_t is not None:
+        record["last_seen_t"] = obj.last_seen_t
+    if obj.stays:
+        record["stays"] = [exported_stay(stay) for stay in obj.stays]
     return record
+
+
+def _exported_place(values: Iterable[float]) -> list[float]:
+    """Metres rounded to 0.1 mm from their float32 form (the form a store keeps)."""
+    return np.asarray(list(values), np.float32).astype(np.float64).round(POINT_DECIMALS).tolist()
+
+
+def exported_stay(stay: Stay) -> dict:
+    """One stay of an export: {"t_from", "t_to", "centroid", "bbox"} (`protocol.ExportedStay`)."""
+    return {
+        "t_from": stay.t_from,
+        "t_to": stay.t_to,
+        "centroid": _exported_place(stay.centroid),
+        "bbox": _exported_place(stay.bbox),
+    }
+
+
+def export_change(change: Change) -> dict:
+    """One change of an export: its wire form and the update seq that published it."""
+    return {**change.to_json(), "seq": change.seq}
+
+
+def export_json_chunks(
+    header: dict,
+    objects: Iterable[MapObject],
+    removed_objects: Iterable[MapObject],
+    changes: Iterable[Change],
+    with_embedding: bool,
+) -> Iterator[bytes]:
+    """The JSON export (`protocol.MapExport`) as UTF-8 chunks, one object at a time (the
+    whole map is never one JSON text in memory): `header` (format, version, session), then
+    "objects", "removed_objects" and "changes"."""
+    yield json.dumps(header)[:-1].encode() + b', "objects": ['
+    for i, obj in enumerate(objects):
+        yield (b", " if i else b"") + json.dumps(export_record(obj, with_embedding)).encode()
+    yield b'], "removed_objects": ['
+    for i, obj in enumerate(removed_objects):
+        yield (b", " if i else b"") + json.dumps(export_record(obj, with_embedding)).encode()
+    yield b'], "changes": ' + json.dumps([export_change(c) for c in changes]).encode() + b"}"
 
 
 def imported_object(
@@ -67,10 +118,16 @@ def imported_object(
     points: list[list[float]],
     embedding: np.ndarray,
     resolution_m: float,
+    *,
+    first_seen_t: float | None = None,
+    last_seen_t: float | None = None,
+    stays: Iterable[Stay] = (),
+    state: str = "present",
 ) -> MapObject:
     """A confirmed MapObject from an export's record. embedding: float32 [d] (the export's,
     or the label's when the export has none). The label histogram is the label n_obs times
-    (an export keeps only the winner)."""
+    (an export keeps only the winner); there are no per-label sums (the embedding is the
+    object's). state: "removed" for a removed object of the export."""
     return MapObject(
         id=object_id,
         points=np.asarray(points, np.float32).reshape(-1, 3),
@@ -81,6 +138,20 @@ def imported_object(
         version=version,
         confirmed=True,
         resolution_m=resolution_m,
+        first_seen_t=first_seen_t,
+        last_seen_t=last_seen_t,
+        state=state,  # type: ignore[arg-type]
+        stays=list(stays),
+    )
+
+
+def imported_stay(t_from: float, t_to: float, centroid: list[float], bbox: list[float]) -> Stay:
+    """A Stay from an export's stay record."""
+    return Stay(
+        float(t_from),
+        float(t_to),
+        tuple(float(v) for v in centroid),  # type: ignore[arg-type]
+        tuple(float(v) for v in bbox),  # type: ignore[arg-type]
     )
 
 

@@ -308,6 +308,51 @@ class ExportedSession(Record):
     default when it is not loaded)."""
 
 
+MAX_EXPORTED_STAYS = 32
+"""Stays an exported object may hold: the map's MAX_STAYS (app.mapping.object)."""
+
+
+def _none(value: object) -> bool:
+    return value is None
+
+
+class ExportedStay(Record):
+    """One place an object stayed at (device clock, metres)."""
+
+    t_from: Finite
+    """Frame `t` of the first keyframe that observed it there (seconds)."""
+    t_to: Finite
+    """Frame `t` of the last keyframe that observed it there (seconds)."""
+    centroid: Annotated[list[Finite], Field(min_length=3, max_length=3)]
+    bbox: Annotated[list[Finite], Field(min_length=6, max_length=6)]
+    """[x0, y0, z0, x1, y1, z1]"""
+
+
+class ExportedChange(Record):
+    """One change the map concluded (the wire's change entry) and the update seq that
+    published it."""
+
+    model_config = ConfigDict(serialize_by_alias=True)  # "from" is a Python keyword
+
+    id: int = Field(ge=1, le=2**31 - 1)
+    kind: Literal["added", "moved", "removed"]
+    t: Finite
+    """Frame `t` of the keyframe at which the map concluded it (device clock, seconds)."""
+    label: str = Field(max_length=MAX_NAME_CHARS)
+    from_: Annotated[
+        Annotated[list[Finite], Field(min_length=3, max_length=3)] | None,
+        Field(alias="from", exclude_if=_none),
+    ] = None
+    """The old place [x, y, z] (moved, removed)."""
+    to: Annotated[
+        Annotated[list[Finite], Field(min_length=3, max_length=3)] | None,
+        Field(exclude_if=_none),
+    ] = None
+    """The new place [x, y, z] (added, moved)."""
+    seq: int = Field(ge=1, le=2**62)
+    """The update seq of the commit that published it (an import keeps it)."""
+
+
 class ExportedObject(Record):
     """One confirmed object of an export, at full server resolution (0.1 mm)."""
 
@@ -331,6 +376,14 @@ class ExportedObject(Record):
     ] = None
     """The object's unit embedding (`?embeddings=true`); without it (absent or null, never
     empty) an import embeds the label."""
+    first_seen_t: Annotated[Finite | None, Field(exclude_if=_none)] = None
+    """Frame `t` of the first keyframe that observed it (device clock, seconds)."""
+    last_seen_t: Annotated[Finite | None, Field(exclude_if=_none)] = None
+    """Frame `t` of the newest keyframe that observed it."""
+    stays: Annotated[
+        list[ExportedStay] | None, Field(max_length=MAX_EXPORTED_STAYS, exclude_if=_none)
+    ] = None
+    """Where it has been, oldest first (absent: no history)."""
 
 
 class MapExport(Record):
@@ -371,3 +424,8 @@ class MapExport(Record):
     session: ExportedSession
     objects: list[ExportedObject]
     """Confirmed objects, in id order."""
+    removed_objects: Annotated[list[ExportedObject] | None, Field(exclude_if=_none)] = None
+    """Objects removed from the map but kept as history (their last points and stays), in
+    id order; ids distinct from the objects'."""
+    changes: Annotated[list[ExportedChange] | None, Field(exclude_if=_none)] = None
+    """The changes the map concluded, in the order they arrived (seq never decreasing)."""

@@ -33,6 +33,7 @@ import asyncio
 import contextlib
 import hashlib
 import hmac
+import itertools
 import logging
 import math
 import secrets
@@ -51,10 +52,10 @@ from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
 from app.keyframes import is_keyframe
 from app.mapping.deltas import DeltaLog
-from app.mapping.engine import IntegrationStats, MappingEngine, QueryHit
-from app.mapping.export import imported_object
+from app.mapping.engine import MAX_WORLD_M, IntegrationStats, MappingEngine, QueryHit
+from app.mapping.export import imported_object, imported_stay
 from app.mapping.geometry import preload_outlier_removal
-from app.mapping.object import MapObject
+from app.mapping.object import Change, MapObject
 from app.mapping.publish import update_message
 from app.mapping.relevance import Rating, rate_hits
 from app.perception import DEFAULT_BACKEND, BackendOptions, UnknownBackendError, make_backend
@@ -702,16 +703,23 @@ class SessionManager:
     def import_session(self, export: MapExport) -> tuple[Session, str]:
         """A new session holding an export's objects, with their ids, and its token.
 
-        The objects are committed to the store as the session's first change (seq 1), so a
-        restart keeps them. Raises as `create` does, and InputError naming the field when
-        the export's embedding dimension is not the session's encoder's, or it holds more
-        objects than max_objects; nothing is left behind then."""
+        The export's history comes along: its removed objects (kept as history, out of the
+        map) and its changes. Everything is committed to the store before the session is
+        used, so a restart keeps it: the changes at the update seqs they carry (one commit
+        per seq, in order, so `since_seq` reads the same history) and the objects at the
+        seq of the newest change (1 without changes), which is the session's update seq.
+        Raises as `create` does, and InputError naming the field when the export's embedding
+        dimension is not the session's encoder's, it holds more objects or removed objects
+        than max_objects, an id twice, a removed object or a stay beyond MAX_WORLD_M, or
+        changes out of seq order; nothing is left behind then."""
         spec = export.session
-        if len(export.objects) > self.settings.max_objects:
-            raise InputError(
-                "objects",
-                f"{len(export.objects)} objects, over max_objects={self.settings.max_objects}",
-            )
+        removed_records = export.removed_objects or []
+        for name, records in (("objects", export.objects), ("removed_objects", removed_records)):
+            if len(records) > self.settings.max_objects:
+                raise InputError(
+                    name, f"{len(records)} objects, over max_objects={self.settings.max_objects}"
+                )
+        _check_imported_history(export)
         perception = spec.perception if spec.perception in self.backends else None
         session, token = self._create(spec.name, spec.mode, spec.knobs, perception)
         try:
@@ -722,43 +730,77 @@ class SessionManager:
                     f"{spec.embedding.dim}, but this server embeds with {engine.encoder.model_id} "
                     f"({engine.encoder.dim} dimensions)",
                 )
-            without = [o.label for o in export.objects if o.embedding is None]
+            records = [*export.objects, *removed_records]
+            without = [o.label for o in records if o.embedding is None]
             by_label = dict(zip(without, engine.encoder.encode(without), strict=True))
-            objects = []
-            for i, o in enumerate(export.objects):
-                embedding = (
-                    np.asarray(o.embedding, np.float32) if o.embedding else by_label[o.label]
-                )
-                if len(embedding) != engine.encoder.dim:
-                    raise InputError(
-                        f"objects[{i}].embedding",
-                        f"{len(embedding)} values, not {engine.encoder.dim}",
+            objects, removed = [], []
+            for name, state, group, into in (
+                ("objects", "present", export.objects, objects),
+                ("removed_objects", "removed", removed_records, removed),
+            ):
+                for i, o in enumerate(group):
+                    embedding = (
+                        np.asarray(o.embedding, np.float32) if o.embedding else by_label[o.label]
                     )
-                objects.append(
-                    imported_object(
-                        o.id,
-                        o.version,
-                        o.label,
-                        o.n_obs,
-                        o.points,
-                        embedding,
-                        engine.knobs.voxel_size_m,
+                    if len(embedding) != engine.encoder.dim:
+                        raise InputError(
+                            f"{name}[{i}].embedding",
+                            f"{len(embedding)} values, not {engine.encoder.dim}",
+                        )
+                    into.append(
+                        imported_object(
+                            o.id,
+                            o.version,
+                            o.label,
+                            o.n_obs,
+                            o.points,
+                            embedding,
+                            engine.knobs.voxel_size_m,
+                            first_seen_t=o.first_seen_t,
+                            last_seen_t=o.last_seen_t,
+                            stays=[imported_stay(**s.model_dump()) for s in o.stays or []],
+                            state=state,
+                        )
                     )
-                )
-            if not objects:
+            changes = [
+                Change(c.id, c.kind, c.t, c.label, _xyz(c.from_), _xyz(c.to), c.seq)
+                for c in export.changes or []
+            ]
+            if not objects and not removed and not changes:
                 return session, token
-            next_object_id = max(o.id for o in objects) + 1
+            ids = [o.id for o in objects] + [o.id for o in removed] + [c.id for c in changes]
+            next_object_id = max(ids) + 1
+            seq = max([1, *(c.seq for c in changes)])
             with session._map_lock:
-                seq = engine.log.commit(upserted=[o.id for o in objects])
+                counters = self._counters(session)
+                for change_seq, group in itertools.groupby(changes, key=lambda c: c.seq):
+                    if change_seq < seq:  # the newest seq's changes go with the objects
+                        self.store.commit_keyframe(
+                            session.id, change_seq, [], [], counters, next_object_id,
+                            changes=list(group),
+                        )  # fmt: skip
                 self.store.commit_keyframe(
                     session.id,
                     seq,
                     objects,
-                    [],
-                    counters=self._counters(session),
+                    [o.id for o in removed],
+                    counters=counters,
                     next_object_id=next_object_id,
+                    retired=removed,
+                    changes=[c for c in changes if c.seq == seq],
                 )
-                engine.restore(objects, engine.log, engine.keyframes, next_object_id)
+                log = DeltaLog.from_state(
+                    {
+                        "seq": seq,
+                        "floor": 0,
+                        "upserted_at": {o.id: seq for o in objects},
+                        "removed_at": {o.id: seq for o in removed},
+                    },
+                    self.settings.max_tombstones,
+                )
+                engine.restore(
+                    objects, log, engine.keyframes, next_object_id, recent_changes=changes
+                )
                 session.record.next_object_id = next_object_id
         except BaseException:
             self.delete(session.id)
@@ -766,6 +808,19 @@ class SessionManager:
         finally:
             self.release(session)
         return session, token
+
+    def export_contents(
+        self, session: Session
+    ) -> tuple[list[MapObject], list[MapObject], list[Change]]:
+        """What a JSON export of `session` holds, read at one instant (under the map lock):
+        its confirmed objects, its removed objects kept as history and its changes (the
+        last two from the store, which holds all of them)."""
+        with session._map_lock:
+            return (
+                session.engine.confirmed_objects(),
+                self.store.load_removed_objects(session.id),
+                self.store.load_changes(session.id),
+            )
 
     def delete(self, sid: str) -> None:
         """Delete session `sid` with its map, resident or not (its sockets close)."""
@@ -1130,3 +1185,40 @@ class SessionManager:
                     self._store_failed(f"trimming the tombstones of session {session.id}", exc)
             latency_ms = pending.decode_ms + (time.perf_counter() - t_locked) * 1e3
             return stats, latency_ms
+
+
+# ---------------------------------------------------------------------- import checks
+def _xyz(values: list[float] | None) -> tuple[float, float, float] | None:
+    return None if values is None else (values[0], values[1], values[2])
+
+
+def _check_imported_history(export: MapExport) -> None:
+    """InputError naming the field when an export's history cannot be stored as it is: an id
+    both in objects and removed_objects (or twice in removed_objects), a removed object's
+    points or a stay beyond MAX_WORLD_M, or a change whose seq is before the one listed
+    before it (changes are listed in arrival order). The objects' own ids and points are
+    checked by the route."""
+    seen = {o.id for o in export.objects}
+    for i, o in enumerate(export.removed_objects or []):
+        if o.id in seen:
+            raise InputError(f"removed_objects[{i}].id", f"{o.id} appears twice")
+        seen.add(o.id)
+        if np.abs(np.asarray(o.points)).max() > MAX_WORLD_M:
+            raise InputError(
+                f"removed_objects[{i}].points", f"over {MAX_WORLD_M:g} m from the origin"
+            )
+    for name, records in (("objects", export.objects), ("removed_objects", export.removed_objects)):
+        for i, o in enumerate(records or []):
+            for j, stay in enumerate(o.stays or []):
+                if np.abs(np.asarray([*stay.centroid, *stay.bbox])).max() > MAX_WORLD_M:
+                    raise InputError(
+                        f"{name}[{i}].stays[{j}]", f"over {MAX_WORLD_M:g} m from the origin"
+                    )
+    changes = export.changes or []
+    for i in range(1, len(changes)):
+        if changes[i].seq < changes[i - 1].seq:
+            raise InputError(
+                f"changes[{i}].seq",
+                f"{changes[i].seq} is before the seq of the change listed before it "
+                f"({changes[i - 1].seq}); changes are listed in the order they arrived",
+            )

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -16,7 +15,7 @@ from app import protocol
 from app.config import KnobError, knobs_to_dict
 from app.errors import InputError
 from app.mapping.engine import MAX_WORLD_M
-from app.mapping.export import export_record, ply_bytes
+from app.mapping.export import export_json_chunks, ply_bytes
 from app.mapping.object import MapObject
 from app.mapping.publish import client_points
 from app.perception import UnknownBackendError
@@ -287,7 +286,7 @@ def export_map(
 ) -> Response:
     with session_in_use(request, sid) as session:
         # Taken under the map lock; points are replaced, never edited.
-        objects = session.objects()
+        objects, removed_objects, changes = manager(request).export_contents(session)
         encoder = session.engine.encoder
         header = {
             "format": protocol.rest.EXPORT_FORMAT,
@@ -306,15 +305,11 @@ def export_map(
         return Response(
             ply_bytes(objects), media_type="application/octet-stream", headers=disposition
         )
-
-    def chunks() -> Iterator[bytes]:
-        # One object at a time: the whole map is never one JSON text in memory.
-        yield json.dumps(header)[:-1].encode() + b', "objects": ['
-        for i, obj in enumerate(objects):
-            yield (b", " if i else b"") + json.dumps(export_record(obj, embeddings)).encode()
-        yield b"]}"
-
-    return StreamingResponse(chunks(), media_type="application/json", headers=disposition)
+    return StreamingResponse(
+        export_json_chunks(header, objects, removed_objects, changes, embeddings),
+        media_type="application/json",
+        headers=disposition,
+    )
 
 
 @router.post(
