@@ -20,7 +20,9 @@ bulk is (issue 13, target 5: 50k objects of 200 points and 384-d embeddings with
   a point is within step / 2 of the received float16 one: 3.9 mm per axis for a 2 m object
   (uint16 would give 0.015 mm at twice the bytes; the wire's own float16 rounding is up to
   3.9 mm at 8-16 m from the origin and 15.6 mm at 32-64 m).
-- ids, versions, boxes, centroids, n_obs, update clock: numpy columns of the same rows;
+- ids, versions, boxes, centroids, n_obs, last_seen_t, update clock: numpy columns of the
+  same rows (last_seen_t float64 device-clock seconds, NaN when the server did not send it:
+  DESIGN "The living map"; removed objects and their history are not kept on the device);
   labels (interned) and point bytes in python lists; id -> row by a sorted index (ids
   int64 and rows int32, 12 bytes an object, rebuilt when rows come or go) rather than a dict
   (~100 bytes an object in python ints and table slots).
@@ -99,6 +101,9 @@ class LocalHit:
     score: float
     bbox: list[float]
     centroid: list[float]
+    last_seen_t: float | None = None
+    """Device-clock seconds of the newest keyframe that observed it, as the server sent it
+    (None: the server did not send it, e.g. an older server)."""
 
 
 @dataclass
@@ -118,6 +123,7 @@ class _ParsedDelta:
     bboxes: np.ndarray  # float32 [m, 6]
     centroids: np.ndarray  # float32 [m, 3], mean of the received points
     n_obs: np.ndarray  # int64 [m]
+    last_seen_t: np.ndarray  # float64 [m], device-clock seconds, NaN where not sent
     removed: list[int]
 
 
@@ -188,6 +194,11 @@ def _float32_of_bfloat16(values: torch.Tensor) -> np.ndarray:
     """float32 numpy of a bfloat16 tensor, exactly (a bfloat16 is a float32's top half)."""
     bits = values.view(torch.int16).numpy().view(np.uint16)
     return (bits.astype(np.uint32) << 16).view(np.float32)
+
+
+def _seconds_or_none(value: float) -> float | None:
+    """A stored time as answers give it: None where the server sent none (NaN)."""
+    return None if math.isnan(value) else float(value)
 
 
 def _entry_bytes(data: bytes) -> int:
@@ -263,7 +274,8 @@ class LocalMap:
     def get(self, oid: int) -> dict:
         """One held object: id, version, label, bbox [6], centroid [3] (metres), points
         float32 [N, 3] (dequantised: within points_step / 2 per axis of the received ones),
-        points_step [3] (metres per stored step), n_obs. KeyError if not held."""
+        points_step [3] (metres per stored step), n_obs, last_seen_t (seconds, None if the
+        server did not send it). KeyError if not held."""
         row = self._row(oid)
         if row is None:
             raise KeyError(oid)
@@ -279,6 +291,7 @@ class LocalMap:
             ),
             "points_step": [float(v) for v in rows["points_step"][row]],
             "n_obs": int(rows["n_obs"][row]),
+            "last_seen_t": _seconds_or_none(float(rows["last_seen_t"][row])),
         }
 
     def snapshot(self) -> dict[int, tuple[int, str]]:
@@ -392,6 +405,7 @@ class LocalMap:
         ids = np.empty(m, np.int64)
         versions = np.empty(m, np.int64)
         n_obs = np.empty(m, np.int64)
+        last_seen_t = np.full(m, np.nan, np.float64)
         labels: list[str] = []
         embeddings = np.empty((m, self.dim), np.float16)
         bboxes = np.empty((m, 6), np.float32)
@@ -401,6 +415,8 @@ class LocalMap:
         points_step = np.empty((m, 3), np.float32)
         for i, upsert in enumerate(delta.upserts):
             ids[i], versions[i], n_obs[i] = upsert.id, upsert.version, upsert.n_obs
+            if upsert.last_seen_t is not None:  # an older server sends none: NaN stays
+                last_seen_t[i] = upsert.last_seen_t
             labels.append(sys.intern(upsert.label))  # thousands of objects share a few labels
             bboxes[i] = upsert.bbox
             embeddings[i] = upsert.embedding
@@ -427,6 +443,7 @@ class LocalMap:
             bboxes=bboxes,
             centroids=centroids,
             n_obs=n_obs,
+            last_seen_t=last_seen_t,
             removed=delta.removed,
         )
 
@@ -463,6 +480,7 @@ class LocalMap:
         columns["bbox"][target] = delta.bboxes[take]
         columns["centroid"][target] = delta.centroids[take]
         columns["n_obs"][target] = delta.n_obs[take]
+        columns["last_seen_t"][target] = delta.last_seen_t[take]
         columns["updated"][target] = self._clock + np.arange(1, len(take) + 1)
         self._clock += len(take)
         for i, row in zip(take.tolist(), target.tolist(), strict=True):
@@ -549,6 +567,7 @@ class LocalMap:
             "bbox": np.zeros((capacity, 6), np.float32),
             "centroid": np.zeros((capacity, 3), np.float32),
             "n_obs": np.zeros(capacity, np.int64),
+            "last_seen_t": np.full(capacity, np.nan, np.float64),
             "updated": np.zeros(capacity, np.int64),
         }
 
@@ -684,6 +703,7 @@ class LocalMap:
                     score=float(exact[i]),
                     bbox=[float(v) for v in self._rows["bbox"][row]],
                     centroid=[float(v) for v in self._rows["centroid"][row]],
+                    last_seen_t=_seconds_or_none(float(self._rows["last_seen_t"][row])),
                 )
             )
         return hits

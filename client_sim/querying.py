@@ -38,6 +38,8 @@ from app.semantics import DEFAULT_MODEL_ID, TextEncoder
 from client_sim.local_map import LocalMap
 
 SQ, LQ, NONE = "SQ", "LQ", "none"
+PRESENT = "present"
+"""A hit's `state` (living map): the object is in the map now (not removed)."""
 
 
 class LocalQueriesOff(Exception):
@@ -112,6 +114,12 @@ def session_encoder_loader(embedding: dict, models_dir: str | None) -> Callable[
     return load_tower
 
 
+def _living_map_fields(hit: dict) -> dict:
+    """An SQ hit with `last_seen_t` and `state` whatever the server's age: an older server
+    sends neither (None, and it ranks only present objects)."""
+    return {**hit, "last_seen_t": hit.get("last_seen_t"), "state": hit.get("state") or PRESENT}
+
+
 def planned_mode(rtt_ms: float | None, threshold_ms: float) -> str:
     """The mode ("SQ" or "LQ") the RTT alone picks ("?" if unknown); a failed SQ still
     ends in LQ."""
@@ -130,7 +138,10 @@ class QueryAnswer:
     and the server did not answer)."""
     results: list[dict]
     """Best first: {"id", "label", "score", "relevance", "bbox": [x0, y0, z0, x1, y1, z1],
-    "centroid"}; relevance in [0, 1] as app.mapping.relevance rates it."""
+    "centroid", "last_seen_t", "state"}; relevance in [0, 1] as app.mapping.relevance rates
+    it; last_seen_t in device-clock seconds as the server holds it (the same by SQ and LQ;
+    None from a server that does not send it); state "present" (the local map holds only
+    present objects, and SQ does not ask for removed ones)."""
     latency_ms: float
     """End to end for the mode that answered: the HTTP round trip of SQ, or embedding plus
     search of LQ."""
@@ -229,7 +240,7 @@ class QueryRouter:
     ) -> QueryAnswer:
         """SQ: the server's answer (raises whatever the server path raises)."""
         sq_start_s = time.perf_counter()
-        results = await self.api.query(text, k)
+        results = [_living_map_fields(hit) for hit in await self.api.query(text, k)]
         now_s = time.perf_counter()
         return QueryAnswer(
             text=text,
@@ -297,6 +308,8 @@ class QueryRouter:
                     "relevance": relevance,
                     "bbox": hit.bbox,
                     "centroid": hit.centroid,
+                    "last_seen_t": hit.last_seen_t,  # as the server sent it: SQ's value
+                    "state": PRESENT,
                 }
                 for hit, relevance in zip(hits, rating.relevance, strict=True)
             ],

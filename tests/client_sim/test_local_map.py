@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import asyncio
 import gc
+import math
 import sys
 import tracemalloc
+import zlib
 from collections import Counter
 from collections.abc import Sequence
 
@@ -15,10 +18,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.codecs import float16_vector_to_bytes
-from app.mapping.deltas import Delta
+from app.mapping.deltas import Delta, DeltaLog
 from app.mapping.object import MapObject
 from app.mapping.publish import delta_message
-from app.protocol import UpsertEntry, pack_delta
+from app.protocol import ChangeEntry, UpsertEntry, pack_delta
 from client_sim.local_map import (
     BYTES_PER_MB,
     POINT_LEVELS,
@@ -27,6 +30,7 @@ from client_sim.local_map import (
     dequantise_points,
     quantise_points,
 )
+from client_sim.querying import QueryAnswer, QueryRouter
 from client_sim.world.categories import CATEGORIES
 
 DIM = 32  # small embeddings keep the tests fast; the map is dimension-agnostic
@@ -61,9 +65,10 @@ def upsert(
     center_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
     n_points: int = 20,
     embedding: np.ndarray | None = None,
+    last_seen_t: float | None = None,
 ) -> UpsertEntry:
     """An `upserts[]` entry: n_points points (float16, as sent) in a 0.4 m cube around
-    center_m."""
+    center_m; last_seen_t None: as an older server sends it (no living-map fields)."""
     rng = np.random.default_rng(oid * 1000 + version)
     points = np.asarray(center_m) + rng.uniform(-0.2, 0.2, (n_points, 3))
     bbox = [*points.min(axis=0), *points.max(axis=0)] if n_points else [*center_m, *center_m]
@@ -75,6 +80,8 @@ def upsert(
         points=points.reshape(-1, 3).astype(np.float16),
         bbox=tuple(float(v) for v in bbox),
         n_obs=3,
+        first_seen_t=None if last_seen_t is None else 0.0,
+        last_seen_t=last_seen_t,
     )
 
 
@@ -302,6 +309,148 @@ def test_a_server_built_delta_applies_after_a_msgpack_round_trip():
     assert m.query_embedding(unit_vector(4), k=1)[0].id == 4
 
 
+# --- the living map: moves, removals, last seen ------------------------------------------------
+
+
+def test_a_moved_object_keeps_its_id_and_only_its_new_points():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(5, label="mug", center_m=(0, 0, 0)), upsert(6, label="sofa")]))
+    moved = upsert(5, version=2, label="mug", center_m=(3, 1, 0), last_seen_t=612.4)
+
+    m.apply_delta(delta(2, [moved]))
+
+    held = m.get(5)
+    assert m.ids() == [5, 6] and held["version"] == 2
+    assert_points_within_step(held, moved.points)  # the old place's points are gone
+    assert held["bbox"] == pytest.approx(list(moved.bbox), abs=1e-6)
+    assert held["centroid"] == pytest.approx([3, 1, 0], abs=0.1)
+    assert m.query_embedding(unit_vector(5), k=1)[0].centroid == held["centroid"]
+
+
+def test_a_removed_object_leaves_the_map_and_the_answers():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(5, label="laptop", last_seen_t=10.0), upsert(6)]))
+
+    m.apply_delta(delta(2, removed=[5]))
+
+    assert 5 not in m and m.ids() == [6]
+    assert [hit.id for hit in m.query_embedding(unit_vector(5), k=5)] == [6]
+
+
+def test_last_seen_t_is_kept_per_object_at_full_precision_and_follows_each_upsert():
+    first_s, later_s = 12.123456789, 612.987654321  # not float32 numbers: float64 is kept
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1, last_seen_t=first_s), upsert(2, last_seen_t=3.5)]))
+    assert m.get(1)["last_seen_t"] == first_s
+
+    m.apply_delta(delta(2, [upsert(1, version=2, last_seen_t=later_s)]))
+
+    assert m.get(1)["last_seen_t"] == later_s and m.get(2)["last_seen_t"] == 3.5
+    hits = {hit.id: hit for hit in m.query_embedding(unit_vector(1), k=2)}
+    assert (hits[1].last_seen_t, hits[2].last_seen_t) == (later_s, 3.5)
+
+
+def test_a_stale_upsert_does_not_move_last_seen_t():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1, version=3, last_seen_t=50.0)]))
+
+    m.apply_delta(delta(2, [upsert(1, version=2, last_seen_t=40.0)]))
+
+    assert m.get(1)["last_seen_t"] == 50.0
+
+
+def test_last_seen_t_follows_its_object_when_rows_move_and_columns_grow():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(i, last_seen_t=100.0 + i) for i in range(40)]))
+    m.apply_delta(delta(2, [upsert(i, last_seen_t=100.0 + i) for i in range(40, 400)], [0, 7]))
+    m.apply_delta(delta(3, removed=list(range(1, 300))))  # compacted in one pass
+
+    assert m.ids() == list(range(300, 400))
+    assert all(m.get(oid)["last_seen_t"] == 100.0 + oid for oid in m.ids())
+
+
+def test_a_delta_from_a_server_without_the_living_map_fields_applies():
+    m = local_map()
+    old_server = delta(1, [upsert(1), upsert(2)])
+    assert "last_seen_t" not in old_server["upserts"][0] and "changes" not in old_server
+
+    m.apply_delta(old_server)
+
+    assert m.snapshot() == {1: (1, "chair"), 2: (1, "chair")}
+    assert np.isnan(m._rows["last_seen_t"][: len(m)]).all()  # stored as NaN ...
+    assert m.get(1)["last_seen_t"] is None  # ... answered as None
+    assert m.query_embedding(unit_vector(1), k=1)[0].last_seen_t is None
+
+
+def test_the_changes_of_a_delta_are_accepted_and_change_nothing_by_themselves():
+    m = local_map()
+    m.apply_delta(delta(1, [upsert(1, last_seen_t=1.0)]))
+    message = delta(2)
+    message["changes"] = [ChangeEntry(1, "removed", 5.0, "chair", from_xyz=(1, 2, 0)).pack()]
+
+    m.apply_delta(message)
+
+    assert m.seq == 2 and m.ids() == [1]  # what leaves is what `removed` lists
+
+
+def test_after_an_outage_the_resumed_delta_catches_up_on_moves_and_removals():
+    """Two subscribers of one server: one applies every delta, the other misses those of an
+    outage (a move, a removal, an addition) and resumes from its seq with what the server
+    sends then: the delta since that seq, coalesced (app.mapping.publish), with its changes."""
+    rng = np.random.default_rng(4)
+    log, objects = DeltaLog(), {}
+
+    def place(oid: int, label: str, center_m: tuple, t: float) -> list[int]:
+        obj = objects.get(oid) or MapObject(id=oid, confirmed=True, n_obs=1, first_seen_t=t)
+        obj.version += 1
+        obj.last_seen_t = t
+        obj.set_points(np.asarray(center_m) + rng.uniform(-0.1, 0.1, (300, 3)), 0.02)
+        obj.embedding_sum = unit_vector(oid).astype(np.float32)
+        obj.label_counts = Counter({label: 1})
+        objects[oid] = obj
+        return [oid]
+
+    def commit(upserted: Sequence[int] = (), removed: Sequence[int] = ()) -> dict:
+        for oid in removed:
+            objects.pop(oid)
+        seq = log.commit(upserted, removed)
+        return delta_message(log.since(seq - 1), objects, 200)
+
+    always, resumed = local_map(), local_map()
+    before = [
+        commit(place(1, "mug", (0, 0, 0), 1.0) + place(2, "laptop", (1, 0, 0), 1.0)),
+        commit(place(3, "backpack", (2, 0, 0), 2.0)),
+    ]
+    during = [
+        commit(place(1, "mug", (4, 2, 0), 600.2)),  # moved: same id, new place
+        commit(removed=[2]),  # taken away
+        commit(place(4, "box", (2, 1, 0), 601.0)),  # added
+        commit(place(3, "backpack", (2, 0, 0), 601.4)),  # seen again where it was
+    ]
+    for message in before:
+        always.apply_delta(message)
+        resumed.apply_delta(message)
+    for message in during:
+        always.apply_delta(message)
+
+    catch_up = delta_message(log.since(resumed.seq), objects, 200)
+    catch_up["changes"] = [
+        ChangeEntry(1, "moved", 600.2, "mug", (0, 0, 0), (4, 2, 0)).pack(),
+        ChangeEntry(2, "removed", 600.6, "laptop", from_xyz=(1, 0, 0)).pack(),
+        ChangeEntry(4, "added", 601.0, "box", to_xyz=(2, 1, 0)).pack(),
+    ]
+    assert not catch_up["full"] and catch_up["removed"] == [2]
+    resumed.apply_delta(msgpack.unpackb(msgpack.packb(catch_up, use_bin_type=True), raw=False))
+
+    assert resumed.seq == always.seq and resumed.snapshot() == always.snapshot()
+    assert resumed.ids() == [1, 3, 4]
+    for oid in resumed.ids():
+        mine, theirs = resumed.get(oid), always.get(oid)
+        assert np.array_equal(mine["points"], theirs["points"])
+        assert mine["last_seen_t"] == theirs["last_seen_t"] == objects[oid].last_seen_t
+    assert resumed.get(1)["centroid"] == pytest.approx([4, 2, 0], abs=0.1)
+
+
 # --- queries ----------------------------------------------------------------------------------
 
 
@@ -406,6 +555,72 @@ def test_a_text_query_finds_the_object_with_that_label(encoder):
     hits = m.query_embedding(encoder.encode_query("where did I leave my keys?"), k=3)
 
     assert hits[0].label == "keys"
+
+
+# --- local answers (client_sim/querying.py) ---------------------------------------------------
+
+
+class WordEncoder:
+    """A text encoder for tests: each text's own random unit vector (no model to load)."""
+
+    model_id, dim = "word-vectors", DIM
+
+    def encode(self, texts: Sequence[str]) -> np.ndarray:
+        return np.stack([self.encode_query(text) for text in texts]).astype(np.float32)
+
+    def encode_query(self, text: str) -> np.ndarray:
+        return unit_vector(zlib.crc32(text.encode())).astype(np.float32)
+
+
+def answer(local: LocalMap, rtt_ms: float, server_hits: list[dict] | None = None) -> QueryAnswer:
+    """The router's answer to "mug" at this RTT; SQ answers `server_hits` (no server runs)."""
+    encoder = WordEncoder()
+    router = QueryRouter("http://127.0.0.1:9", "sid", None, local, encoder, rtt_ms=lambda: rtt_ms)
+
+    async def server_query(text: str, k: int) -> list[dict]:
+        return [dict(hit) for hit in server_hits or []]
+
+    router.api.query = server_query  # type: ignore[method-assign]
+    return asyncio.run(router.query("mug", k=2))
+
+
+def test_local_and_server_answers_carry_the_same_last_seen_t():
+    mug = MapObject(id=3, version=4, n_obs=5, confirmed=True, first_seen_t=2.0)
+    mug.last_seen_t = 612.987654321
+    mug.set_points(np.random.default_rng(0).uniform(0, 0.1, (50, 3)).astype(np.float32), 0.02)
+    mug.embedding_sum = WordEncoder().encode_query("mug")
+    mug.label_counts = Counter({"mug": 5})
+    local = local_map()
+    wire = delta_message(Delta(seq=1, full=True, upserts=[3], removed=[]), {3: mug}, 200)
+    local.apply_delta(msgpack.unpackb(msgpack.packb(wire, use_bin_type=True), raw=False))
+    server_hit = {  # a QueryHit as the server answers it (app/protocol/rest.py)
+        "id": 3, "label": "mug", "score": 1.0, "relevance": 1.0, "bbox": list(mug.bbox),
+        "centroid": mug.points.mean(axis=0).tolist(), "last_seen_t": mug.last_seen_t,
+        "state": "present",
+    }  # fmt: skip
+
+    offline, online = answer(local, math.inf), answer(local, 1.0, [server_hit])
+
+    assert (offline.mode, online.mode) == ("LQ", "SQ")
+    assert offline.results[0]["id"] == online.results[0]["id"] == 3
+    for key in ("last_seen_t", "state"):
+        assert offline.results[0][key] == online.results[0][key], key
+    assert offline.results[0]["last_seen_t"] == 612.987654321
+
+
+def test_answers_from_and_about_an_older_server_say_none_for_last_seen_t():
+    local = local_map()
+    old = upsert(3, label="mug", embedding=WordEncoder().encode_query("mug"))
+    local.apply_delta(delta(1, [old]))
+    server_hit = {  # an older server's QueryHit: no living-map fields
+        "id": 3, "label": "mug", "score": 1.0, "relevance": 1.0, "bbox": list(old.bbox),
+        "centroid": [0.0, 0.0, 0.0],
+    }  # fmt: skip
+
+    offline, online = answer(local, math.inf), answer(local, 1.0, [server_hit])
+
+    assert offline.results[0]["last_seen_t"] is None and online.results[0]["last_seen_t"] is None
+    assert offline.results[0]["state"] == online.results[0]["state"] == "present"
 
 
 # --- points -----------------------------------------------------------------------------------
