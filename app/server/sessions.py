@@ -52,7 +52,13 @@ from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
 from app.keyframes import is_keyframe
 from app.mapping.deltas import DeltaLog
-from app.mapping.engine import MAX_WORLD_M, IntegrationStats, MappingEngine, QueryHit
+from app.mapping.engine import (
+    MAX_WORLD_M,
+    RECENT_CHANGES,
+    IntegrationStats,
+    MappingEngine,
+    QueryHit,
+)
 from app.mapping.export import imported_object, imported_stay
 from app.mapping.geometry import preload_outlier_removal
 from app.mapping.object import Change, MapObject
@@ -514,10 +520,22 @@ class SessionManager:
                 self.store.trim_tombstones(rec.session_id, log.floor)
                 floor = log.floor
         engine = self._engine(rec, updated_knobs(Knobs(), rec.knobs))
-        engine.restore(
-            self.store.load_objects(rec.session_id), log, rec.keyframes, rec.next_object_id
-        )
+        self._restore_engine(engine, rec, log)
         return Session(rec, engine, _stored_floor=floor)
+
+    def _restore_engine(self, engine: MappingEngine, rec: SessionRecord, log: DeltaLog) -> None:
+        """Put the stored map into `engine`: its present objects, delta log, newest keyframe
+        (time and pose) and newest changes (for deltas)."""
+        engine.restore(
+            self.store.load_objects(rec.session_id),
+            log,
+            rec.keyframes,
+            rec.next_object_id,
+            last_t=rec.last_t,
+            recent_changes=self.store.load_changes(rec.session_id, limit=RECENT_CHANGES),
+        )
+        if rec.last_pose is not None:
+            engine.last_pose = np.asarray(rec.last_pose, np.float64).reshape(4, 4)
 
     def _load(self, sid: str) -> Session:
         """`Residency`'s loader (in the caller's thread): the stored session; KeyError if none."""
@@ -1011,6 +1029,7 @@ class SessionManager:
             stored = self.store.load_delta_log(session.id)
             delta_log = DeltaLog.from_state(stored.state(), self.settings.max_tombstones)
             objects = self.store.load_objects(session.id)
+            recent_changes = self.store.load_changes(session.id, limit=RECENT_CHANGES)
         except Exception:
             log.exception(
                 "session %s: cannot reload its saved map after a failed keyframe; the session "
@@ -1021,7 +1040,14 @@ class SessionManager:
             session._closed = True  # under the map lock; sockets see it and close
             return
         engine = self._engine(session.record, old.knobs)
-        engine.restore(objects, delta_log, durable.keyframes, durable.next_object_id)
+        engine.restore(
+            objects,
+            delta_log,
+            durable.keyframes,
+            durable.next_object_id,
+            last_t=durable.last_t,
+            recent_changes=recent_changes,
+        )
         engine.last_pose = last_pose
         session.engine = engine
         session.record.keyframes = engine.keyframes
@@ -1157,6 +1183,11 @@ class SessionManager:
                     counters=self._counters(session),
                     next_object_id=engine.next_object_id,
                     last_used_at=rec.last_used_at,
+                    retired=stats.retired,
+                    changes=stats.changes,
+                    retracted_added=stats.retracted_added,
+                    last_t=engine.last_t,
+                    last_pose=engine.last_pose,
                 )
             except BaseException as exc:
                 self._back_to_durable(session, pose_before)

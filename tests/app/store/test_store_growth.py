@@ -15,11 +15,13 @@ from devices import TIMEOUT_S, frame_message
 pytestmark = pytest.mark.timeout(120)
 
 MAX_TOMBSTONES = 50
-# Twenty boxes in view. Association never matches (no score reaches 2: the labels alternate
-# between two spellings), so every keyframe makes a new object per box, confirmed at once;
-# the clean-up every second keyframe merges each back into the box's first object (the
-# spellings agree enough to merge). The map stays twenty objects while twenty confirmed
-# objects are removed, and tombstoned, every two keyframes.
+# Twenty boxes in view. The labels cycle through three spellings and association needs a
+# score of 2, reached only when a frame's spelling is the object's dominant label (its
+# embedding is that label's: per-label evidence), the first spelling; the other two make a
+# new object per box, confirmed at once; the clean-up every second keyframe merges each
+# back into the box's first object (the spellings agree enough to merge), which tombstones
+# the ones already published. The map stays twenty objects while twenty confirmed objects
+# are removed, and tombstoned, about every three keyframes.
 KNOBS = {
     "keyframe_interval": 1,
     "min_observations": 1,
@@ -28,12 +30,12 @@ KNOBS = {
     "min_mapping_bbox_area": 100,
     "local_map_update_frequency": 1,
 }
-LABELS = ("chair", "chair.")
+LABELS = ("chair", "chair.", "chair!")
 BOXES = [(x, y) for x in (-0.8, -0.4, 0.0, 0.4, 0.8) for y in (-0.6, -0.2, 0.2, 0.6)]
 
 
 def _frame(seq: int) -> dict:
-    label = LABELS[seq % 2]
+    label = LABELS[seq % len(LABELS)]
     rects = [
         Rect(i + 1, label, x - 0.1, y - 0.1, x + 0.1, y + 0.1, 2.0)
         for i, (x, y) in enumerate(BOXES)
@@ -79,7 +81,7 @@ def test_the_database_stops_growing_when_the_map_does(live_server, tmp_path):
 
     # The workload removed far more objects than the store keeps tombstones for...
     seq, floor, next_id = after_2n["seq_floor_next_id"]
-    assert next_id == len(BOXES) * 2 * n + 1 and seq == 2 * n
+    assert next_id > len(BOXES) * n and seq == 2 * n
     assert floor > after_n["seq_floor_next_id"][1] > 0
     # ...while the map stayed twenty objects, and the store stayed the same size.
     assert after_n["objects"] <= 2 * len(BOXES) and after_2n["objects"] <= 2 * len(BOXES)
