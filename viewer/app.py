@@ -64,6 +64,8 @@ BOX_THICKNESS_PX = 1.5
 """Line width of the batched boxes, in screen pixels (constant at every distance)."""
 HIT_BOX_THICKNESS_PX = 4.0
 """Line width of the highlighted hits' boxes."""
+MOVE_LINE_THICKNESS_PX = 3.0
+"""Line width of the lines from a moved object's old place to its new one."""
 FLOOR_NODE = "/floor"
 """The floor grid: faint lines under the map, at its lowest box face along up."""
 FLOOR_CELL_RGB, FLOOR_SECTION_RGB = (228, 228, 228), (200, 200, 200)
@@ -118,6 +120,11 @@ class ViserSceneSink:
             colors,
             thickness=HIT_BOX_THICKNESS_PX if name == HIT_BOXES_NODE else BOX_THICKNESS_PX,
             thickness_units="screen",
+        )
+
+    def set_lines(self, name: str, segments: np.ndarray, colors: np.ndarray) -> None:
+        self._handles[name] = self.scene.add_line_segments(
+            name, segments, colors, thickness=MOVE_LINE_THICKNESS_PX, thickness_units="screen"
         )
 
     def set_visible(self, name: str, visible: bool) -> None:

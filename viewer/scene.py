@@ -12,6 +12,9 @@ Node names (stable per object, so an update replaces exactly its own nodes):
     /boxes                 every object's bounding box, batched into ONE line-segments node
     /hits/boxes            the boxes of the highlighted query hits, bright
     /hits/labels/{id}      a hit's label with its score
+    /ghosts/{id}           a removed object's last points, grey, fading (the living map)
+    /labels/ghosts/{id}    its label, "(removed)"
+    /moves                 a line from old to new place per moved object, ONE node
 
 The cloud is the object's node itself, not a child like /objects/{id}/points: viser would
 create an implicit frame node for every /objects/{id} parent, which costs a fifth of a
@@ -20,6 +23,14 @@ reason and so that hiding them all is one operation.
 
 While a query is highlighted the other objects are dimmed (points and boxes) and the plain
 labels are hidden, so the hits stand out.
+
+Changes (the delta's optional `changes`, the living map): a "removed" change leaves a ghost
+of the object where it was, drawn from the points the viewer held before the removal; a
+"moved" change draws a line from its old place to its new one. Both fade towards the
+background over GHOST_FADE_S seconds of device time (the newest `t` the viewer has seen, from
+changes and `last_seen_t`), then go; at most MAX_GHOSTS and MAX_MOVE_LINES, the newest, are
+kept. A ghost goes when its id is back in the map, a move line when its object is gone, so a
+full snapshot (which never carries changes) clears what no longer applies.
 """
 
 from __future__ import annotations
@@ -32,7 +43,7 @@ from typing import Protocol
 
 import numpy as np
 
-from app.protocol import DeltaError, parse_delta
+from app.protocol import ChangeEntry, DeltaError, parse_delta
 
 Rgb = tuple[int, int, int]
 
@@ -41,6 +52,8 @@ LABELS_GROUP = "/labels"
 BOXES_NODE = "/boxes"
 HITS_GROUP = "/hits"
 HIT_BOXES_NODE = "/hits/boxes"
+GHOSTS_GROUP = "/ghosts"
+MOVES_NODE = "/moves"
 
 HIT_BOX_RGB: Rgb = (255, 214, 0)
 """Bright yellow: readable against every object colour and the light background."""
@@ -48,6 +61,18 @@ DIM_GREY_RGB: Rgb = (150, 150, 150)
 """What dimmed colours are blended towards."""
 DIM_KEEP = 0.25
 """Share of an object's own colour left when it is dimmed."""
+BACKGROUND_RGB: Rgb = (255, 255, 255)
+"""The viewer's background (viser's light theme): what ghosts and move lines fade into."""
+GHOST_RGB: Rgb = (120, 120, 120)
+"""A fresh ghost: mid grey, plainly not a live object's saturated colour."""
+MOVE_LINE_RGB: Rgb = (30, 100, 230)
+"""A fresh move line at its new end (blue; its old end is ghost grey, so it reads as an arrow)."""
+GHOST_FADE_S = 300.0
+"""Device seconds over which a ghost or a move line fades into the background, then goes."""
+MAX_GHOSTS = 32
+"""Ghosts kept at most (the newest); one delta carries at most 32 changes."""
+MAX_MOVE_LINES = 32
+"""Move lines kept at most (the newest)."""
 
 # The 12 edges of a box as pairs of corner indices; corner k has x = bit 0, y = bit 1, z = bit 2.
 _BOX_EDGES = np.array(
@@ -71,6 +96,16 @@ def hit_label_node(object_id: int) -> str:
     return f"{HITS_GROUP}/labels/{object_id}"
 
 
+def ghost_node(object_id: int) -> str:
+    """Scene name of a removed object's ghost (its last points)."""
+    return f"{GHOSTS_GROUP}/{object_id}"
+
+
+def ghost_label_node(object_id: int) -> str:
+    """Scene name of a ghost's label (under /labels: hidden with the other labels)."""
+    return f"{LABELS_GROUP}/ghosts/{object_id}"
+
+
 class SceneSink(Protocol):
     """Where scene-node operations go (viser in the app, a recorder in tests).
 
@@ -89,6 +124,9 @@ class SceneSink(Protocol):
 
     def set_boxes(self, name: str, segments: np.ndarray, colors: np.ndarray) -> None:
         """One line-segments node: segments float32 [M, 2, 3] metres, colors uint8 [M, 2, 3]."""
+
+    def set_lines(self, name: str, segments: np.ndarray, colors: np.ndarray) -> None:
+        """As `set_boxes`, for lines that are not box edges (drawn bolder): move lines."""
 
     def set_visible(self, name: str, visible: bool) -> None:
         """Show or hide a node and its children (used for groups)."""
@@ -127,6 +165,10 @@ class DeltaSummary:
     removed: list[int] = field(default_factory=list)
     unchanged: list[int] = field(default_factory=list)
     """Upserts whose version the viewer already held (or newer): no node operation."""
+    ghosted: list[int] = field(default_factory=list)
+    """Removed objects this delta left a ghost of (a "removed" change for a held object)."""
+    moved: list[int] = field(default_factory=list)
+    """Objects this delta drew a move line for (a "moved" change)."""
 
     @property
     def changed(self) -> bool:
@@ -175,6 +217,11 @@ def hit_color(color: Rgb, relevance: float) -> Rgb:
 def hit_box_color(relevance: float) -> Rgb:
     """A hit's box colour: grey at relevance 0, bright HIT_BOX_RGB at 1."""
     return blend(DIM_GREY_RGB, HIT_BOX_RGB, relevance)
+
+
+def faded(color: Rgb, age_s: float) -> Rgb:
+    """`color` after `age_s` device seconds: linearly into BACKGROUND_RGB over GHOST_FADE_S."""
+    return blend(color, BACKGROUND_RGB, max(age_s, 0.0) / GHOST_FADE_S)
 
 
 def box_segments(bboxes: np.ndarray) -> np.ndarray:
@@ -291,6 +338,31 @@ def floor_grid(bounds: tuple[np.ndarray, np.ndarray] | None, up: np.ndarray) -> 
 
 # --- the model ------------------------------------------------------------------------------
 
+Xyz = tuple[float, float, float]
+
+
+@dataclass
+class _Ghost:
+    """A removed object as last held, drawn grey where it was."""
+
+    t: float
+    """Device time of the removal (the change's `t`)."""
+    label: str
+    points: np.ndarray = field(repr=False)
+    center: Xyz
+    color: Rgb | None = None
+    """The colour its node has now (None: not drawn yet)."""
+
+
+@dataclass(frozen=True)
+class _MoveLine:
+    t: float
+    """Device time of the move (the change's `t`)."""
+    start: Xyz
+    """The old place (the change's `from`, else the centre the viewer held)."""
+    end: Xyz
+    """The new place."""
+
 
 class SceneModel:
     """The viewer's copy of a session's confirmed map and the scene nodes that draw it.
@@ -322,6 +394,11 @@ class SceneModel:
         """(text, position) each hit label node has now."""
         self._boxes_shown = False  # whether /boxes exists in the scene
         self._hit_boxes_shown = False
+        self._device_t: float | None = None
+        """The newest device time seen (changes' `t`, upserts' `last_seen_t`): fading's clock."""
+        self._ghosts: dict[int, _Ghost] = {}
+        self._move_lines: dict[int, _MoveLine] = {}
+        self._move_lines_drawn: tuple = ()  # what /moves shows now (empty: no node)
         self._labels_visible = self._labels_group_visible()
         sink.set_visible(LABELS_GROUP, self._labels_visible)
 
@@ -339,6 +416,21 @@ class SceneModel:
     @property
     def highlighting(self) -> bool:
         return self._highlighting
+
+    @property
+    def ghosts(self) -> Mapping[int, float]:
+        """Removed objects shown as ghosts: id -> device time of the removal."""
+        return {oid: ghost.t for oid, ghost in self._ghosts.items()}
+
+    @property
+    def move_lines(self) -> Mapping[int, tuple[Xyz, Xyz]]:
+        """Moved objects shown with a line: id -> (old place, new place)."""
+        return {oid: (line.start, line.end) for oid, line in self._move_lines.items()}
+
+    @property
+    def device_t(self) -> float | None:
+        """The newest device time the viewer has seen (None: no living-map field yet)."""
+        return self._device_t
 
     @property
     def color_by_class(self) -> bool:
@@ -373,10 +465,18 @@ class SceneModel:
         if full:
             fresh = {o.id for o in upserts}
             removed = [oid for oid in self._objects if oid not in fresh]
+        before = {  # where moved objects were, for a change that does not say
+            c.id: self._objects[c.id].center
+            for c in delta.changes
+            if c.kind == "moved" and c.id in self._objects
+        }
+        gone: dict[int, ViewObject] = {}  # what removed objects looked like, for their ghosts
         boxes_changed = False  # /boxes is one node: resend it only when a box looks different
         hits_changed = False
         for oid in removed:
-            if self._objects.pop(oid, None) is not None:
+            held = self._objects.pop(oid, None)
+            if held is not None:
+                gone[oid] = held
                 self._drop_nodes(oid)
                 summary.removed.append(oid)
                 boxes_changed = True
@@ -397,6 +497,10 @@ class SceneModel:
         self.seq = seq
         if boxes_changed or hits_changed:
             self._redraw_boxes(all_boxes=boxes_changed, hits=hits_changed)
+        seen_t = [u.last_seen_t for u in delta.upserts if u.last_seen_t is not None]
+        self._note_changes(delta.changes, gone, before, summary)
+        self._advance_device_t([c.t for c in delta.changes] + seen_t)
+        self._redraw_changes()
         return summary
 
     def _draw_object(self, obj: ViewObject, held: ViewObject | None) -> None:
@@ -416,6 +520,91 @@ class SceneModel:
             self.sink.add_label(label_node(obj.id), obj.label, obj.center)
         if obj.id in self._hits:
             self._draw_hit_label(obj)
+
+    def _note_changes(
+        self,
+        changes: list[ChangeEntry],
+        gone: Mapping[int, ViewObject],
+        before: Mapping[int, Xyz],
+        summary: DeltaSummary,
+    ) -> None:
+        """Ghosts and move lines of a delta's changes, oldest first (drawn by the caller)."""
+        for change in changes:
+            if change.kind == "removed" and change.id in gone:
+                obj = gone[change.id]
+                self._ghosts.pop(change.id, None)  # re-inserted: the newest come last
+                self._ghosts[change.id] = _Ghost(change.t, obj.label, obj.points, obj.center)
+                summary.ghosted.append(change.id)
+            elif change.kind == "moved":
+                start = change.from_xyz or before.get(change.id)
+                held = self._objects.get(change.id)
+                end = change.to_xyz or (held.center if held is not None else None)
+                if start is not None and end is not None:
+                    self._move_lines.pop(change.id, None)
+                    self._move_lines[change.id] = _MoveLine(change.t, start, end)
+                    summary.moved.append(change.id)
+
+    def _advance_device_t(self, times: list[float]) -> None:
+        """The fading clock only moves forward (a `t` that goes backwards leaves it)."""
+        if times:
+            newest = max(times)
+            if self._device_t is None or newest > self._device_t:
+                self._device_t = newest
+
+    def _age_s(self, t: float) -> float:
+        return 0.0 if self._device_t is None else max(self._device_t - t, 0.0)
+
+    def _redraw_changes(self) -> None:
+        """Bring ghosts and move lines up to date: drop those faded out, over their cap, or
+        no longer true (a ghost whose id is back, a line whose object is gone); recolour
+        the rest as they fade (only when a colour changes)."""
+        keep = self._still_shown(self._ghosts, present=False, most=MAX_GHOSTS)
+        for oid in [oid for oid in self._ghosts if oid not in keep]:
+            self._drop_ghost(oid)
+        for oid, ghost in self._ghosts.items():
+            color = faded(GHOST_RGB, self._age_s(ghost.t))
+            if ghost.color is None:
+                if len(ghost.points):
+                    self.sink.add_point_cloud(ghost_node(oid), ghost.points, color)
+                self.sink.add_label(ghost_label_node(oid), f"{ghost.label} (removed)", ghost.center)
+            elif color != ghost.color and len(ghost.points):
+                self.sink.set_point_color(ghost_node(oid), color)
+            ghost.color = color
+
+        keep = self._still_shown(self._move_lines, present=True, most=MAX_MOVE_LINES)
+        self._move_lines = {oid: line for oid, line in self._move_lines.items() if oid in keep}
+        drawn = tuple(  # per line: both ends, the old one grey, the new one blue
+            (line.start, line.end, faded(GHOST_RGB, age), faded(MOVE_LINE_RGB, age))
+            for line in self._move_lines.values()
+            for age in [self._age_s(line.t)]
+        )
+        if drawn == self._move_lines_drawn:
+            return
+        if drawn:
+            self.sink.set_lines(
+                MOVES_NODE,
+                np.array([(start, end) for start, end, _, _ in drawn], np.float32),
+                np.array([(old, new) for _, _, old, new in drawn], np.uint8),
+            )
+        else:
+            self.sink.remove(MOVES_NODE)
+        self._move_lines_drawn = drawn
+
+    def _still_shown(
+        self, shown: Mapping[int, _Ghost | _MoveLine], present: bool, most: int
+    ) -> set[int]:
+        """Ids of `shown` to keep: whose object is (present=True) or is not in the map, not
+        faded out, the newest `most` of them (by `t`; ties: the later noted)."""
+        live = [oid for oid in shown if (oid in self._objects) == present]
+        newest = sorted(live, key=lambda oid: shown[oid].t)[max(len(live) - most, 0) :]
+        return {oid for oid in newest if self._age_s(shown[oid].t) < GHOST_FADE_S}
+
+    def _drop_ghost(self, oid: int) -> None:
+        ghost = self._ghosts.pop(oid)
+        if ghost.color is not None:
+            if len(ghost.points):
+                self.sink.remove(ghost_node(oid))
+            self.sink.remove(ghost_label_node(oid))
 
     def _drop_nodes(self, oid: int) -> None:
         if self._point_colors.pop(oid, None) is not None:

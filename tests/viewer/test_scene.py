@@ -13,20 +13,30 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.protocol import UpsertEntry, pack_delta
+from app.protocol import ChangeEntry, UpsertEntry, pack_delta
 from viewer.scene import (
+    BACKGROUND_RGB,
     BOXES_NODE,
     DIM_GREY_RGB,
+    GHOST_FADE_S,
+    GHOST_RGB,
     HIT_BOX_RGB,
     HIT_BOXES_NODE,
     LABELS_GROUP,
+    MAX_GHOSTS,
+    MOVE_LINE_RGB,
+    MOVES_NODE,
     DeltaError,
     SceneModel,
+    blend,
     box_segments,
     class_color,
     dimmed,
+    faded,
     floor_grid,
     frame_view,
+    ghost_label_node,
+    ghost_node,
     hit_box_color,
     hit_color,
     hit_label_node,
@@ -63,6 +73,12 @@ class RecordingSink:
         assert segments.shape == colors.shape and segments.shape[1:] == (2, 3)
         self.nodes[name] = {"kind": "boxes", "segments": segments, "colors": colors}
 
+    def set_lines(self, name, segments, colors):
+        self.ops.append(("set_lines", name))
+        assert segments.shape == colors.shape and segments.shape[1:] == (2, 3)
+        assert colors.dtype == np.uint8
+        self.nodes[name] = {"kind": "lines", "segments": segments, "colors": colors}
+
     def set_visible(self, name, visible):
         self.ops.append(("set_visible", name))
         self.nodes.setdefault(name, {"kind": "group"})["visible"] = visible
@@ -79,7 +95,14 @@ class RecordingSink:
         return ops
 
 
-def upsert(oid: int, version: int, label: str = "chair", offset: float = 0.0, n: int = 20):
+def upsert(
+    oid: int,
+    version: int,
+    label: str = "chair",
+    offset: float = 0.0,
+    n: int = 20,
+    last_seen_t: float | None = None,
+):
     """An `upserts[]` entry: n points in a 0.5 m cube at x = oid + offset."""
     rng = np.random.default_rng([oid, version])
     points = rng.uniform(0, 0.5, (n, 3)) + [oid + offset, 0, 0]
@@ -92,11 +115,15 @@ def upsert(oid: int, version: int, label: str = "chair", offset: float = 0.0, n:
         points=points,
         bbox=(*lo.tolist(), *hi.tolist()),
         n_obs=version,
+        last_seen_t=last_seen_t,
     )
 
 
-def delta(seq: int, upserts=(), removed=(), full: bool = False) -> dict:
-    return pack_delta(seq, upserts, removed, full)
+def delta(seq: int, upserts=(), removed=(), full: bool = False, changes=()) -> dict:
+    message = pack_delta(seq, upserts, removed, full)
+    if changes:  # the living map's extension
+        message["changes"] = [change.pack() for change in changes]
+    return message
 
 
 @pytest.fixture
@@ -405,3 +432,166 @@ def test_the_floor_grid_follows_the_map_bounds_when_they_cross_half_a_metre(scen
     assert wider is not None and wider.width > grid.width and wider.height == grid.height
     model.apply_delta(delta(4, [], full=True))  # the map emptied: no floor
     assert model.bounds() is None and floor_grid(model.bounds(), up) is None
+
+
+# --- the living map: ghosts of removed objects, lines of moved ones -------------------------
+
+
+def removal(oid: int, t: float, label: str = "chair") -> ChangeEntry:
+    return ChangeEntry(oid, "removed", t, label, from_xyz=(oid + 0.25, 0.25, 0.25))
+
+
+def move(oid: int, t: float, start=None, end=None) -> ChangeEntry:
+    return ChangeEntry(oid, "moved", t, "chair", start, end)
+
+
+def test_a_removed_object_leaves_a_grey_ghost_of_the_points_the_viewer_held(scene):
+    model, sink = scene  # chair 1, table 2, chair 3
+    held = model.objects[3].points
+
+    summary = model.apply_delta(delta(2, removed=[3], changes=[removal(3, 100.0)]))
+
+    assert summary.removed == [3] and summary.ghosted == [3] and model.ghosts == {3: 100.0}
+    assert points_node(3) not in sink.nodes and label_node(3) not in sink.nodes
+    ghost = sink.nodes[ghost_node(3)]
+    assert np.array_equal(ghost["points"], held) and ghost["color"] == GHOST_RGB
+    assert sink.nodes[ghost_label_node(3)]["text"] == "chair (removed)"
+    assert 3 not in model.objects  # a ghost is not an object: no box, no query hit
+
+
+def test_a_removal_without_a_removed_change_leaves_no_ghost(scene):
+    """Merges and clean-ups remove ids without a change, as does an older server."""
+    model, sink = scene
+    summary = model.apply_delta(delta(2, removed=[3]))
+
+    assert summary.ghosted == [] and model.ghosts == {}
+    assert not [name for name in sink.nodes if "ghost" in name]
+
+
+def test_a_ghost_fades_into_the_background_with_device_time_and_then_goes(scene):
+    model, sink = scene
+    model.apply_delta(delta(2, removed=[3], changes=[removal(3, 100.0)]))
+    sink.take()
+
+    half = 100.0 + GHOST_FADE_S / 2  # the device's clock: a sighting's last_seen_t
+    model.apply_delta(delta(3, [upsert(1, 2, last_seen_t=half)]))
+
+    assert model.device_t == half
+    assert ("set_point_color", ghost_node(3)) in sink.take()  # recoloured, points not resent
+    assert sink.nodes[ghost_node(3)]["color"] == blend(GHOST_RGB, BACKGROUND_RGB, 0.5)
+
+    model.apply_delta(delta(4, [upsert(1, 3, last_seen_t=100.0 + GHOST_FADE_S)]))
+
+    assert model.ghosts == {}
+    assert ghost_node(3) not in sink.nodes and ghost_label_node(3) not in sink.nodes
+
+
+def test_fading_recolours_a_ghost_only_when_its_colour_changes(scene):
+    model, sink = scene
+    model.apply_delta(delta(2, removed=[3], changes=[removal(3, 100.0)]))
+    sink.take()
+
+    model.apply_delta(delta(3, [upsert(1, 2, last_seen_t=100.01)]))  # not one step of 255
+
+    assert ("set_point_color", ghost_node(3)) not in sink.take()
+
+
+def test_a_moved_object_gets_a_line_from_its_old_place_to_its_new_one(scene):
+    model, sink = scene
+    start, end = (2.25, 0.25, 0.25), (5.25, 0.25, 0.25)
+
+    summary = model.apply_delta(
+        delta(2, [upsert(2, 2, "table", offset=3.0)], changes=[move(2, 50.0, start, end)])
+    )
+
+    assert summary.updated == [2] and summary.moved == [2]
+    assert model.move_lines == {2: (start, end)}
+    assert ("set_lines", MOVES_NODE) in sink.take()
+    line = sink.nodes[MOVES_NODE]
+    assert line["segments"].tolist() == [[list(start), list(end)]]
+    assert [tuple(c) for c in line["colors"][0]] == [GHOST_RGB, MOVE_LINE_RGB]  # grey -> blue
+    assert ghost_node(2) not in sink.nodes  # moved, not removed: no ghost
+
+
+def test_a_move_without_places_is_drawn_between_the_centres_the_viewer_held(scene):
+    model, _ = scene
+    old_center = model.objects[2].center
+
+    model.apply_delta(delta(2, [upsert(2, 2, "table", offset=3.0)], changes=[move(2, 50.0)]))
+
+    assert model.move_lines == {2: (old_center, model.objects[2].center)}
+
+
+def test_all_move_lines_are_one_node_and_a_moved_again_object_keeps_one_line(scene):
+    model, sink = scene
+    model.apply_delta(delta(2, [upsert(1, 2, offset=1.0)], changes=[move(1, 10.0)]))
+    model.apply_delta(delta(3, [upsert(3, 2, offset=1.0)], changes=[move(3, 11.0)]))
+    model.apply_delta(delta(4, [upsert(1, 3, offset=2.0)], changes=[move(1, 12.0)]))
+
+    assert set(model.move_lines) == {1, 3}
+    assert model.move_lines[1][1] == model.objects[1].center
+    assert [name for name, node in sink.nodes.items() if node["kind"] == "lines"] == [MOVES_NODE]
+    assert sink.nodes[MOVES_NODE]["segments"].shape == (2, 2, 3)
+
+
+def test_move_lines_fade_as_ghosts_do(scene):
+    model, sink = scene
+    model.apply_delta(delta(2, [upsert(2, 2, "table", offset=3.0)], changes=[move(2, 0.0)]))
+
+    model.apply_delta(delta(3, [upsert(1, 2, last_seen_t=GHOST_FADE_S / 4)]))
+
+    colors = sink.nodes[MOVES_NODE]["colors"][0]
+    quarter = [faded(GHOST_RGB, GHOST_FADE_S / 4), faded(MOVE_LINE_RGB, GHOST_FADE_S / 4)]
+    assert [tuple(c) for c in colors] == quarter
+    model.apply_delta(delta(4, [upsert(1, 3, last_seen_t=GHOST_FADE_S)]))
+    assert model.move_lines == {} and MOVES_NODE not in sink.nodes
+
+
+def test_only_the_newest_ghosts_are_kept():
+    sink = RecordingSink()
+    model = SceneModel(sink)
+    n = MAX_GHOSTS + 8
+    model.apply_delta(delta(1, [upsert(oid, 1) for oid in range(n)], full=True))
+
+    model.apply_delta(delta(2, removed=range(20), changes=[removal(i, i) for i in range(20)]))
+    model.apply_delta(delta(3, removed=range(20, n), changes=[removal(i, i) for i in range(20, n)]))
+
+    assert sorted(model.ghosts) == list(range(n - MAX_GHOSTS, n))
+    assert {name for name in sink.nodes if name.startswith("/ghosts/")} == {
+        ghost_node(oid) for oid in range(n - MAX_GHOSTS, n)
+    }
+
+
+def test_an_object_back_in_the_map_loses_its_ghost(scene):
+    model, sink = scene
+    model.apply_delta(delta(2, removed=[3], changes=[removal(3, 100.0)]))
+
+    model.apply_delta(delta(3, [upsert(3, 2)]))
+
+    assert model.ghosts == {} and ghost_node(3) not in sink.nodes
+    assert points_node(3) in sink.nodes
+
+
+def test_a_full_snapshot_clears_the_ghosts_and_lines_that_no_longer_apply(scene):
+    model, sink = scene
+    model.apply_delta(
+        delta(
+            2, [upsert(2, 2, "table", offset=3.0)], [1, 3], changes=[removal(1, 5.0), move(2, 6.0)]
+        )
+    )
+    model.apply_delta(delta(3, [upsert(3, 2)]))  # 3 came back after the removal
+    assert set(model.ghosts) == {1} and set(model.move_lines) == {2}
+
+    # a resync: 2 has gone since (no ghost: a snapshot carries no changes), 1 is still gone
+    model.apply_delta(delta(9, [upsert(3, 2)], full=True))
+
+    assert set(model.ghosts) == {1} and ghost_node(1) in sink.nodes
+    assert model.move_lines == {} and MOVES_NODE not in sink.nodes
+    assert ghost_node(2) not in sink.nodes
+
+
+def test_a_ghost_of_an_object_the_viewer_never_held_is_not_drawn(scene):
+    model, sink = scene
+    summary = model.apply_delta(delta(2, removed=[77], changes=[removal(77, 1.0, "laptop")]))
+
+    assert summary.ghosted == [] and ghost_node(77) not in sink.nodes
