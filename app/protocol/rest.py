@@ -234,6 +234,13 @@ class ObjectRecord(Record):
     """Frames the object was seen in."""
     points: Points = None
     """[[x, y, z], ...] metres at client resolution; left out when not asked for."""
+    state: Literal["present", "removed"] = "present"
+    """Extension (living map): "removed" objects are history, listed with include=removed."""
+    first_seen_t: float | None = None
+    """Extension (living map): frame `t` of the first keyframe that observed it (device
+    clock, seconds); null for objects mapped before times were kept."""
+    last_seen_t: float | None = None
+    """Extension (living map): frame `t` of the newest keyframe that observed it."""
 
 
 class QueryHit(Record):
@@ -250,6 +257,11 @@ class QueryHit(Record):
     centroid: Point
     points: Points = None
     """[[x, y, z], ...] metres; left out when not asked for."""
+    state: Literal["present", "removed"] = "present"
+    """Extension (living map): "removed" hits come only with include=removed: where the
+    thing was last seen."""
+    last_seen_t: float | None = None
+    """Extension (living map): frame `t` of the newest keyframe that observed it."""
 
 
 class QueryResult(Record):
@@ -260,6 +272,9 @@ class QueryResult(Record):
     """False when no hit is a confident match (the hits are still listed)."""
     results: list[QueryHit]
     latency_ms: float
+    now_t: float | None = None
+    """Extension (living map): the session's newest frame `t` (device clock), what "last
+    seen ... ago" counts from; null before the first keyframe."""
 
 
 def parse_query_result(body: Any) -> QueryResult:
@@ -290,7 +305,7 @@ def _field_name(loc: tuple) -> str:
 # ---------------------------------------------------------------------- export and import
 EXPORT_FORMAT = "semanticxr-map"
 EXPORT_VERSION = 1
-Finite = Annotated[float, Field(allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
 """A JSON number that is neither NaN nor infinite."""
 
 
@@ -429,3 +444,23 @@ class MapExport(Record):
     id order; ids distinct from the objects'."""
     changes: Annotated[list[ExportedChange] | None, Field(exclude_if=_none)] = None
     """The changes the map concluded, in the order they arrived (seq never decreasing)."""
+
+
+class ChangeList(Record):
+    """`GET /v1/sessions/{sid}/changes`: what the map concluded, in arrival order."""
+
+    changes: list[ExportedChange]
+    now_t: float | None = None
+    """The session's newest frame `t` (device clock): what "ago" counts from."""
+
+
+class ObjectHistory(Record):
+    """`GET /v1/sessions/{sid}/objects/{id}/history`: where an object has been."""
+
+    id: int
+    label: str
+    state: Literal["present", "removed"]
+    first_seen_t: float | None = None
+    last_seen_t: float | None = None
+    stays: list[ExportedStay]
+    """Oldest first; the last is where it is (or was last seen, when removed)."""

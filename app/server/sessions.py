@@ -309,11 +309,20 @@ class Session:
     def query(self, text: str, k: int) -> list[QueryHit]:
         return self.rated_query(text, k)[0]
 
-    def rated_query(self, text: str, k: int) -> tuple[list[QueryHit], Rating]:
-        """The top-k hits, best first, and how well they answer (app.mapping.relevance)."""
+    def rated_query(
+        self, text: str, k: int, removed: list[MapObject] | None = None
+    ) -> tuple[list[QueryHit], Rating]:
+        """The top-k hits, best first, and how well they answer (app.mapping.relevance).
+
+        removed: objects of the map's history (state "removed") ranked with the present
+        ones (`include=removed`: "where did I leave my laptop")."""
         embedding = self.engine.encoder.encode_query(text)  # outside the lock: the slow part
         with self._map_lock:
             hits = self.engine.query_embedding(embedding, k)
+        if removed:
+            scores = np.stack([o.embedding for o in removed]) @ embedding.astype(np.float32)
+            hits = [*hits, *(QueryHit(o, float(s)) for o, s in zip(removed, scores, strict=True))]
+            hits = sorted(hits, key=lambda h: -h.score)[:k]
         return hits, rate_hits(self.engine.encoder, embedding, [h.object.label for h in hits])
 
     def build_delta(self, since: int | None) -> dict:
@@ -909,6 +918,23 @@ class SessionManager:
         if keyframe is not None:
             return keyframe
         return is_keyframe(rec.frames - 1, session.knobs.keyframe_interval)
+
+    # ------------------------------------------------------------------ the map's history
+    def removed_objects(self, session: Session) -> list[MapObject]:
+        """The session's removed objects (history, from the store), in id order."""
+        return self.store.load_removed_objects(session.id)
+
+    def find_object(self, session: Session, object_id: int) -> MapObject | None:
+        """An object of the session's present map, else of its history; None if neither."""
+        with session._map_lock:
+            obj = session.engine.objects.get(object_id)
+            if obj is not None and obj.confirmed:
+                return obj
+        return self.store.load_object(session.id, object_id)
+
+    def changes(self, session: Session, **filters) -> list[Change]:
+        """The session's changes from the store (`Store.load_changes` filters)."""
+        return self.store.load_changes(session.id, **filters)
 
     # ------------------------------------------------------------------ counters and storage
     def save_counters_soon(self, session: Session) -> None:

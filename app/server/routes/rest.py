@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -15,7 +16,7 @@ from app import protocol
 from app.config import KnobError, knobs_to_dict
 from app.errors import InputError
 from app.mapping.engine import MAX_WORLD_M
-from app.mapping.export import export_json_chunks, ply_bytes
+from app.mapping.export import export_change, export_json_chunks, exported_stay, ply_bytes
 from app.mapping.object import MapObject
 from app.mapping.publish import client_points
 from app.perception import UnknownBackendError
@@ -108,7 +109,21 @@ def _object_record(obj: MapObject, session: Session, with_points: bool) -> proto
         centroid=obj.centroid,
         n_obs=obj.n_obs,
         points=points,
+        state=obj.state,
+        first_seen_t=obj.first_seen_t,
+        last_seen_t=obj.last_seen_t,
     )
+
+
+INCLUDE_DOC = "`removed`: removed objects too (the living map's history: where things were)"
+"""What `include=` takes on objects and queries."""
+
+
+def _finite(name: str, value: float | None) -> float | None:
+    """422 naming the parameter for a NaN or infinite bound (FastAPI parses "nan")."""
+    if value is not None and not math.isfinite(value):
+        raise HTTPException(422, f"{name}: must be a finite number of seconds, got {value}")
+    return value
 
 
 def _created(session: Session, token: str) -> protocol.SessionCreated:
@@ -204,10 +219,73 @@ def patch_knobs(
     responses=SESSION_ERRORS,
 )
 def list_objects(
-    sid: str, request: Request, points: bool = Query(False, description="include points")
+    sid: str,
+    request: Request,
+    points: bool = Query(False, description="include points"),
+    include: Literal["removed"] | None = Query(None, description=INCLUDE_DOC),
 ) -> list[protocol.ObjectRecord]:
     with session_in_use(request, sid) as session:
-        return [_object_record(o, session, points) for o in session.objects()]
+        objects = session.objects()
+        if include == "removed":
+            removed = manager(request).removed_objects(session)
+            objects = sorted([*objects, *removed], key=lambda o: o.id)
+        return [_object_record(o, session, points) for o in objects]
+
+
+@router.get(
+    "/sessions/{sid}/objects/{object_id}/history",
+    response_model=protocol.ObjectHistory,
+    summary="Where an object has been (its stays), present or removed",
+    responses={
+        **SESSION_ERRORS,
+        **_errors(_404="no such session (server without an API key), or no such object"),
+    },
+)
+def object_history(sid: str, object_id: int, request: Request) -> protocol.ObjectHistory:
+    with session_in_use(request, sid) as session:
+        obj = manager(request).find_object(session, object_id)
+    if obj is None:
+        raise HTTPException(404, f"object {object_id} is not in this session's map or history")
+    return protocol.ObjectHistory(
+        id=obj.id,
+        label=obj.label,
+        state=obj.state,
+        first_seen_t=obj.first_seen_t,
+        last_seen_t=obj.last_seen_t,
+        stays=[exported_stay(stay) for stay in obj.stays],
+    )
+
+
+@router.get(
+    "/sessions/{sid}/changes",
+    response_model=protocol.ChangeList,
+    summary="What the map concluded about the world (added, moved, removed), oldest first",
+    responses=SESSION_ERRORS,
+)
+def list_changes(
+    sid: str,
+    request: Request,
+    since_t: float | None = Query(None, description="from this frame `t` on (seconds)"),
+    until_t: float | None = Query(None, description="up to this frame `t` (seconds)"),
+    since_seq: int | None = Query(
+        None, ge=0, description="committed after this update seq (t may go backwards)"
+    ),
+    kind: Literal["added", "moved", "removed"] | None = Query(None, description="one kind"),
+    limit: int = Query(1000, ge=1, le=10_000, description="the newest this many"),
+) -> protocol.ChangeList:
+    _finite("since_t", since_t)
+    _finite("until_t", until_t)
+    with session_in_use(request, sid) as session:
+        changes = manager(request).changes(
+            session,
+            since_t=since_t,
+            until_t=until_t,
+            since_seq=since_seq,
+            kinds=None if kind is None else [kind],
+            limit=limit,
+        )
+        now_t = session.engine.last_t
+    return protocol.ChangeList(changes=[export_change(c) for c in changes], now_t=now_t)
 
 
 @router.get(
@@ -224,13 +302,16 @@ def query(
     ),
     k: int = Query(5, ge=1, description="how many results (at most the server's max_query_k)"),
     points: bool = Query(True, description="include each result's points"),
+    include: Literal["removed"] | None = Query(None, description=INCLUDE_DOC),
 ) -> protocol.QueryResult:
     max_k = manager(request).settings.max_query_k
     if k > max_k:
         raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
     t0 = time.perf_counter()
     with session_in_use(request, sid) as session:
-        hits, rating = session.rated_query(text, k)
+        removed = manager(request).removed_objects(session) if include == "removed" else None
+        hits, rating = session.rated_query(text, k, removed)
+        now_t = session.engine.last_t
     max_points = session.knobs.max_object_points_client
     results = [
         protocol.QueryHit(
@@ -241,13 +322,15 @@ def query(
             bbox=hit.object.bbox,
             centroid=hit.object.centroid,
             points=client_points(hit.object, max_points) if points else None,
+            state=hit.object.state,
+            last_seen_t=hit.object.last_seen_t,
         )
         for hit, relevance in zip(hits, rating.relevance, strict=True)
     ]
     latency_ms = (time.perf_counter() - t0) * 1e3
     manager(request).metrics.query_latency.observe(latency_ms / 1e3)
     return protocol.QueryResult(
-        text=text, match=rating.match, results=results, latency_ms=latency_ms
+        text=text, match=rating.match, results=results, latency_ms=latency_ms, now_t=now_t
     )
 
 
