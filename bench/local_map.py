@@ -52,11 +52,13 @@ QUERIES = [
 
 
 def object_upserts(ids: range, rng: np.random.Generator, version: int = 1) -> list[UpsertEntry]:
-    """`upserts[]` entries for `ids`: random unit embeddings, 200 points in a 1 m box."""
+    """`upserts[]` entries for `ids`: random unit embeddings, 200 points in a 1 m box, and
+    the living map's first/last seen times (the device keeps last_seen_t)."""
     embeddings = rng.standard_normal((len(ids), DIM)).astype(np.float32)
     embeddings /= np.linalg.norm(embeddings, axis=1, keepdims=True)
     corners = rng.uniform(-50, 50, (len(ids), 3))
     points = corners[:, None, :] + rng.uniform(0, 1, (len(ids), POINTS_PER_OBJECT, 3))
+    last_seen_t = rng.uniform(0, 3600, len(ids))
     return [
         UpsertEntry(
             id=oid,
@@ -66,6 +68,8 @@ def object_upserts(ids: range, rng: np.random.Generator, version: int = 1) -> li
             points=points[i],
             bbox=(*points[i].min(axis=0).tolist(), *points[i].max(axis=0).tolist()),
             n_obs=3,
+            first_seen_t=0.0,
+            last_seen_t=float(last_seen_t[i]),
         )
         for i, oid in enumerate(ids)
     ]
@@ -101,7 +105,7 @@ def baseline_bytes(objects: int) -> int:
     columns = LocalMap(dim=DIM)._rows
     metadata_row_bytes = sum(  # the columns besides the 8-bit storage's own
         columns[name].itemsize * int(np.prod(columns[name].shape[1:]))
-        for name in ("id", "version", "bbox", "centroid", "n_obs", "updated")
+        for name in ("id", "version", "bbox", "centroid", "n_obs", "last_seen_t", "updated")
     )
     per_object = BASELINE_POINTS_PER_OBJECT * 3 * 4 + DIM * 4 + metadata_row_bytes
     return objects * (per_object + PYTHON_BYTES_PER_OBJECT)
