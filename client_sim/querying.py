@@ -114,12 +114,6 @@ def session_encoder_loader(embedding: dict, models_dir: str | None) -> Callable[
     return load_tower
 
 
-def _living_map_fields(hit: dict) -> dict:
-    """An SQ hit with `last_seen_t` and `state` whatever the server's age: an older server
-    sends neither (None, and it ranks only present objects)."""
-    return {**hit, "last_seen_t": hit.get("last_seen_t"), "state": hit.get("state") or PRESENT}
-
-
 def planned_mode(rtt_ms: float | None, threshold_ms: float) -> str:
     """The mode ("SQ" or "LQ") the RTT alone picks ("?" if unknown); a failed SQ still
     ends in LQ."""
@@ -240,7 +234,8 @@ class QueryRouter:
     ) -> QueryAnswer:
         """SQ: the server's answer (raises whatever the server path raises)."""
         sq_start_s = time.perf_counter()
-        results = [_living_map_fields(hit) for hit in await self.api.query(text, k)]
+        # Parsed by the protocol (QueryHit): last_seen_t None, state "present" from an older server.
+        results = await self.api.query(text, k)
         now_s = time.perf_counter()
         return QueryAnswer(
             text=text,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import gc
+import json
 import math
 import sys
 import tracemalloc
@@ -573,14 +574,17 @@ class WordEncoder:
 
 
 def answer(local: LocalMap, rtt_ms: float, server_hits: list[dict] | None = None) -> QueryAnswer:
-    """The router's answer to "mug" at this RTT; SQ answers `server_hits` (no server runs)."""
+    """The router's answer to "mug" at this RTT; SQ gets a JSON query answer of `server_hits`
+    and parses it as from a server (no server runs)."""
     encoder = WordEncoder()
     router = QueryRouter("http://127.0.0.1:9", "sid", None, local, encoder, rtt_ms=lambda: rtt_ms)
+    body = {"text": "mug", "match": True, "results": server_hits or [], "latency_ms": 1.0}
 
-    async def server_query(text: str, k: int) -> list[dict]:
-        return [dict(hit) for hit in server_hits or []]
+    async def call(method: str, url: str, **kwargs) -> dict:
+        assert url.endswith("/query"), url
+        return json.loads(json.dumps(body))
 
-    router.api.query = server_query  # type: ignore[method-assign]
+    router.api._call = call  # type: ignore[method-assign]
     return asyncio.run(router.query("mug", k=2))
 
 
