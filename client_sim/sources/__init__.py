@@ -1,8 +1,9 @@
 """Frame sources of the device emulator: one interface (`FrameSource`), one module per source.
 
 Recorded datasets (`tum`, `7scenes`, `replica`) are built from a "kind:path" spec with
-`make_source`; the synthetic world lives in `client_sim.sources.synthetic`. Both are imported
-lazily, so reading a dataset never loads the synthetic world (open3d scenes, renderer).
+`make_source`; the synthetic world lives in `client_sim.sources.synthetic`, and its scripted
+second visit in `client_sim.sources.revisit`. All are imported lazily, so reading a dataset
+never loads the synthetic world (open3d scenes, renderer).
 """
 
 from __future__ import annotations
@@ -12,13 +13,15 @@ from typing import TYPE_CHECKING, Any
 from client_sim.sources.base import FrameSource, SourceFrame
 
 if TYPE_CHECKING:
+    from client_sim.sources.revisit import RevisitSource
     from client_sim.sources.synthetic import SyntheticFrame, SyntheticSource
 
-SOURCE_KINDS: tuple[str, ...] = ("synthetic", "tum", "7scenes", "replica")
+SOURCE_KINDS: tuple[str, ...] = ("synthetic", "revisit", "tum", "7scenes", "replica")
 
 __all__ = [
     "SOURCE_KINDS",
     "FrameSource",
+    "RevisitSource",
     "SourceFrame",
     "SyntheticFrame",
     "SyntheticSource",
@@ -27,8 +30,8 @@ __all__ = [
 
 
 def make_source(spec: str, **kwargs: Any) -> FrameSource:
-    """A source from "kind:path" (kind in SOURCE_KINDS; for synthetic, the path is a scene name
-    such as "apartment"); kwargs go to its loader.
+    """A source from "kind:path" (kind in SOURCE_KINDS; for synthetic and revisit, the path is a
+    scene name such as "apartment"); kwargs go to its loader.
 
     Raises ValueError naming the valid source kinds when the spec is malformed.
     """
@@ -41,6 +44,10 @@ def make_source(spec: str, **kwargs: Any) -> FrameSource:
         from client_sim.sources.synthetic import SyntheticSource
 
         return SyntheticSource(path, **kwargs)
+    if kind == "revisit":
+        from client_sim.sources.revisit import RevisitSource
+
+        return RevisitSource(path, **kwargs)
     if kind == "tum":
         from client_sim.sources.tum import TumSource
 
@@ -60,4 +67,8 @@ def __getattr__(name: str) -> Any:
         from client_sim.sources import synthetic
 
         return getattr(synthetic, name)
+    if name == "RevisitSource":
+        from client_sim.sources import revisit
+
+        return revisit.RevisitSource
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
