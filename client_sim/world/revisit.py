@@ -233,8 +233,9 @@ def make_revisit(
     planner = _Planner(before, poses, walk1, ANALYSIS_CAMERA, rng)
     edits = planner.plan()
 
-    # Keep the changes both walks really see; dropping one can uncover another, so recount.
-    for _ in range(4):
+    # Keep the changes both walks really see; dropping one can uncover another, so recount
+    # until all pass (each round drops at least one change, so this ends).
+    while True:
         after = _apply(before, edits)
         seen = _count_seen(
             _edit_roles(edits), _occluders(edits), poses, ANALYSIS_CAMERA, walk1, after=after
@@ -243,32 +244,12 @@ def make_revisit(
         if len(kept) == len(edits):
             break
         edits = kept
-    else:
-        after = _apply(before, edits)
-        seen = _count_seen(
-            _edit_roles(edits), _occluders(edits), poses, ANALYSIS_CAMERA, walk1, after=after
-        )
 
-    t_world = (int(walk_frames) - 1) / fps + gap_s
-    changes = sorted(
-        (
-            GroundTruthChange(
-                instance_id=e.instance_id,
-                kind=e.kind,
-                category=e.category,
-                from_xyz=_xyz(e.old.center) if e.old is not None else None,
-                to_xyz=_xyz(e.new.center) if e.new is not None else None,
-                t_world=t_world,
-            )
-            for e in edits
-        ),
-        key=lambda c: c.instance_id,
-    )
     occluders = _occluders(edits)
-    return RevisitScenario(
+    scenario = RevisitScenario(
         before=before,
         after=after,
-        changes=changes,
+        changes=[],
         occluded_ids=sorted(occluders),
         occluders=occluders,
         poses=poses,
@@ -278,6 +259,21 @@ def make_revisit(
         fps=float(fps),
         seen=seen,
     )
+    scenario.changes = sorted(
+        (
+            GroundTruthChange(
+                instance_id=e.instance_id,
+                kind=e.kind,
+                category=e.category,
+                from_xyz=_xyz(e.old.center) if e.old is not None else None,
+                to_xyz=_xyz(e.new.center) if e.new is not None else None,
+                t_world=scenario.walk2_start_t,
+            )
+            for e in edits
+        ),
+        key=lambda c: c.instance_id,
+    )
+    return scenario
 
 
 def measure_visibility(
@@ -461,17 +457,14 @@ def _acceptable(edit: _Edit, seen: dict[int, SeenFrames]) -> bool:
 
 def _apply(before: Scene, edits: list[_Edit]) -> Scene:
     """A deep copy of `before` with the edits made."""
-    after = copy.deepcopy(before)
     replaced = {e.instance_id: e.new for e in edits if e.kind != "added"}
     objects = []
-    for obj in after.objects:
-        if obj.instance_id not in replaced:
-            objects.append(obj)
-        elif replaced[obj.instance_id] is not None:
-            objects.append(copy.deepcopy(replaced[obj.instance_id]))
+    for obj in before.objects:
+        obj = replaced.get(obj.instance_id, obj)
+        if obj is not None:
+            objects.append(copy.deepcopy(obj))
     objects += [copy.deepcopy(e.new) for e in edits if e.kind == "added"]
-    after.objects = objects
-    return after
+    return Scene(before.name, before.seed, objects, list(before.rooms), list(before.doorways))
 
 
 def _xyz(p: np.ndarray) -> tuple[float, float, float]:
@@ -558,9 +551,9 @@ class _Planner:
         self.appearing: list[str] = []  # categories of things moved here or added
         self.places: list[np.ndarray] = []  # old and new centres of changes
         self._box_cache: tuple[np.ndarray, np.ndarray] | None = None
-        # Per changed or trapped object: its trap's occluder id (0 if none) and walk 1's views
-        # of it, (camera centre, world points of its pixels) per frame that sees it.
-        self.protected: list[tuple[int, list[tuple[np.ndarray, np.ndarray]]]] = []
+        # Per changed or trapped object, walk 1's views of it: (camera centre, world points of
+        # its pixels) per frame that sees it.
+        self.protected: list[list[tuple[np.ndarray, np.ndarray]]] = []
         self._raycaster = o3d.t.geometry.RaycastingScene()
         self._geometry_owner: dict[int, int] = {}
         for obj in before.objects:
@@ -654,11 +647,11 @@ class _Planner:
             return
 
     def _lies_on_a_table(self, obj: SceneObject) -> bool:
-        if obj.support_id == 0 or obj.bbox[5] - obj.bbox[2] > _THIN_MAX_HEIGHT_M + (
-            0.2 if obj.category == "laptop" else 0.0  # a laptop's base is 2 cm, its lid up
-        ):
+        """A thin thing (a laptop counts: its base is 2 cm, its lid up) on a table-like top."""
+        if obj.support_id == 0:
             return False
-        return self.before.object_by_id(obj.support_id).category in _TABLES
+        thin = obj.category == "laptop" or obj.bbox[5] - obj.bbox[2] <= _THIN_MAX_HEIGHT_M
+        return thin and self.before.object_by_id(obj.support_id).category in _TABLES
 
     def _move(self, preference: tuple[str, ...], on_floor: bool) -> None:
         for obj in self._candidates(preference, on_floor=on_floor, kind="moved"):
@@ -811,10 +804,10 @@ class _Planner:
             if best is None:
                 continue
             world, triangles, colors, color = best
+            room, support_id = target.room, target.support_id
             box = _new_object(
-                self.next_id, _OCCLUDER, world, triangles, colors, color, target.room,
-                target.support_id,
-            )  # fmt: skip
+                self.next_id, _OCCLUDER, world, triangles, colors, color, room, support_id
+            )
             self.next_id += 1
             self._commit_trap(target, box)
             return
@@ -823,21 +816,19 @@ class _Planner:
         self.taken.add(target.instance_id)
         self.places.append(target.center)
         self.vanishing.append(target.category)  # hidden, it could pass for gone
-        self._protect(target.instance_id, hidden_by=box.instance_id)
+        self._protect(target.instance_id)
         self._commit(_Edit("added", box.instance_id, _OCCLUDER, None, box, target.instance_id))
 
-    def _protect(self, instance_id: int, hidden_by: int = 0) -> None:
+    def _protect(self, instance_id: int) -> None:
         """Keep later changes from blocking walk 2's view of this object's place."""
         frames = np.flatnonzero(self.walk1.counts[:, instance_id] >= self.min_px)
         views = [(self.poses[f, :3, 3], self._backproject(f, instance_id)) for f in frames]
-        self.protected.append((hidden_by, views))
+        self.protected.append(views)
 
-    def _hides_changes(self, lo: np.ndarray, hi: np.ndarray, own: int = 0) -> bool:
-        """Whether a new thing with bounds [lo, hi] would hide a changed place (or a trapped
-        object; `own`: the one this thing is meant to hide) from too many frames of walk 2."""
-        for hidden_by, views in self.protected:
-            if hidden_by and hidden_by == own:
-                continue
+    def _hides_changes(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """Whether a new thing with bounds [lo, hi] would hide the place of a change (or a
+        trapped object) from so many frames of walk 2 that too few still see it."""
+        for views in self.protected:
             blocked = sum(
                 self._hidden_fraction(origin, points, lo, hi) > 1 - PLACE_VISIBLE_FRACTION
                 for origin, points in views
