@@ -65,14 +65,15 @@ def add_security(schema: dict[str, Any]) -> dict[str, Any]:
 
 def add_session_links(schema: dict[str, Any]) -> dict[str, Any]:
     """Links in the 201 answer of every operation that creates a session (answers
-    SessionCreated) to every operation under /v1/sessions/{sid}, both found in `schema`'s
+    SessionCreated) to every operation under /v1/sessions/{sid} that needs no other path
+    parameter (an object's history needs an object id), both found in `schema`'s
     paths (generated from the routes, so a new route gets its link): `sid` from the answer's
     session_id and, where the operation takes the session token (add_security), that token
     as the bearer credential."""
     targets = {
         _link_name(method, path): operation
         for path, operations in schema.get("paths", {}).items()
-        if SESSION_PATH in path
+        if SESSION_PATH in path and re.findall(r"{(\w+)}", path) == ["sid"]  # a link gives sid only
         for method, operation in operations.items()
     }
     links = {
