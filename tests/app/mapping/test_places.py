@@ -9,8 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from app.mapping import places
 from app.mapping.object import MapObject
-from app.mapping.places import Landmarks, Place, describe_place, infer_up
+from app.mapping.places import Landmarks, Place, describe_place, describe_places, infer_up
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 
@@ -160,6 +161,19 @@ def test_an_answer_is_never_the_excluded_object_and_near_is_large_and_close(scen
         assert np.linalg.norm(np.maximum(np.maximum(lo - point, point - hi), 0)) <= 1.5
         sides = hi - lo
         assert np.prod(sides) >= 0.03 or sides.max() >= 0.5
+
+
+def test_many_points_at_once_are_described_as_each_alone(monkeypatch):
+    monkeypatch.setattr(places, "BATCH_ELEMENTS", 7)  # a few points per batch
+    rng = np.random.default_rng(1)
+    on_things = [[1.0, 0.5, 0.8], [0.3, 0.3, 0.85], [4.0, 0.5, 0.9], [2.04, 0.54, 0.2]]
+    points = np.vstack([rng.uniform([-1, -1, 0], [6, 3, 1.5], (36, 3)), on_things])
+    exclude = rng.integers(1, 6, 40)
+    alone = [
+        describe_place(p, ROOM, Z_UP, exclude=int(e)) for p, e in zip(points, exclude, strict=True)
+    ]
+    assert describe_places(points, ROOM, Z_UP, exclude) == alone
+    assert {p.relation for p in alone if p} == {"on", "near"} and None in alone
 
 
 @pytest.mark.parametrize("up", [[0, 0, 1], [0, 0, -1], [0, 1, 0], [-1, 0, 0]])
