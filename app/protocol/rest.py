@@ -243,6 +243,17 @@ class ObjectRecord(Record):
     """Extension (living map): frame `t` of the newest keyframe that observed it."""
 
 
+class PlaceRecord(Record):
+    """Extension (living map): where something is, in words ("on the dining table"): the
+    object it rests on, else the nearest large object it stands near, in the present map."""
+
+    relation: Literal["on", "near"]
+    id: int
+    """The object it is on or near."""
+    label: str
+    """That object's label."""
+
+
 class QueryHit(Record):
     """One result of a query: an object and how well it matches."""
 
@@ -262,6 +273,9 @@ class QueryHit(Record):
     thing was last seen."""
     last_seen_t: float | None = None
     """Extension (living map): frame `t` of the newest keyframe that observed it."""
+    place: PlaceRecord | None = None
+    """Extension (living map): where it is (a removed hit: where it was last seen), told by
+    the other objects of the present map; null when nothing large is near."""
 
 
 class QueryResult(Record):
@@ -446,10 +460,19 @@ class MapExport(Record):
     """The changes the map concluded, in the order they arrived (seq never decreasing)."""
 
 
+class ChangeRecord(ExportedChange):
+    """One entry of `GET .../changes`: a change and where it happened, in words (the export
+    keeps `ExportedChange`, without the place)."""
+
+    place: PlaceRecord | None = None
+    """Extension (living map): where `to` (else `from`) is, told by the present map's other
+    objects when the list is read; null when nothing large is near."""
+
+
 class ChangeList(Record):
     """`GET /v1/sessions/{sid}/changes`: what the map concluded, in arrival order."""
 
-    changes: list[ExportedChange]
+    changes: list[ChangeRecord]
     now_t: float | None = None
     """The session's newest frame `t` (device clock): what "ago" counts from."""
 

@@ -17,7 +17,8 @@ from app.config import KnobError, knobs_to_dict
 from app.errors import InputError
 from app.mapping.engine import MAX_WORLD_M
 from app.mapping.export import export_change, export_json_chunks, exported_stay, ply_bytes
-from app.mapping.object import MapObject
+from app.mapping.object import Change, MapObject
+from app.mapping.places import Z_UP, describe_places, infer_up
 from app.mapping.publish import client_points
 from app.perception import UnknownBackendError
 from app.protocol.rest import MapExport
@@ -117,6 +118,36 @@ def _object_record(obj: MapObject, session: Session, with_points: bool) -> proto
 
 INCLUDE_DOC = "`removed`: removed objects too (the living map's history: where things were)"
 """What `include=` takes on objects and queries."""
+
+
+def _places_of(
+    session: Session, points: list, exclude: list[int]
+) -> list[protocol.PlaceRecord | None]:
+    """Where each point is, in words, against the session's present map (`exclude`: each
+    point's own object), up from its last pose (Z when none)."""
+    if not points:
+        return []
+    pose = session.engine.last_pose
+    up = Z_UP if pose is None else infer_up(pose)
+    places = describe_places(np.asarray(points, np.float64), session.objects(), up, exclude)
+    return [
+        None if p is None else protocol.PlaceRecord(relation=p.relation, id=p.id, label=p.label)
+        for p in places
+    ]
+
+
+def _change_records(session: Session, changes: list[Change]) -> list[protocol.ChangeRecord]:
+    """Changes as listed: each as exported, with where it happened (its `to`, else `from`)."""
+    where = [c.to_xyz if c.to_xyz is not None else c.from_xyz for c in changes]
+    located = [i for i, xyz in enumerate(where) if xyz is not None]
+    places: list[protocol.PlaceRecord | None] = [None] * len(changes)
+    described = _places_of(session, [where[i] for i in located], [changes[i].id for i in located])
+    for i, place in zip(located, described, strict=True):
+        places[i] = place
+    return [
+        protocol.ChangeRecord.model_validate({**export_change(c), "place": place})
+        for c, place in zip(changes, places, strict=True)
+    ]
 
 
 def _finite(name: str, value: float | None) -> float | None:
@@ -285,7 +316,8 @@ def list_changes(
             limit=limit,
         )
         now_t = session.engine.last_t
-    return protocol.ChangeList(changes=[export_change(c) for c in changes], now_t=now_t)
+        records = _change_records(session, changes)
+    return protocol.ChangeList(changes=records, now_t=now_t)
 
 
 @router.get(
@@ -312,6 +344,7 @@ def query(
         removed = manager(request).removed_objects(session) if include == "removed" else None
         hits, rating = session.rated_query(text, k, removed)
         now_t = session.engine.last_t
+        places = _places_of(session, [h.object.centroid for h in hits], [h.object.id for h in hits])
     max_points = session.knobs.max_object_points_client
     results = [
         protocol.QueryHit(
@@ -324,8 +357,9 @@ def query(
             points=client_points(hit.object, max_points) if points else None,
             state=hit.object.state,
             last_seen_t=hit.object.last_seen_t,
+            place=place,
         )
-        for hit, relevance in zip(hits, rating.relevance, strict=True)
+        for hit, relevance, place in zip(hits, rating.relevance, places, strict=True)
     ]
     latency_ms = (time.perf_counter() - t0) * 1e3
     manager(request).metrics.query_latency.observe(latency_ms / 1e3)

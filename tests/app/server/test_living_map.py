@@ -141,6 +141,13 @@ def test_the_map_follows_a_changed_room_and_keeps_its_history(revisited, live_se
     assert np.allclose(moved["from"][:2], [-0.4, -0.1], atol=0.05)
     assert np.allclose(moved["to"][:2], [0.6, 0.4], atol=0.05)
 
+    # where, in words, against the present map (up is -y here: the cameras' up)
+    box_id = objects["cardboard box"][0]["id"]
+    near_box = {"relation": "near", "id": box_id, "label": "cardboard box"}
+    places = {(c["label"], c["kind"]): c["place"] for c in changes}
+    assert places["mug", "moved"] == near_box  # its new place
+    assert places["book", "removed"] == near_box  # where it was
+    assert places["cardboard box", "added"]["label"] == "whiteboard"  # never itself
     # the subscriber heard every change and holds exactly the server's map
     assert {(c["id"], c["kind"]) for c in delta_changes} == {(c["id"], c["kind"]) for c in changes}
     served = get(server, f"{sid}/objects", points="true").json()
@@ -155,6 +162,7 @@ def test_the_map_follows_a_changed_room_and_keeps_its_history(revisited, live_se
     answer = get(server, f"{sid}/query", text="where did I leave my book", include="removed", k=3)
     top = answer.json()["results"][0]
     assert (top["id"], top["state"], top["last_seen_t"]) == (book["id"], "removed", 6.0)
+    assert top["place"] == near_box
     assert answer.json()["now_t"] == WALK_2_T + 6
     plain = get(server, f"{sid}/query", text="where did I leave my book", k=3).json()
     assert all(hit["state"] == "present" for hit in plain["results"])
