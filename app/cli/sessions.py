@@ -1,6 +1,7 @@
 """`semanticxr sessions list|show|delete|export|import`: a server's sessions, from outside.
 
     semanticxr sessions list --server http://127.0.0.1:8000
+    semanticxr sessions show SID --server URL    # statistics and the recent changes
     semanticxr sessions export SID --out kitchen.ply --format ply --server URL
 
 Every action takes `--server URL` and `--api-key` (default: env SEMANTICXR_API_KEY, as the
@@ -19,13 +20,18 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import httpx
+
+from app.client.connection import auth_headers, http_base_url
 from app.client.rest import (
+    REST_TIMEOUT_S,
     ApiError,
     SessionApi,
     delete_session,
     export_map,
     import_map,
     list_sessions,
+    request,
 )
 from app.flags import server_url
 
@@ -38,6 +44,8 @@ COLUMNS = (
     ("frames", "FRAMES", 8),
 )
 """The table's columns: field, heading, width; NAME takes what the terminal has left."""
+RECENT_CHANGES = 10
+"""Changes `show` lists, the newest."""
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -64,7 +72,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     listing = action("list", "every session of the server, as a table")
     listing.add_argument("--json", action="store_true", help="print JSON instead of a table")
     listing.set_defaults(func=run_list)
-    show = action("show", "one session's statistics")
+    show = action("show", "one session's statistics and its recent changes")
     show.add_argument("sid", metavar="SID")
     show.add_argument("--json", action="store_true", help="print JSON instead of a table")
     show.set_defaults(func=run_show)
@@ -124,14 +132,68 @@ def run_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_show(args: argparse.Namespace) -> int:
-    async def fetch() -> dict:
-        async with SessionApi(args.server, args.sid, args.api_key) as api:
-            return await api.fetch()
+def ago_words(seconds: float) -> str:
+    """How long ago, as people say it: "just now", "40 s ago", "10 min ago", "3 h ago" (the
+    dashboard says the same, static/app.js `agoWords`)."""
+    s = max(0.0, seconds)
+    if s < 5:
+        return "just now"
+    if s < 90:
+        return f"{int(s + 0.5)} s ago"
+    if s < 90 * 60:
+        return f"{int(s / 60 + 0.5)} min ago"
+    if s < 48 * 3600:
+        return f"{int(s / 3600 + 0.5)} h ago"
+    return f"{int(s / 86400 + 0.5)} days ago"
 
-    stats = _call(fetch())
+
+def place_words(kind: str, place: dict) -> str:
+    """A change's `place` in words: "on the dining table", "near the sofa"; where a removed
+    thing was: "from the desk", "from near the sofa"."""
+    the = f"the {place.get('label')}"
+    relation = place.get("relation")
+    if kind == "removed":
+        return f"from {the}" if relation == "on" else f"from near {the}"
+    return f"{relation} {the}"
+
+
+def change_words(change: dict, now_t: float | None) -> str:
+    """One change of `GET .../changes` in words: "mug moved on the dining table, 10 min ago",
+    "laptop removed from the desk" (no place, no time: "book removed")."""
+    kind = change.get("kind", "changed")
+    words = f"{change.get('label', '?')} {kind}"
+    if isinstance(change.get("place"), dict):
+        words += f" {place_words(kind, change['place'])}"
+    t = change.get("t")
+    if isinstance(now_t, int | float) and isinstance(t, int | float):
+        words += f", {ago_words(now_t - t)}"
+    return words
+
+
+async def recent_changes(args: argparse.Namespace) -> dict | None:
+    """`GET .../changes` for the newest RECENT_CHANGES; None from a server without the
+    living map (404 for the call, the session itself having answered)."""
+    url = f"{http_base_url(args.server)}/v1/sessions/{args.sid}/changes"
+    async with httpx.AsyncClient(
+        timeout=REST_TIMEOUT_S, headers=auth_headers(args.api_key)
+    ) as http:
+        try:
+            return await request(http, "GET", url, params={"limit": RECENT_CHANGES})
+        except ApiError as exc:
+            if exc.status == 404:
+                return None
+            raise
+
+
+def run_show(args: argparse.Namespace) -> int:
+    async def fetch() -> tuple[dict, dict | None]:
+        async with SessionApi(args.server, args.sid, args.api_key) as api:
+            stats = await api.fetch()
+        return stats, await recent_changes(args)
+
+    stats, changes = _call(fetch())
     if args.json:
-        print(json.dumps(stats, indent=2))
+        print(json.dumps({**stats, "recent_changes": changes} if changes else stats, indent=2))
         return 0
     for key, value in stats.items():
         if key == "knobs":
@@ -139,6 +201,11 @@ def run_show(args: argparse.Namespace) -> int:
         if isinstance(value, dict):
             value = ", ".join(f"{k}={v}" for k, v in value.items())
         print(f"{key:20s} {value}")
+    if changes is not None:
+        listed = changes.get("changes", [])
+        print(f"{'recent changes':20s} {'none' if not listed else 'newest first'}")
+        for change in reversed(listed):
+            print(f"  {change_words(change, changes.get('now_t'))}")
     return 0
 
 

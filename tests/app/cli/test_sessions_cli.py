@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import json
 import os
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import httpx
 import numpy as np
@@ -15,10 +18,13 @@ from analytic_world import KITCHEN
 from devices import frame_message, stream_in_step
 
 from app.cli import main
-from app.cli.sessions import table
+from app.cli.sessions import change_words, table
 
 API_KEY = "cli-test-key"
 KNOBS = {"keyframe_interval": 1, "min_observations": 2, "local_map_update_frequency": 1}
+ON_TABLE = {"relation": "on", "id": 3, "label": "dining table"}
+ON_DESK = {"relation": "on", "id": 4, "label": "desk"}
+NEAR_SOFA = {"relation": "near", "id": 5, "label": "sofa"}
 LONG_NAME = "a kitchen with a name far too long for any narrow terminal column at all"
 
 
@@ -124,3 +130,98 @@ def test_an_import_over_the_body_limit_names_the_flag(live_server, tmp_path, cap
     with pytest.raises(SystemExit):
         main(["sessions", "import", str(out), "--server", server.url])
     assert "--max-body-bytes" in capsys.readouterr().err
+
+
+# --- recent changes ----------------------------------------------------------------------
+
+
+def _living_map_scene():
+    """tests/app/server/test_living_map.py, whose walks change a room (a mug moved, a book
+    taken away, a box and a plant added): one scene for the server's and the CLI's tests."""
+    path = Path(__file__).resolve().parents[1] / "server" / "test_living_map.py"
+    spec = importlib.util.spec_from_file_location("living_map_scene", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_sessions_show_lists_the_recent_changes_in_words(server, capsys):
+    scene = _living_map_scene()
+    headers = {"Authorization": f"Bearer {API_KEY}"}
+    sid = httpx.post(
+        f"{server.url}/v1/sessions", json={"name": "room", "knobs": scene.KNOBS}, headers=headers
+    ).json()["session_id"]
+    url = f"{server.ws_url}/v1/sessions/{sid}/stream"
+    for walk in (scene.walk(scene.BEFORE, 0.0), scene.walk(scene.AFTER, scene.WALK_2_T)):
+        acks = asyncio.run(stream_in_step(url, walk, headers))
+        assert all(a["type"] == "ack" for a in acks), acks
+
+    assert main(["sessions", "show", sid, "--server", server.url]) == 0
+    out = capsys.readouterr().out
+    stats, changes = out.split("recent changes", 1)
+    assert "keyframes" in stats
+    lines = [line.strip() for line in changes.splitlines()[1:]]
+    # each "<label> <kind> <place>, <ago>"; the walk goes on for a few seconds after them
+    ago = r", (just now|\d s ago)"
+    for expected in (
+        "mug moved near the cardboard box",
+        "book removed from near the cardboard box",
+        "cardboard box added near the whiteboard",
+        "potted plant added near the cardboard box",
+    ):
+        assert sum(bool(re.fullmatch(expected + ago, line)) for line in lines) == 1, lines
+    assert len(lines) == 4
+
+    assert main(["sessions", "show", sid, "--json", "--server", server.url]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["session_id"] == sid and shown["recent_changes"]["now_t"] == scene.WALK_2_T + 6
+    listed = shown["recent_changes"]["changes"]
+    assert {(c["label"], c["kind"]) for c in listed} == {
+        ("mug", "moved"),
+        ("book", "removed"),
+        ("cardboard box", "added"),
+        ("potted plant", "added"),
+    }
+    assert all(c["place"]["relation"] == "near" for c in listed)
+
+
+def test_sessions_show_of_a_session_without_changes_says_none(server, capsys):
+    sid = mapped_session(server)
+    assert main(["sessions", "show", sid, "--server", server.url]) == 0
+    assert re.search(r"^recent changes\s+none$", capsys.readouterr().out, re.M)
+
+
+@pytest.mark.parametrize(
+    ("change", "now_t", "words"),
+    [
+        (
+            {"label": "mug", "kind": "moved", "t": 0.0, "place": ON_TABLE},
+            600.0,
+            "mug moved on the dining table, 10 min ago",
+        ),
+        (
+            {"label": "laptop", "kind": "removed", "t": 10.0, "place": ON_DESK},
+            190.0,
+            "laptop removed from the desk, 3 min ago",
+        ),
+        (
+            {"label": "cardboard box", "kind": "added", "t": 10.0, "place": NEAR_SOFA},
+            12.0,
+            "cardboard box added near the sofa, just now",
+        ),
+        (
+            {"label": "book", "kind": "removed", "t": 0.0, "place": NEAR_SOFA},
+            40.0,
+            "book removed from near the sofa, 40 s ago",
+        ),
+        (
+            {"label": "keys", "kind": "moved", "t": 0.0, "place": None},
+            7200.0,
+            "keys moved, 2 h ago",
+        ),
+        ({"label": "keys", "kind": "added", "t": 5.0}, None, "keys added"),  # an older server
+        ({"label": "keys", "kind": "added", "t": 9.0, "place": None}, 5.0, "keys added, just now"),
+    ],
+)
+def test_a_change_in_words(change, now_t, words):
+    assert change_words(change, now_t) == words
