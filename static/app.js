@@ -9,6 +9,7 @@
 (() => {
   const POLL_MS = 2000; // the list and stats refresh period (the brief's "about 2 s")
   const QUERY_K = 5;
+  const CHANGES_SHOWN = 20; // the newest changes the timeline lists
   const CONFIDENT_RELEVANCE = 0.5; // app.mapping.relevance.CONFIDENT: a confident match from here
   const STORE_API_KEY = "semanticxr.apiKey";
   const STORE_TOKENS = "semanticxr.tokens"; // {session id: token}
@@ -111,6 +112,48 @@
     if (s < 5400) return `created ${Math.round(s / 60)} min ago`;
     if (s < 172800) return `created ${Math.round(s / 3600)} h ago`;
     return `created ${Math.round(s / 86400)} days ago`;
+  }
+
+  // --- the living map in words (app/cli/sessions.py says the same) ------------------------
+
+  // How long ago, from seconds of the device clock: "just now", "40 s ago", "10 min ago".
+  function agoWords(seconds) {
+    const s = Math.max(0, seconds);
+    if (s < 5) return "just now";
+    if (s < 90) return `${Math.round(s)} s ago`;
+    if (s < 5400) return `${Math.round(s / 60)} min ago`;
+    if (s < 172800) return `${Math.round(s / 3600)} h ago`;
+    return `${Math.round(s / 86400)} days ago`;
+  }
+
+  // A place ({relation, id, label}) in words: "on the dining table", "near the sofa"; where
+  // a removed thing was: "from the desk", "from near the sofa". "" without one.
+  function placeWords(place, removed = false) {
+    if (!place || typeof place !== "object" || typeof place.label !== "string") return "";
+    const the = `the ${place.label}`;
+    if (removed) return place.relation === "on" ? `from ${the}` : `from near ${the}`;
+    return `${place.relation === "on" ? "on" : "near"} ${the}`;
+  }
+
+  const isTime = (t) => typeof t === "number" && isFinite(t);
+
+  // "mug moved on the dining table · 10 min ago"
+  function changeWords(change, nowT) {
+    const where = placeWords(change.place, change.kind === "removed");
+    let text = `${change.label} ${change.kind}${where ? ` ${where}` : ""}`;
+    if (isTime(nowT) && isTime(change.t)) text += ` · ${agoWords(nowT - change.t)}`;
+    return text;
+  }
+
+  // A hit's "(removed) · near the sofa · last seen 3 min ago" (parts it has, from an older
+  // server none).
+  function hitWhereWhen(hit, nowT) {
+    const parts = [];
+    if (hit.state === "removed") parts.push("(removed)");
+    const where = placeWords(hit.place);
+    if (where) parts.push(where);
+    if (isTime(nowT) && isTime(hit.last_seen_t)) parts.push(`last seen ${agoWords(nowT - hit.last_seen_t)}`);
+    return parts.join(" · ");
   }
 
   // The viewer's address: ?viewer=URL, else port 8080 on this page's host. Only http(s):
@@ -324,6 +367,7 @@
       $(".session-id", this.root).textContent = sid;
       this.objects = [];
       this.hits = [];
+      this.nowT = null; // the query answer's now_t: what its hits' "last seen" counts from
       this.objectsSeq = null; // update_seq the plotted objects are from
       this.createdAt = 0;
       this.loaded = false; // stats arrived at least once
@@ -377,7 +421,37 @@
       this.setText(".stat-down", formatBytes((stats.bytes_out || {}).total), bytesBreakdown(stats.bytes_out));
       this.setText(".stat-subscribers", String(stats.subscribers));
       if (stats.update_seq !== this.objectsSeq) await this.refreshObjects(stats.update_seq);
+      await this.refreshChanges();
       return null;
+    }
+
+    // The changes timeline, newest first; every poll, since "ago" counts from the session's
+    // newest frame time (now_t), which moves with every frame.
+    async refreshChanges() {
+      const panel = $(".changes", this.root);
+      const meta = $(".changes-meta", this.root);
+      let answer;
+      try {
+        answer = await api(this.path(`/changes?limit=${CHANGES_SHOWN}`), auth.forSession(this.sid));
+      } catch (err) {
+        // A server without the living map has no such call: no panel. Other errors show there.
+        panel.hidden = err.status === 404;
+        meta.classList.add("error");
+        meta.textContent = `changes: ${err.message}`;
+        return;
+      }
+      const changes = Array.isArray(answer && answer.changes) ? answer.changes : [];
+      const items = [...changes].reverse().map((change) => {
+        const li = document.createElement("li");
+        li.dataset.kind = String(change.kind);
+        li.textContent = changeWords(change, answer.now_t); // user data: text only
+        if (isTime(change.t)) li.title = `t = ${change.t} s (device clock) · object ${change.id}`;
+        return li;
+      });
+      $(".changes-list", this.root).replaceChildren(...items);
+      meta.classList.remove("error");
+      meta.textContent = items.length ? "" : "none yet";
+      panel.hidden = false;
     }
 
     async refreshObjects(seq) {
@@ -399,9 +473,11 @@
       meta.textContent = "asking…";
       button.disabled = true;
       const params = new URLSearchParams({ text, k: String(QUERY_K), points: "false" });
+      if ($(".query-removed", this.root).checked) params.set("include", "removed");
       try {
         const answer = await api(this.path(`/query?${params}`), auth.forSession(this.sid));
         this.hits = answer.results;
+        this.nowT = answer.now_t;
         this.renderResults();
         const n = answer.results.length;
         const found = `${n} result${n === 1 ? "" : "s"} for “${answer.text}” in ${formatMs(answer.latency_ms)}`;
@@ -430,6 +506,7 @@
           [hit.label, "label"],
           [hit.relevance.toFixed(2), "num relevance"],
           [hit.score.toFixed(3), "num"],
+          [hitWhereWhen(hit, this.nowT), "seen"],
         ]) {
           const td = document.createElement("td");
           td.className = cls;
@@ -437,6 +514,7 @@
           tr.append(td);
         }
         tr.classList.toggle("weak", hit.relevance < CONFIDENT_RELEVANCE);
+        tr.classList.toggle("removed", hit.state === "removed");
         return tr;
       });
       $("tbody", table).replaceChildren(...rows);

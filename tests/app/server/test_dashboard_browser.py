@@ -13,6 +13,7 @@ import httpx
 import pytest
 from analytic_world import Rect
 from devices import frame_message, stream_in_step
+from test_living_map import AFTER, BEFORE, KNOBS, WALK_2_T, walk
 
 from app.server.routes.pages import STATIC_DIR
 
@@ -309,3 +310,88 @@ def test_the_api_docs_render_offline_and_offer_authorize(live_server, page):
     expect(listing.locator(".live-responses-table tbody .response-col_status")).to_have_text("200")
     screenshot(page, "api_docs.png")
     assert not elsewhere, f"/docs reached outside the server: {elsewhere}"
+
+
+# --- the living map on the page ----------------------------------------------------------
+
+DINING_TABLE = Rect(6, "dining table", 0.2, 0.52, 1.1, 0.85, 2.0)
+"""Under the mug's new place in test_living_map's room (the cameras' up is -y there)."""
+
+
+def change_the_room(server) -> str:
+    """test_living_map's two walks with a dining table: the mug moves onto it, the book is
+    taken away, a cardboard box and a potted plant appear. The session's id."""
+    sid = httpx.post(f"{server.url}/v1/sessions", json={"name": "living room", "knobs": KNOBS})
+    sid = sid.json()["session_id"]
+    url = f"{server.ws_url}/v1/sessions/{sid}/stream"
+    walks = [walk([*BEFORE, DINING_TABLE], 0.0), walk([*AFTER, DINING_TABLE], WALK_2_T)]
+    with ThreadPoolExecutor(1) as pool:  # off Playwright's event loop, as map_the_scene
+        for frames in walks:
+            acks = pool.submit(asyncio.run, stream_in_step(url, frames)).result()
+            assert all(a["type"] == "ack" for a in acks), acks
+    return sid
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_the_dashboard_tells_what_changed_where_and_when(live_server, page):
+    server = live_server()
+    sid = change_the_room(server)
+    page.goto(server.url)
+    card = page.locator(f'article[data-sid="{sid}"]')
+    lines = card.locator(".changes-list li")
+    expect(lines).to_have_count(4)
+    ago = r" · (just now|\d s ago)$"
+    expect(lines.filter(has_text="mug")).to_have_text(
+        re.compile(r"^mug moved on the dining table" + ago)
+    )
+    expect(lines.filter(has_text="book")).to_have_text(
+        re.compile(r"^book removed from near the cardboard box" + ago)
+    )
+    expect(lines.filter(has_text="cardboard box added")).to_have_text(
+        re.compile(r"^cardboard box added near the dining table" + ago)
+    )
+    expect(lines.filter(has_text="potted plant")).to_have_text(
+        re.compile(r"^potted plant added near the \w[\w ]*" + ago)
+    )
+    screenshot(page, "dashboard_changes.png")
+
+    # the removed book answers only with "include removed", saying where and when it was
+    card.locator(".query-input").fill("where did I leave my book")
+    card.locator(".query-button").click()
+    expect(card.locator(".query-meta")).to_contain_text("results")
+    expect(card.locator(".results tbody tr.removed")).to_have_count(0)
+    card.locator(".query-removed").check()
+    card.locator(".query-button").click()
+    first = card.locator(".results tbody tr").first
+    expect(first.locator("td.label")).to_have_text("book")
+    expect(first).to_have_class(re.compile(r"\bremoved\b"))
+    expect(first.locator("td.seen")).to_have_text(
+        re.compile(r"^\(removed\) · near the cardboard box · last seen 10 min ago$")
+    )
+    screenshot(page, "dashboard_removed_hit.png")
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_against_a_server_without_the_living_map_the_page_leaves_it_out(live_server, page):
+    server = live_server()
+    sid = map_the_scene(server)
+    page.route(
+        re.compile(r"/v1/sessions/[^/]+/changes\?"),
+        lambda route: route.fulfill(status=404, json={"detail": "Not Found"}),
+    )
+    page.route(re.compile(r"/v1/sessions/[^/]+/query\?"), crowded_answer)  # no times, no state
+    changes_asked = re.compile(r"/v1/sessions/[^/]+/changes\?")
+    with page.expect_request(changes_asked):
+        page.goto(server.url)
+    with page.expect_request(changes_asked):  # the next poll: the first 404 was handled
+        pass
+    card = page.locator(f'article[data-sid="{sid}"]')
+    expect(card.locator(".stat-objects")).to_have_text("2")
+    card.locator(".query-input").fill("cabinets")
+    card.locator(".query-button").click()
+    expect(card.locator(".results tbody tr")).to_have_count(5)
+    expect(card.locator(".results td.seen").first).to_have_text("")
+    expect(card.locator(".changes")).to_be_hidden()
+    expect(card.locator(".card-error")).to_be_hidden()
