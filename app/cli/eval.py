@@ -25,10 +25,31 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="synthetic scene: living_room, kitchen, office, bedroom or apartment (default: %(default)s)",
     )
     parser.add_argument(
+        "--scenario",
+        default="walk",
+        choices=("walk", "revisit"),
+        help="walk: one walk, semantic quality and speed; revisit: walk, change the room by a "
+        "script, walk again 10 min later, and score how the map follows (changes, stale "
+        "answers, last-seen places, the cost of negative evidence) (default: %(default)s)",
+    )
+    parser.add_argument(
         "--seed",
         type=int,
         default=0,
         help="scene, trajectory and noise seed (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--seeds",
+        type=positive_int,
+        default=5,
+        metavar="N",
+        help="revisit: seeds --seed .. --seed+N-1, results pooled (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--walk-frames",
+        type=positive_int,
+        default=500,
+        help="revisit: frames of each of the two walks at 5 fps (default: %(default)s)",
     )
     parser.add_argument(
         "--frames",
@@ -87,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
     from app.cli.evaluation import EvalConfig, load_queries, run_eval
     from app.semantics import get_text_encoder
 
+    if args.scenario == "revisit":
+        return run_revisit_scenario(args)
+
     queries = None
     if args.queries:
         try:
@@ -115,6 +139,33 @@ def run(args: argparse.Namespace) -> int:
     )
     result = run_eval(cfg, get_text_encoder())
     print(format_eval_table(result))
+    if args.json:
+        write_json(args.json, result)
+    return 0
+
+
+def run_revisit_scenario(args: argparse.Namespace) -> int:
+    from app.cli.revisit import RevisitConfig, format_revisit_table, run_revisit
+    from app.semantics import get_text_encoder
+
+    cfg = RevisitConfig(
+        scene=args.scene,
+        seeds=tuple(range(args.seed, args.seed + args.seeds)),
+        walk_frames=args.walk_frames,
+        width=args.width,
+        height=args.height,
+        noise=args.noise,
+        modes=tuple(MODES) if args.mode == "both" else (args.mode,),
+        knobs=knobs_from_args(args),
+        sightings=args.sightings,
+    )
+    print(
+        f"[revisit] scene {cfg.scene}, seeds {list(cfg.seeds)}, two walks of "
+        f"{cfg.walk_frames} frames at 5 fps {cfg.gap_s:g} s apart, modes {', '.join(cfg.modes)}",
+        file=sys.stderr,
+    )
+    result = run_revisit(cfg, get_text_encoder())
+    print(format_revisit_table(result))
     if args.json:
         write_json(args.json, result)
     return 0

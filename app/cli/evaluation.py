@@ -28,7 +28,7 @@ from app.config import MODES, Knobs, Mode
 from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
 from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
-from app.mapping.object import Change
+from app.mapping.object import Change, MapObject
 from app.mapping.publish import update_message
 from app.protocol import FrameInput, parse_frame, parse_sighting
 from app.semantics import TextEncoder
@@ -287,6 +287,21 @@ class MappedRun:
 
     changes: list[Change] = field(default_factory=list)
     """What the living map concluded on the walk (added, moved, removed), in order."""
+    retired: list[MapObject] = field(default_factory=list)
+    """The objects it removed from the map (kept as history), as they were removed."""
+    retracted_added: set[int] = field(default_factory=set)
+    """Objects merged into another after their `added` change: it no longer stands."""
+    retracted_removed: set[int] = field(default_factory=set)
+    """Removed objects found later at a new place: their `removed` change no longer stands."""
+
+    def standing_changes(self) -> list[Change]:
+        """The changes as the store keeps them: retracted ones left out."""
+        return [
+            c
+            for c in self.changes
+            if not (c.kind == "added" and c.id in self.retracted_added)
+            and not (c.kind == "removed" and c.id in self.retracted_removed)
+        ]
 
     def add_stage(self, stage: str, ms: float) -> None:
         self.stages_ms.setdefault(stage, []).append(ms)
@@ -318,6 +333,9 @@ def map_keyframes(
             t1 = time.perf_counter()
             stats = engine.integrate(frame)
             run.changes.extend(stats.changes)
+            run.retired.extend(stats.retired)
+            run.retracted_added.update(stats.retracted_added)
+            run.retracted_removed.update(stats.retracted_removed)
             t2 = time.perf_counter()
             if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
                 update = update_message(engine, published[name])
@@ -522,7 +540,8 @@ def run_eval(
         scored["downstream_bytes_per_update"] = _percentiles(update_bytes) if update_bytes else None
         scored["downstream_bytes_total"] = int(sum(update_bytes))
         scored["changes_concluded"] = {
-            kind: sum(c.kind == kind for c in run.changes) for kind in ("added", "moved", "removed")
+            kind: sum(c.kind == kind for c in run.standing_changes())
+            for kind in ("added", "moved", "removed")
         }
         if keep_latencies:
             scored["latencies_ms"] = latencies

@@ -74,6 +74,17 @@ REMEMBERED_VIEWS = 600
 empty before: ten minutes of keyframes at one a second."""
 REMEMBERED_VIEW_BLOCK = 4
 """Remembered depth keeps the nearest surface of each 4 x 4 block of the uploaded depth."""
+REVIVE_WINDOW_S = 120.0
+"""A removed object is still found at a new place (moved, not removed) when a like thing
+appears within this much device time of its removal: the mug taken from the table before
+the shelf it went to came into view."""
+RECENTLY_REMOVED = 256
+"""Most removed objects kept in memory for REVIVE_WINDOW_S."""
+PLACE_TAKEN_OVERLAP = 0.5
+"""A new object is no `added` change when this much of it lies on another confirmed object
+that is alike..."""
+PLACE_TAKEN_BOX_IOU = 0.15
+"""...or whose box it shares this much of (intersection over union)."""
 RECENT_CHANGES = 256
 """Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
 
@@ -119,6 +130,8 @@ class IntegrationStats:
     """What this keyframe concluded about the world (added, moved, removed)."""
     retracted_added: list[int] = field(default_factory=list)
     """Published objects merged into another: an `added` change of theirs no longer stands."""
+    retracted_removed: list[int] = field(default_factory=list)
+    """Removed objects found at a new place: their `removed` change gives way to `moved`."""
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -225,6 +238,12 @@ class MappingEngine:
         """Coarse copies of recent keyframes, oldest first (for `added`)."""
         self.recent_changes: deque[Change] = deque(maxlen=RECENT_CHANGES)
         """The newest changes, with the seq that published them (for deltas)."""
+        self._recently_removed: dict[int, tuple[int, float, MapObject]] = {}
+        """Objects removed within REVIVE_WINDOW_S of the newest keyframe, with the keyframe
+        and time of their removal (in memory, at most RECENTLY_REMOVED)."""
+        self._appeared: set[int] = set()
+        """Present objects with an `added` change standing (in memory: a move found after a
+        restart needs a fresh appearance)."""
         self.next_object_id = 1
         self.max_objects = max_objects
         self._at_cap = False
@@ -256,6 +275,8 @@ class MappingEngine:
         self.last_t = last_t
         self._suspects.clear()
         self._views.clear()
+        self._appeared.clear()
+        self._recently_removed.clear()
         self.recent_changes.clear()
         self.recent_changes.extend(recent_changes or [])
         self.log = log
@@ -629,6 +650,7 @@ class MappingEngine:
         keep.version += 1
         del self.objects[gone.id]
         self._suspects.pop(gone.id, None)
+        self._appeared.discard(gone.id)
         gone_seen = self._sightings.pop(gone.id, None)
         if not keep.confirmed and gone_seen is not None:
             self._sightings.setdefault(keep.id, _Glimpses()).update(gone_seen)
@@ -755,12 +777,19 @@ class MappingEngine:
             if not obj.confirmed and self._qualifies(obj):
                 self._sightings.pop(oid, None)
                 suspect = self._like_object(obj, self._suspected_objects(), obj_is_new=True)
+                if suspect is None:
+                    suspect = self._revived(obj, stats)
                 if suspect is not None:
                     self._move(suspect, obj, stats)
                     published.add(suspect.id)
                     continue
                 obj.confirmed = True
-                if self.knobs.negative_evidence and self._place_seen_empty(obj):
+                if (
+                    self.knobs.negative_evidence
+                    and not self._place_taken(obj)
+                    and self._place_seen_empty(obj)
+                ):
+                    self._appeared.add(obj.id)
                     centroid, _ = obj.place()
                     stats.changes.append(
                         Change(obj.id, "added", self._now, obj.label, to_xyz=centroid)
@@ -784,6 +813,7 @@ class MappingEngine:
             depth_m=frame.depth_m,
             label_image=detections.instance_image,
             labels={d.instance_id: d.label for d in detections.detections},
+            areas={d.instance_id: float(d.bbox_area_px) for d in detections.detections},
             t=self._now,
             keyframe=self.keyframes,
         )
@@ -843,10 +873,12 @@ class MappingEngine:
         self, obj: MapObject, others: list[MapObject], obj_is_new: bool
     ) -> MapObject | None:
         """The object among `others` that is `obj` at another place (obj_is_new: `obj` is
-        the new place, `others` old ones; else the other way round): same label (first) or
-        embeddings `move_min_similarity` alike, and the old one not observed since the new
-        one appeared (two like things seen at once are two things); the most alike, then
-        the nearest."""
+        the new place, `others` old ones; else the other way round), the most alike, then
+        the nearest. Old and new must be alike (same label, or embeddings
+        `move_min_similarity` alike), the old one not observed since the new one appeared
+        (two like things seen at once are two things), and the new one must have appeared:
+        at a place seen empty before and not on another object (a second reading of the
+        old one, say, from a new viewpoint, is not a move)."""
         best, best_key = None, None
         centroid = obj.centroid
         for other in others:
@@ -858,9 +890,19 @@ class MappingEngine:
             if not same and similarity < self.knobs.move_min_similarity:
                 continue
             key = (same, similarity, -float(np.linalg.norm(other.centroid - centroid)))
-            if best_key is None or key > best_key:
-                best, best_key = other, key
+            if best_key is not None and key <= best_key:
+                continue
+            if not self._appeared_at(new, as_candidate=obj_is_new):
+                continue
+            best, best_key = other, key
         return best
+
+    def _appeared_at(self, new: MapObject, as_candidate: bool) -> bool:
+        """Whether `new` appeared in the world (`_like_object`): a published object had its
+        `added` change; a candidate is checked now."""
+        if not as_candidate:
+            return new.id in self._appeared
+        return not self._place_taken(new) and self._place_seen_empty(new)
 
     def _move(self, old: MapObject, new: MapObject, stats: IntegrationStats) -> None:
         """`old` is found at `new`'s place: it keeps its id and history, takes `new`'s
@@ -877,6 +919,7 @@ class MappingEngine:
         old.start_stay(t_from)
         old.version += 1
         del self.objects[new.id]
+        self._appeared.discard(new.id)
         for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
             ids.discard(new.id)
             ids.add(old.id)
@@ -902,11 +945,56 @@ class MappingEngine:
         obj.state = "removed"
         obj.version += 1
         del self.objects[obj.id]
+        self._appeared.discard(obj.id)
+        self._recently_removed[obj.id] = (self.keyframes, self._now, obj)
+        while len(self._recently_removed) > RECENTLY_REMOVED:
+            del self._recently_removed[next(iter(self._recently_removed))]
         for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
             ids.discard(obj.id)
         stats.retired.append(obj)
         stats.changes.append(Change(obj.id, "removed", self._now, obj.label, from_xyz=from_xyz))
         return {obj.id}
+
+    def _revived(self, new: MapObject, stats: IntegrationStats) -> MapObject | None:
+        """The recently removed object `new` is (`_like_object`), back in the map (state
+        present, its removal retracted) for `_move` to take it to its new place; or None."""
+        for oid, (_, t_removed, _) in list(self._recently_removed.items()):
+            if self._now - t_removed > REVIVE_WINDOW_S:
+                del self._recently_removed[oid]
+        removed = [
+            obj
+            for keyframe, _, obj in self._recently_removed.values()
+            if keyframe < self.keyframes  # not one this keyframe removed
+        ]
+        old = self._like_object(new, removed, obj_is_new=True)
+        if old is None:
+            return None
+        del self._recently_removed[old.id]
+        old.state = "present"
+        self.objects[old.id] = old
+        stats.retracted_removed.append(old.id)
+        return old
+
+    def _place_taken(self, obj: MapObject) -> bool:
+        """Whether another confirmed object holds most of `obj`'s place, so that `obj` is a
+        second reading of it (a fragment, a confused label), not a new thing: most of its
+        points lie on that object's, and the two are alike (embeddings
+        `association_min_semantic` alike) or share most of their boxes. Unlike things only
+        touching (a mug on a table, a book on a shelf) hold their own places."""
+        others = [o for o in self.objects.values() if o.confirmed and o.id != obj.id]
+        if not others or not len(obj.points):
+            return False
+        margin = self.knobs.voxel_size_m
+        boxes = np.stack([o.bbox for o in others])
+        near = np.flatnonzero(geo.bbox_intersects_matrix(obj.bbox[None], boxes, margin)[0])
+        for j in near:
+            other = others[j]
+            alike = float(other.embedding @ obj.embedding) >= self.knobs.association_min_semantic
+            if not alike and geo.bbox_iou(obj.bbox, other.bbox) < PLACE_TAKEN_BOX_IOU:
+                continue
+            if geo.overlap_fraction(obj.points, other.tree, margin) >= PLACE_TAKEN_OVERLAP:
+                return True
+        return False
 
     def _place_seen_empty(self, obj: MapObject) -> bool:
         """Whether keyframes from before `obj` was first seen showed its place without it."""

@@ -241,6 +241,16 @@ def bbox_of(points: np.ndarray) -> np.ndarray:
     return np.concatenate([points.min(axis=0), points.max(axis=0)]).astype(np.float64)
 
 
+def bbox_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two boxes [x0, y0, z0, x1, y1, z1] (0 when both are
+    empty); flat boxes get a 1 mm thickness so that a flat thing still has a volume."""
+    a_lo, a_hi = a[:3], np.maximum(a[3:], a[:3] + 1e-3)
+    b_lo, b_hi = b[:3], np.maximum(b[3:], b[:3] + 1e-3)
+    inter = np.prod(np.clip(np.minimum(a_hi, b_hi) - np.maximum(a_lo, b_lo), 0, None))
+    union = np.prod(a_hi - a_lo) + np.prod(b_hi - b_lo) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
 def bbox_intersects_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray, margin_m: float) -> np.ndarray:
     """bool [n, m]: box a_i grown by margin_m intersects box b_j. boxes: [n, 6], [m, 6]."""
     if len(boxes_a) == 0 or len(boxes_b) == 0:

@@ -18,11 +18,14 @@ Two kinds of evidence (DESIGN.md "The living map: settled before work starts"):
 
 - `depth`: at least `absence_min_visible` of the in-view points are visible (matching or
   seen through), at least `absence_min_seen_through` of those are seen through, and no
-  detection carrying one of the object's labels lies under its points.
+  detection carrying one of the object's labels lies under its matching points (a
+  detection where the keyframe sees through the place is of what lies beyond).
 - `thin`: things lying on a surface barely change depth (a laptop on a table), so: at least
   THIN_MIN_VISIBLE of the in-view points visible, projected at least `min_absence_area_px`,
   and no detection of any label the object has carried nor any detection covering at least
-  THIN_MAX_COVER of its points. Weaker: a removal that uses it needs two viewpoints.
+  THIN_MAX_COVER of its visible points (only detections small enough to be the object:
+  the table under a laptop taken away covers its place either way). Weaker: a removal
+  that uses it needs two viewpoints.
 
 An object is removed (`removal_due`) after `removal_min_evidence` keyframes of evidence that
 span `removal_min_span_s` of device time or two viewpoints (`removal_min_baseline_m` or
@@ -44,13 +47,19 @@ EvidenceKind = Literal["depth", "thin"]
 
 ABSENCE_SAMPLE_POINTS = 100
 """Points of each object projected into a keyframe (a regular subsample)."""
-MIN_IN_VIEW = 0.5
+MIN_IN_VIEW = 0.25
 """An object is in view when at least this fraction of its sample projects into the image
-within the depth range."""
+within the depth range..."""
+MIN_VISIBLE_POINTS = 8
+"""...and a keyframe tells about it only with at least this many of them visible."""
 THIN_MIN_VISIBLE = 0.8
 """Thin evidence: at least this fraction of the in-view points visible (not occluded)."""
 THIN_MAX_COVER = 0.5
-"""Thin evidence: no detection of any label may cover this fraction of the in-view points."""
+"""Thin evidence: no detection of any label may cover this fraction of the in-view points..."""
+COVER_MAX_AREA_RATIO = 4.0
+"""...counting only detections whose box is at most this many times the object's projected
+area: a detection that size may be the object under another label; a larger one is the
+surface it lay on (the table under a laptop taken away), which covers its place either way."""
 SUSPICION_MAX_KEYFRAMES = 20
 """Evidence older than this many keyframes is forgotten: a removal needs its evidence close
 together, not sporadic doubts gathered over a long session."""
@@ -75,6 +84,8 @@ class EvidenceView:
     depth_m: np.ndarray
     label_image: np.ndarray
     labels: dict[int, str]
+    areas: dict[int, float] | None = None
+    """Detection id -> its box area (px at RGB size); None: every detection may cover."""
     t: float = 0.0
     keyframe: int = 0
     neighbourhood: bool = True
@@ -206,34 +217,43 @@ def absence_evidence_batched(
     # occlusion is never evidence: only objects in view with enough of it visible go on
     candidates = (sizes > 0) & (in_view >= MIN_IN_VIEW * sizes) & (in_view > 0)
     candidates &= visible >= knobs.absence_min_visible * in_view
+    candidates &= visible >= MIN_VISIBLE_POINTS
     if not candidates.any():
         return out
-    keep = seen & candidates[owner]
+    # projected extent (px) of each candidate's visible points: owner_v is sorted
+    keep = (verdicts.matching | verdicts.seen_through) & candidates[owner]
     owner_v, u, v = owner[keep], verdicts.u[keep], verdicts.v[keep]
-    det = _gather(view.label_image, u, v, view.rgb_size[0]).astype(np.int64)
-    # (object, detection) pairs under the objects' points, with their point counts
-    pairs, counts = np.unique(owner_v * (int(det.max()) + 1) + det, return_counts=True)
-    pair_owner, pair_det = np.divmod(pairs, int(det.max()) + 1)
-    own_label_seen = np.zeros(n, bool)
-    largest_cover = np.zeros(n, np.int64)
-    for i, d, c in zip(pair_owner.tolist(), pair_det.tolist(), counts.tolist(), strict=True):
-        if d == 0:
-            continue
-        if view.labels.get(d) in labels[i]:
-            own_label_seen[i] = True
-        largest_cover[i] = max(largest_cover[i], c)
-    # projected extent (px) of each candidate's in-view points: owner_v is sorted
     starts = np.flatnonzero(np.r_[True, owner_v[1:] != owner_v[:-1]])
     who = owner_v[starts]
     area = np.zeros(n, np.int64)
     area[who] = (np.maximum.reduceat(u, starts) - np.minimum.reduceat(u, starts) + 1) * (
         np.maximum.reduceat(v, starts) - np.minimum.reduceat(v, starts) + 1
     )
+    # A detection tells about the surface its pixel senses: where that is the object's own
+    # depth (matching points) it may be the object; where the keyframe sees through the
+    # object's place, it is whatever lies beyond (another mug behind where this one was).
+    at = verdicts.matching & candidates[owner]
+    owner_m = owner[at]
+    det = _gather(view.label_image, verdicts.u[at], verdicts.v[at], view.rgb_size[0])
+    det = det.astype(np.int64)
+    base = int(det.max(initial=0)) + 1
+    pairs, counts = np.unique(owner_m * base + det, return_counts=True)
+    pair_owner, pair_det = np.divmod(pairs, base)
+    own_label_seen = np.zeros(n, bool)
+    largest_cover = np.zeros(n, np.int64)
+    areas = view.areas
+    for i, d, c in zip(pair_owner.tolist(), pair_det.tolist(), counts.tolist(), strict=True):
+        if d == 0:
+            continue
+        if view.labels.get(d) in labels[i]:
+            own_label_seen[i] = True
+        if areas is None or areas.get(d, 0.0) <= COVER_MAX_AREA_RATIO * area[i]:
+            largest_cover[i] = max(largest_cover[i], c)
     for i in np.flatnonzero(candidates & ~own_label_seen).tolist():
         if through[i] >= knobs.absence_min_seen_through * visible[i]:
             out[i] = "depth"
         elif (
-            largest_cover[i] < THIN_MAX_COVER * in_view[i]
+            largest_cover[i] < THIN_MAX_COVER * visible[i]
             and visible[i] >= THIN_MIN_VISIBLE * in_view[i]
             and area[i] >= knobs.min_absence_area_px
         ):
@@ -298,8 +318,9 @@ def coarse_view(view: EvidenceView, factor: int) -> EvidenceView:
         np.minimum(vs // label_ratio, view.label_image.shape[0] - 1)[:, None],
         np.minimum(us // label_ratio, view.label_image.shape[1] - 1)[None, :],
     ]
-    present = np.unique(ids)
-    labels = {int(d): view.labels[int(d)] for d in present if int(d) in view.labels}
+    present = [int(d) for d in np.unique(ids) if int(d) in view.labels]
+    labels = {d: view.labels[d] for d in present}
+    areas = None if view.areas is None else {d: view.areas.get(d, 0.0) for d in present}
     return EvidenceView(
         pose=np.asarray(view.pose, np.float64).copy(),
         intrinsics=view.intrinsics,
@@ -307,6 +328,7 @@ def coarse_view(view: EvidenceView, factor: int) -> EvidenceView:
         depth_m=small_depth,
         label_image=ids.astype(np.uint16),
         labels=labels,
+        areas=areas,
         t=view.t,
         keyframe=view.keyframe,
         neighbourhood=False,

@@ -1212,6 +1212,7 @@ class SessionManager:
                     retired=stats.retired,
                     changes=stats.changes,
                     retracted_added=stats.retracted_added,
+                    retracted_removed=stats.retracted_removed,
                     last_t=engine.last_t,
                     last_pose=engine.last_pose,
                 )

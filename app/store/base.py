@@ -169,6 +169,7 @@ class Store(abc.ABC):
         retired: Collection[MapObject] = (),
         changes: Collection[Change] = (),
         retracted_added: Collection[int] = (),
+        retracted_removed: Collection[int] = (),
         last_t: float | None = None,
         last_pose: np.ndarray | None = None,
     ) -> None:
@@ -188,6 +189,8 @@ class Store(abc.ABC):
                  after every earlier one (arrival order).
         retracted_added: object ids whose `added` changes are deleted (a published object
                  merged into another: no `added` change stays for it).
+        retracted_removed: object ids whose earlier `removed` changes are deleted (a removed
+                 object found at a new place: the move replaces its removal).
         last_t, last_pose: the keyframe's frame `t` and camera-to-world pose (float [4, 4]
                  or [16], row-major), kept on the session row when given.
         Raises ValueError (and changes nothing) on a seq older than the stored one, changes

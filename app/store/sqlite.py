@@ -455,6 +455,7 @@ class SqliteStore(Store):
         retired: Collection[MapObject] = (),
         changes: Collection[Change] = (),
         retracted_added: Collection[int] = (),
+        retracted_removed: Collection[int] = (),
         last_t: float | None = None,
         last_pose: np.ndarray | None = None,
     ) -> None:
@@ -485,6 +486,7 @@ class SqliteStore(Store):
         kept_as_history = set(retired_ids)
         change_rows = [_change_to_row(change, seq) for change in changes]
         retracted_ids = sorted({int(oid) for oid in retracted_added})
+        revived_ids = sorted({int(oid) for oid in retracted_removed})
         assignments: dict[str, Any] = _checked_counters(counters)
         if last_used_at is not None:
             assignments["last_used_at"] = float(last_used_at)
@@ -532,6 +534,11 @@ class SqliteStore(Store):
                 f"INSERT OR REPLACE INTO objects (session_id, change_seq, {_OBJECT_COLUMNS})"
                 f" VALUES (?, ?, {', '.join('?' * _N_OBJECT_COLUMNS)})",
                 ((session_id, seq, *_object_to_row(obj)) for obj in [*kept, *retired]),
+            )
+            # Before the inserts: a removal this commit takes back is an earlier one.
+            conn.executemany(
+                "DELETE FROM changes WHERE session_id = ? AND object_id = ? AND kind = 'removed'",
+                [(session_id, oid) for oid in revived_ids],
             )
             conn.executemany(
                 f"INSERT INTO changes (session_id, {_CHANGE_COLUMNS})"

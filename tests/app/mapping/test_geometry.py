@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -212,3 +213,11 @@ def test_outlier_removal_drops_a_far_stray_cluster():
     stray = rng.uniform(3, 3.05, size=(20, 3)).astype(np.float32)
     kept = geo.remove_outliers(np.concatenate([body, stray]), eps_m=0.1)
     assert len(kept) == 400 and kept.max() <= 0.5
+
+
+@given(st.lists(st.floats(-5, 5), min_size=3, max_size=3), st.floats(0.01, 2))
+def test_box_iou_is_one_with_itself_and_zero_apart(corner, size):
+    box = np.array([*corner, *(c + size for c in corner)])
+    assert geo.bbox_iou(box, box) == pytest.approx(1.0)
+    far = box + np.array([10.0] * 6)
+    assert geo.bbox_iou(box, far) == 0.0

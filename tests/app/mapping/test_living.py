@@ -56,7 +56,7 @@ def mug_ids(engine):
 
 
 # ---------------------------------------------------------------------- the visibility test
-def _view(depth_m: float, label_image=None, labels=None) -> living.EvidenceView:
+def _view(depth_m: float, label_image=None, labels=None, areas=None) -> living.EvidenceView:
     depth = np.full((120, 160), depth_m, np.float32)
     return living.EvidenceView(
         pose=np.eye(4),
@@ -65,6 +65,7 @@ def _view(depth_m: float, label_image=None, labels=None) -> living.EvidenceView:
         depth_m=depth,
         label_image=np.zeros((240, 320), np.uint16) if label_image is None else label_image,
         labels=labels or {},
+        areas=areas,
     )
 
 
@@ -89,12 +90,24 @@ def _square(z: float, half: float = 0.1) -> np.ndarray:
     return np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], 1).astype(np.float32)
 
 
-def test_seen_through_place_is_depth_evidence_unless_its_label_is_detected_there():
+def test_seen_through_place_is_depth_evidence_even_with_a_like_thing_beyond():
     knobs = Knobs()
     assert living.absence_evidence(_square(1.5), ["mug"], _view(2.0), knobs) == "depth"
     ids = np.ones((240, 320), np.uint16)
-    detected = _view(2.0, ids, {1: "mug"})
-    assert living.absence_evidence(_square(1.5), ["mug"], detected, knobs) is None
+    another_mug_behind = _view(2.0, ids, {1: "mug"})
+    assert living.absence_evidence(_square(1.5), ["mug"], another_mug_behind, knobs) == "depth"
+
+
+def test_its_own_label_detected_at_its_depth_is_no_evidence():
+    ids = np.ones((240, 320), np.uint16)
+    there = _view(2.0, ids, {1: "laptop"}, areas={1: 100.0})
+    assert living.absence_evidence(_square(1.99, half=0.15), ["laptop"], there, Knobs()) is None
+
+
+def test_a_large_detection_under_a_thin_place_is_the_surface_not_the_thing():
+    ids = np.ones((240, 320), np.uint16)
+    table = _view(2.0, ids, {1: "dining table"}, areas={1: 320.0 * 240})
+    assert living.absence_evidence(_square(1.99, half=0.15), ["laptop"], table, Knobs()) == "thin"
 
 
 def test_occluded_place_is_no_evidence():
@@ -209,6 +222,34 @@ def test_a_move_seen_new_place_first_merges_when_the_old_place_is_contradicted(e
     assert (mug, "moved") in changes(all_stats)
     assert any(newcomer in s.removed_ids for s in later)
     assert newcomer in [i for s in later for i in s.retracted_added]
+
+
+def test_a_thing_removed_then_found_elsewhere_soon_after_was_moved(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 3)
+    (mug,) = mug_ids(engine)
+    walk.t = 600.0
+    gone = walk.walk([WALL], 4)
+    assert changes(gone) == [(mug, "removed")]
+    found = walk.walk([WALL, MUG_MOVED], 3)
+    assert mug_ids(engine) == [mug] and engine.objects[mug].state == "present"
+    assert changes(found) == [(mug, "moved")]
+    assert [i for s in found for i in s.retracted_removed] == [mug]
+    assert np.allclose(engine.objects[mug].centroid[:2], [0.5, -0.1], atol=0.05)
+
+
+def test_a_thing_found_elsewhere_long_after_its_removal_is_a_new_thing(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 3)
+    (mug,) = mug_ids(engine)
+    walk.t = 600.0
+    walk.walk([WALL], 4)
+    walk.t = 600.0 + 3600.0
+    found = walk.walk([WALL, MUG_MOVED], 3)
+    (new,) = mug_ids(engine)
+    assert new != mug and changes(found) == [(new, "added")]
 
 
 def test_two_like_things_seen_at_once_stay_two(encoder):

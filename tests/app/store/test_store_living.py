@@ -370,6 +370,32 @@ def test_retracted_ids_keep_no_added_change(store):
     assert [(c.id, c.kind) for c in store.load_changes("s1")] == [(1, "moved")]
 
 
+def test_a_removed_object_found_again_is_present_and_its_removal_retracted(store):
+    store.create_session(record("s1"))
+    store.commit_keyframe("s1", 1, [make_object(1)], [], {}, 2)
+    gone = make_object(1, version=2)
+    gone.state = "removed"
+    store.commit_keyframe(
+        "s1", 2, [], [1], {}, 2, retired=[gone], changes=[Change(1, "removed", 5.0, "mug")]
+    )
+    assert [o.id for o in store.load_removed_objects("s1")] == [1]
+    # found at a new place soon after: present again, the move replaces the removal
+    store.commit_keyframe(
+        "s1",
+        3,
+        [make_object(1, version=3)],
+        [],
+        {},
+        2,
+        changes=[moved(1, 9.0)],
+        retracted_removed=[1],
+    )
+    assert [(c.id, c.kind) for c in store.load_changes("s1")] == [(1, "moved")]
+    assert [o.id for o in store.load_objects("s1")] == [1]
+    assert store.load_removed_objects("s1") == []
+    assert store.load_delta_log("s1").since(2).upserts == [1]
+
+
 SEVEN = [  # (commit seq, change): arrival order, with t going backwards at seq 4
     (1, Change(1, "added", 1.0, "a", to_xyz=(0, 0, 0))),
     (1, moved(2, 1.0)),
