@@ -231,3 +231,38 @@ def test_a_frame_whose_time_goes_backwards_is_mapped_and_history_keeps_arrival_o
     (mug,) = by_label(get(server, f"{sid}/objects").json())["mug"]
     assert (mug["first_seen_t"], mug["last_seen_t"]) == (100.0, 97.0)  # arrival order
     assert math.isfinite(get(server, f"{sid}/query", text="mug").json()["now_t"])
+
+
+@pytest.mark.slow
+def test_changes_and_history_acknowledged_survive_kill_9(tmp_path):
+    from app.server.runner import ServerProcess, free_port
+
+    port = free_port()
+    server = ServerProcess(tmp_path, port).start()
+    try:
+        sid = httpx.post(f"{server.url}/v1/sessions", json={"knobs": KNOBS}, timeout=10).json()[
+            "session_id"
+        ]
+        url = f"{server.ws_url}/v1/sessions/{sid}/stream"
+        acks = asyncio.run(stream_in_step(url, walk(BEFORE, 0.0) + walk(AFTER, WALK_2_T)))
+        assert all(a["type"] == "ack" for a in acks)  # every keyframe acknowledged: durable
+        seen = {
+            "changes": get(server, f"{sid}/changes").json(),
+            "objects": get(server, f"{sid}/objects", include="removed", points="true").json(),
+        }
+        seen["histories"] = [
+            get(server, f"{sid}/objects/{o['id']}/history").json() for o in seen["objects"]
+        ]
+        assert {c["kind"] for c in seen["changes"]["changes"]} == {"moved", "removed", "added"}
+        server.kill9()
+        server = ServerProcess(tmp_path, port).start()
+        assert get(server, f"{sid}/changes").json() == seen["changes"]
+        assert (
+            get(server, f"{sid}/objects", include="removed", points="true").json()
+            == seen["objects"]
+        )
+        assert [
+            get(server, f"{sid}/objects/{o['id']}/history").json() for o in seen["objects"]
+        ] == seen["histories"]
+    finally:
+        server.stop()
