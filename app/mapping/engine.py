@@ -84,6 +84,9 @@ PLACE_TAKEN_OVERLAP = 0.5
 """A new object is no `added` change when this much of it lies on another confirmed object
 that is alike..."""
 PLACE_TAKEN_BOX_IOU = 0.15
+VACATED_INSIDE = 0.5
+"""An object leaving with most of its box in a place just vacated is a second reading of the
+thing that left (`_second_reading_of_vacated`)."""
 """...or whose box it shares this much of (intersection over union)."""
 RECENT_CHANGES = 256
 """Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
@@ -238,6 +241,8 @@ class MappingEngine:
         """Coarse copies of recent keyframes, oldest first (for `added`)."""
         self.recent_changes: deque[Change] = deque(maxlen=RECENT_CHANGES)
         """The newest changes, with the seq that published them (for deltas)."""
+        self._vacated: deque[tuple[int, np.ndarray]] = deque()
+        """(keyframe, box) of the places objects left recently, oldest first."""
         self._recently_removed: dict[int, tuple[int, float, MapObject]] = {}
         """Objects removed within REVIVE_WINDOW_S of the newest keyframe, with the keyframe
         and time of their removal (in memory, at most RECENTLY_REMOVED)."""
@@ -277,6 +282,7 @@ class MappingEngine:
         self._views.clear()
         self._appeared.clear()
         self._recently_removed.clear()
+        self._vacated.clear()
         self.recent_changes.clear()
         self.recent_changes.extend(recent_changes or [])
         self.log = log
@@ -850,21 +856,40 @@ class MappingEngine:
         ]
         kinds = living.absence_evidence_batched(
             [living.object_sample(o.points) for o in tested],
-            [list(o.label_counts) for o in tested],
+            self._own_labels(tested, view),
             view,
             self.knobs,
         )
-        removed: set[int] = set()
+        due = []
         for obj, kind in zip(tested, kinds, strict=True):
-            if kind is None or obj.id not in self.objects:
+            if kind is None:
                 continue
             evidence = self._suspects.setdefault(obj.id, [])
             evidence.append(
                 living.Evidence(kind, view.t, view.keyframe, view.position, view.direction)
             )
             if living.removal_due(evidence, self.knobs):
+                due.append(obj)
+        removed: set[int] = set()
+        # the most observed first: a second reading of the same thing (a confused label)
+        # that leaves with it is then seen to share its old place
+        for obj in sorted(due, key=lambda o: (-o.n_obs, o.id)):
+            if obj.id in self.objects:
                 removed |= self._conclude_absent(obj, stats)
         return removed
+
+    def _own_labels(self, objects: list[MapObject], view: living.EvidenceView) -> list[set[str]]:
+        """Per object, the labels a detection of it may carry: every label it has carried,
+        and the keyframe's labels alike to its embedding (`association_min_semantic`): the
+        detector calling a chair a stool still sees the chair."""
+        own = [set(o.label_counts) for o in objects]
+        labels = sorted(set(view.labels.values()))
+        if not objects or not labels:
+            return own
+        alike = np.stack([o.embedding for o in objects]) @ self.encoder.encode(labels).T
+        for i, j in zip(*np.nonzero(alike >= self.knobs.association_min_semantic), strict=True):
+            own[i].add(labels[j])
+        return own
 
     def _suspected_objects(self) -> list[MapObject]:
         return [self.objects[i] for i in sorted(self._suspects) if i in self.objects]
@@ -934,12 +959,23 @@ class MappingEngine:
         elsewhere since it was last seen (that one merges into it and its id is removed),
         else removed from the present map (kept as history). Returns the ids removed."""
         self._suspects.pop(obj.id, None)
+        if self._second_reading_of_vacated(obj):
+            # a duplicate of a thing that just moved or left (a confused label): it goes
+            # with it, as a clean-up merge would, without a change of its own
+            del self.objects[obj.id]
+            self._appeared.discard(obj.id)
+            for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
+                ids.discard(obj.id)
+            stats.retracted_added.append(obj.id)
+            return {obj.id}
         appeared = [o for o in self.objects.values() if o.confirmed and o.id not in self._suspects]
         new = self._like_object(obj, appeared, obj_is_new=False)
         if new is not None:
+            self._vacate(obj)
             self._move(obj, new, stats)
             stats.retracted_added.append(new.id)
             return {new.id}
+        self._vacate(obj)
         obj.refresh_stay()
         from_xyz, _ = obj.place()
         obj.state = "removed"
@@ -974,6 +1010,21 @@ class MappingEngine:
         self.objects[old.id] = old
         stats.retracted_removed.append(old.id)
         return old
+
+    def _vacate(self, obj: MapObject) -> None:
+        """Remember the place `obj` leaves (for `_second_reading_of_vacated`)."""
+        self._vacated.append((self.keyframes, obj.bbox.copy()))
+
+    def _second_reading_of_vacated(self, obj: MapObject) -> bool:
+        """Whether most of `obj`'s box lies in the box of a place vacated within
+        SUSPICION_MAX_KEYFRAMES: a second reading of the thing that left it (the back of a
+        chair read as a stool)."""
+        floor = self.keyframes - living.SUSPICION_MAX_KEYFRAMES
+        while self._vacated and self._vacated[0][0] <= floor:
+            self._vacated.popleft()
+        return any(
+            geo.bbox_inside_fraction(obj.bbox, box) >= VACATED_INSIDE for _, box in self._vacated
+        )
 
     def _place_taken(self, obj: MapObject) -> bool:
         """Whether another confirmed object holds most of `obj`'s place, so that `obj` is a

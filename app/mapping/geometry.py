@@ -251,6 +251,14 @@ def bbox_iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(inter / union) if union > 0 else 0.0
 
 
+def bbox_inside_fraction(a: np.ndarray, b: np.ndarray) -> float:
+    """The fraction of box `a`'s volume inside box `b` (boxes as in `bbox_iou`)."""
+    a_lo, a_hi = a[:3], np.maximum(a[3:], a[:3] + 1e-3)
+    b_lo, b_hi = b[:3], np.maximum(b[3:], b[:3] + 1e-3)
+    inter = np.prod(np.clip(np.minimum(a_hi, b_hi) - np.maximum(a_lo, b_lo), 0, None))
+    return float(inter / np.prod(a_hi - a_lo))
+
+
 def bbox_intersects_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray, margin_m: float) -> np.ndarray:
     """bool [n, m]: box a_i grown by margin_m intersects box b_j. boxes: [n, 6], [m, 6]."""
     if len(boxes_a) == 0 or len(boxes_b) == 0:

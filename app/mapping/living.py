@@ -24,12 +24,14 @@ Two kinds of evidence (DESIGN.md "The living map: settled before work starts"):
   THIN_MIN_VISIBLE of the in-view points visible, projected at least `min_absence_area_px`,
   and no detection of any label the object has carried nor any detection covering at least
   THIN_MAX_COVER of its visible points (only detections small enough to be the object:
-  the table under a laptop taken away covers its place either way). Weaker: a removal
+  the table under a laptop taken away covers its place either way, while a chair covers a
+  reading of its back as a stool). Weaker: a removal
   that uses it needs two viewpoints.
 
 An object is removed (`removal_due`) after `removal_min_evidence` keyframes of evidence that
 span `removal_min_span_s` of device time or two viewpoints (`removal_min_baseline_m` or
-`removal_min_angle_deg` apart); thin evidence always needs the two viewpoints.
+`removal_min_angle_deg` apart); evidence that is mostly thin (fewer than two depth keyframes)
+always needs the two viewpoints.
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ THIN_MIN_VISIBLE = 0.8
 """Thin evidence: at least this fraction of the in-view points visible (not occluded)."""
 THIN_MAX_COVER = 0.5
 """Thin evidence: no detection of any label may cover this fraction of the in-view points..."""
-COVER_MAX_AREA_RATIO = 4.0
+COVER_MAX_AREA_RATIO = 8.0
 """...counting only detections whose box is at most this many times the object's projected
 area: a detection that size may be the object under another label; a larger one is the
 surface it lay on (the table under a laptop taken away), which covers its place either way."""
@@ -292,8 +294,8 @@ def removal_due(evidence: Sequence[Evidence], knobs: Knobs) -> bool:
         return False
     if viewpoints_apart(evidence, knobs):
         return True
-    if any(e.kind == "thin" for e in evidence):
-        return False
+    if sum(e.kind == "depth" for e in evidence) < 2:
+        return False  # mostly thin evidence: two viewpoints, whatever the time
     times = [e.t for e in evidence]
     return max(times) - min(times) >= knobs.removal_min_span_s
 

@@ -221,3 +221,10 @@ def test_box_iou_is_one_with_itself_and_zero_apart(corner, size):
     assert geo.bbox_iou(box, box) == pytest.approx(1.0)
     far = box + np.array([10.0] * 6)
     assert geo.bbox_iou(box, far) == 0.0
+
+
+def test_a_box_inside_another_is_wholly_inside_and_not_the_other_way():
+    small = np.array([0.0, 0, 0, 1, 1, 1])
+    large = np.array([-1.0, -1, -1, 2, 2, 2])
+    assert geo.bbox_inside_fraction(small, large) == pytest.approx(1.0)
+    assert geo.bbox_inside_fraction(large, small) == pytest.approx(1 / 27)
