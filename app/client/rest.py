@@ -203,11 +203,41 @@ class SessionApi:
         """PATCH /v1/sessions/{sid}/knobs -> the knobs now in force."""
         return await self._call("PATCH", f"{self.session_url}/knobs", json=changes)
 
-    async def query(self, text: str, k: int = 5) -> list[dict]:
+    async def query(self, text: str, k: int = 5, *, include: str | None = None) -> list[dict]:
         """GET /v1/sessions/{sid}/query: the k best hits, best first, without their points
-        ({"id", "label", "score", "bbox", "centroid"})."""
-        answer = await self._call("GET", f"{self.session_url}/query", params=_query_params(text, k))
-        return _hits(answer)
+        ({"id", "label", "score", "bbox", "centroid"}). include="removed" ranks the living
+        map's removed objects too (where a thing was last seen)."""
+        return (await self.query_result(text, k, include=include))["results"]
+
+    async def query_result(self, text: str, k: int = 5, *, include: str | None = None) -> dict:
+        """`query`'s whole answer: {"text", "match", "results" (as `query` gives them),
+        "latency_ms", "now_t"} (now_t: the session's newest frame t, what "last seen ... ago"
+        counts from; None from a server without the living map)."""
+        params = _query_params(text, k, include)
+        answer = await self._call("GET", f"{self.session_url}/query", params=params)
+        return _result(answer)
+
+    async def changes(
+        self,
+        *,
+        since_t: float | None = None,
+        until_t: float | None = None,
+        since_seq: int | None = None,
+        kind: str | None = None,
+        limit: int | None = None,
+    ) -> dict:
+        """GET /v1/sessions/{sid}/changes: {"changes": [{"id", "kind", "t", "label", "from"?,
+        "to"?, "seq", "place"}], "now_t"}, what the living map concluded, in arrival order
+        (filters as docs/protocol.md says; None leaves one out)."""
+        filters = {
+            "since_t": since_t,
+            "until_t": until_t,
+            "since_seq": since_seq,
+            "kind": kind,
+            "limit": limit,
+        }
+        params = {name: value for name, value in filters.items() if value is not None}
+        return await self._call("GET", f"{self.session_url}/changes", params=params)
 
     async def objects(self, *, points: bool = False) -> list[dict]:
         """GET /v1/sessions/{sid}/objects: the confirmed objects (with their points if asked)."""
@@ -244,15 +274,23 @@ class SessionApi:
         await self.aclose()
 
 
-def _query_params(text: str, k: int) -> dict[str, Any]:
+def _query_params(text: str, k: int, include: str | None = None) -> dict[str, Any]:
     # Points left out: the device and the viewer already hold the geometry they need.
-    return {"text": text, "k": k, "points": "false"}
+    params: dict[str, Any] = {"text": text, "k": k, "points": "false"}
+    if include is not None:
+        params["include"] = include
+    return params
 
 
-def _hits(answer: Any) -> list[dict]:
-    """The hits of a query answer, parsed by the protocol, as dicts without points."""
+def _result(answer: Any) -> dict:
+    """A query answer, parsed by the protocol, as a dict with hits without points."""
     try:
         result = parse_query_result(answer)
     except InputError as exc:
         raise ApiError(f"a malformed query answer: {exc}") from exc
-    return [hit.model_dump(exclude={"points"}) for hit in result.results]
+    return result.model_dump(exclude={"results": {"__all__": {"points"}}})
+
+
+def _hits(answer: Any) -> list[dict]:
+    """The hits of a query answer, parsed by the protocol, as dicts without points."""
+    return _result(answer)["results"]
