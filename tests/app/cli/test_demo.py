@@ -1,9 +1,11 @@
 """`semanticxr demo`: after the network comes back the device continues its walk where it was
-(the server counts each frame of the walk once), and its output in a log is one line per
-update (no carriage returns)."""
+(the server counts each frame of the walk once), its output in a log is one line per update
+(no carriage returns), and its living-map step walks the same path again after a scripted
+move and asks where the moved thing is."""
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import re
 import subprocess
@@ -61,7 +63,7 @@ def test_a_stream_refuses_a_negative_start():
 
 def test_the_demo_continues_its_walk_after_the_outage_and_logs_one_line_per_update():
     pytest.importorskip("client_sim.sources.synthetic")
-    frames = 10
+    frames = 70  # a short apartment walk on which the script moves something (a coffee maker)
     result = subprocess.run(
         [sys.executable, "-m", "app.cli", "demo", "--frames", str(frames), "--port", "0"]
         + ["--no-viewer", "--exit"],
@@ -81,6 +83,39 @@ def test_the_demo_continues_its_walk_after_the_outage_and_logs_one_line_per_upda
         in out
     )
     assert "caught up: yes" in out
+
+    # the living-map step: the same path again, the moved thing asked after twice
+    moved = re.search(r"^while you were out, someone moved the (.+?) \(from .+ to .+\)", out, re.M)
+    assert moved, out
+    question = f"'where is the {moved[1]}?'"
+    assert len(re.findall(rf"^  \[SQ\] {re.escape(question)}: ", out, re.M)) == 2
+    assert f"walking the same path again: frames {frames}..{2 * frames - 1}" in out
+    assert re.search(rf"^  frames {2 * frames}/{2 * frames} sent$", out, re.M)
+    assert out.count("caught up: yes") == 2  # after the outage, after the second walk
+    assert re.search(
+        r"^the script made \d+ changes; the map concluded \d+ on the second", out, re.M
+    )
+    assert re.search(rf"^the {re.escape(moved[1])}'s answer followed it: (yes|NO) — ", out, re.M)
+    assert re.search(r"^  the device's local map answers the same: (yes|NO) — \[LQ\]", out, re.M)
+    assert "[SQ include=removed] 'where did I last see the " in out
+    assert re.search(r"last seen (just now|\d+ (s|min) ago)", out)
+
+
+def test_a_walk_too_short_for_the_script_to_move_anything_skips_the_step_and_says_so(capsys):
+    from app.cli.demo import _walk_source
+
+    source, shown = _walk_source(argparse.Namespace(scene="apartment", frames=10, no_revisit=False))
+    assert len(source) == 20 and shown is None
+    assert "the living-map step is skipped" in capsys.readouterr().out
+
+
+def test_without_the_revisit_the_walk_is_the_revisits_first_walk_unscripted(capsys):
+    from app.cli.demo import _walk_source
+    from client_sim.world.revisit import REVISIT_FPS
+
+    source, shown = _walk_source(argparse.Namespace(scene="apartment", frames=10, no_revisit=True))
+    assert len(source) == 10 and shown is None and source.fps == REVISIT_FPS
+    assert capsys.readouterr().out == ""
 
 
 class Terminal:
