@@ -14,16 +14,16 @@ from client_sim.encoder import FrameEncoder
 TIMEOUT_S = 20.0
 
 
-def frame_message(rects: list[Rect], seq: int, cam_xy=(0.0, 0.0)) -> dict:
+def frame_message(rects: list[Rect], seq: int, cam_xy=(0.0, 0.0), t: float | None = None) -> dict:
     """A v1 frame of the analytic scene, encoded like a device would (depth ÷2, zstd depth:
-    test_server's bad-frame variants corrupt a zstd depth image)."""
+    test_server's bad-frame variants corrupt a zstd depth image); `t` defaults to seq / 30."""
     full = render_rects(rects, cam_xy=cam_xy, ratio=1, seq=seq)
     rgb = np.full((*full.depth_m.shape, 3), 128, np.uint8)
     return (
         FrameEncoder(2, depth_codec="zstd")
         .encode(
             seq=seq,
-            t=seq / 30,
+            t=seq / 30 if t is None else t,
             rgb=rgb,
             depth_m=full.depth_m,
             pose=full.pose,

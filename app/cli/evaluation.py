@@ -33,7 +33,7 @@ from app.mapping.publish import update_message
 from app.protocol import FrameInput, parse_frame, parse_sighting
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, downsample_depth, session_encoder_options
-from client_sim.sources.synthetic import SyntheticSource
+from client_sim.sources.synthetic import SyntheticFrame, SyntheticSource
 from client_sim.world.categories import BACKGROUND_CLASSES, CATEGORIES
 from client_sim.world.gt import gt_point_cloud
 from client_sim.world.noise import DetectionModel
@@ -149,6 +149,26 @@ class _Sighting:
     instance_ids_z: bytes
     instances: list[dict]
 
+    @classmethod
+    def of(cls, frame: SyntheticFrame, encoders: dict[int, FrameEncoder]) -> _Sighting:
+        """A rendered frame kept for sighting, its depth at each encoder's ratio."""
+        height, width = frame.depth_m.shape
+        return cls(
+            seq=frame.index,
+            t=frame.t,
+            pose=frame.pose,
+            intrinsics=frame.intrinsics,
+            rgb_size=(width, height),
+            depth_by_ratio={
+                ratio: downsample_depth(frame.depth_m, ratio, encoder.depth_method)
+                for ratio, encoder in encoders.items()
+            },
+            instance_ids_z=zlib.compress(
+                np.ascontiguousarray(frame.instance_ids, np.uint16).tobytes(), 1
+            ),
+            instances=frame.instances,
+        )
+
     def frame(self, ratio: int) -> FrameInput:
         w, h = self.rgb_size
         ids = np.frombuffer(zlib.decompress(self.instance_ids_z), np.uint16).reshape(h, w)
@@ -225,23 +245,7 @@ def _encode_keyframes(
         elif cfg.sightings:
             frame = source.frame(index)
             view = frame.view
-            sightings.setdefault(after, []).append(
-                _Sighting(
-                    seq=index,
-                    t=frame.t,
-                    pose=frame.pose,
-                    intrinsics=frame.intrinsics,
-                    rgb_size=(cfg.width, cfg.height),
-                    depth_by_ratio={
-                        ratio: downsample_depth(frame.depth_m, ratio, encoder.depth_method)
-                        for ratio, encoder in encoders.items()
-                    },
-                    instance_ids_z=zlib.compress(
-                        np.ascontiguousarray(frame.instance_ids, np.uint16).tobytes(), 1
-                    ),
-                    instances=frame.instances,
-                )
-            )
+            sightings.setdefault(after, []).append(_Sighting.of(frame, encoders))
         else:
             view = source.renderer.render(source.poses[index], source.camera)
         for name in _in_view(noise_free, view, index):

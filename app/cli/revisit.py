@@ -16,10 +16,12 @@ Scoring (issue 24, "Measured"; pooled over seeds, `app.mapping.change_scores`):
   (the old place without the thing, the new place with it) to the change's `t`.
 - False removals under occlusion: removed or moved changes of a hidden object.
 - Stale answers: after the second walk, a query for a moved or removed thing's category
-  whose top-1 lies at its old place (within STALE_RADIUS_M) on something that is not it.
-- Last-seen errors: "where did I last see X" for each removed thing, ranked over present and
-  removed objects (`include=removed`): the top-1's distance to where X was and its
-  `last_seen_t` against the last first-walk keyframe that showed X.
+  whose top-1 is the map's object for that thing still at its old place (within
+  STALE_RADIUS_M of it, and nearer it than the new place).
+- Last-seen errors: "where did I last see X" for each removed thing whose category has no
+  other instance left (else the question is ambiguous), ranked over present and removed
+  objects (`include=removed`): the top-1's distance to where X was and its `last_seen_t`
+  against the last first-walk keyframe that showed X.
 - Mapping cost: mean keyframe latency with negative evidence against without, same walk.
 """
 
@@ -27,7 +29,6 @@ from __future__ import annotations
 
 import sys
 import time
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -41,7 +42,7 @@ from app.mapping.change_scores import ConcludedChange, TrueChange, score_changes
 from app.mapping.engine import MappingEngine
 from app.mapping.object import MapObject
 from app.semantics import TextEncoder
-from client_sim.encoder import FrameEncoder, downsample_depth, session_encoder_options
+from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.sources.revisit import RevisitSource
 from client_sim.world.gt import gt_point_cloud
 from client_sim.world.render import default_camera
@@ -124,22 +125,7 @@ def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
         walk = scenario.walk_of(index)
         if not keyframe:
             after = len(walks.messages) - 1
-            walks.sightings.setdefault(after, []).append(
-                _Sighting(
-                    seq=index,
-                    t=frame.t,
-                    pose=frame.pose,
-                    intrinsics=frame.intrinsics,
-                    rgb_size=(cfg.width, cfg.height),
-                    depth_by_ratio={
-                        ratio: downsample_depth(frame.depth_m, ratio, encoder.depth_method)
-                    },
-                    instance_ids_z=zlib.compress(
-                        np.ascontiguousarray(frame.instance_ids, np.uint16).tobytes(), 1
-                    ),
-                    instances=frame.instances,
-                )
-            )
+            walks.sightings.setdefault(after, []).append(_Sighting.of(frame, {ratio: encoder}))
             continue
         walks.messages.append(encoder.encode_source_frame(frame).message)
         walks.keyframe_t.append(frame.t)
@@ -209,6 +195,7 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
     latencies: dict[str, list[float]] = {}
     occluded_removals = dict.fromkeys(cfg.modes, 0)
     stale = dict.fromkeys(cfg.modes, 0)
+    stale_cases: dict[str, list[dict]] = {m: [] for m in cfg.modes}
     stale_asked = 0
     last_seen_m: dict[str, list[float]] = {m: [] for m in cfg.modes}
     last_seen_s: dict[str, list[float]] = {m: [] for m in cfg.modes}
@@ -266,6 +253,7 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
             truth.append(TrueChange(key + change.instance_id, change.kind, t_evidence))
         seed_report: dict = {"seed": seed, "changes": len(scenario.changes), "modes": {}}
         removed_truth = [c for c in scenario.changes if c.kind == "removed"]
+        remaining = set(scenario.after.categories_present)
         stale_asked += sum(c.kind in ("moved", "removed") for c in scenario.changes)
         for mode in cfg.modes:
             engine = engines[mode]
@@ -296,12 +284,28 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
                 top = _top1(engine, encoder, change.category, [])
                 if top is None or top.id not in by_id:
                     continue
-                near_old = np.linalg.norm(top.centroid - np.asarray(change.from_xyz)) <= (
-                    STALE_RADIUS_M
+                to_old = float(np.linalg.norm(top.centroid - np.asarray(change.from_xyz)))
+                to_new = (
+                    np.inf
+                    if change.to_xyz is None
+                    else float(np.linalg.norm(top.centroid - np.asarray(change.to_xyz)))
                 )
-                if near_old and after_identity.get(top.id) != change.instance_id:
+                near_old = to_old <= STALE_RADIUS_M and to_old < to_new
+                # stale: the map's object for the changed thing, still at the old place
+                if near_old and before_identity.get(top.id) == change.instance_id:
                     stale[mode] += 1
+                    stale_cases[mode].append(
+                        {
+                            "seed": seed,
+                            "asked": change.category,
+                            "kind": change.kind,
+                            "top1": {"id": top.id, "label": top.label},
+                            "top1_was_instance": before_identity.get(top.id),
+                        }
+                    )
             for change in removed_truth:
+                if change.category in remaining:
+                    continue  # another one is still there: "the last place" is ambiguous
                 top = _top1(engine, encoder, f"where did I last see the {change.category}", retired)
                 if top is None:
                     continue
@@ -340,6 +344,7 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
         scores["false_removals_occluded"] = occluded_removals[mode]
         scores["stale_answers"] = stale[mode]
         scores["stale_questions"] = stale_asked
+        scores["stale_cases"] = stale_cases[mode]
         scores["last_seen_error_m"] = {
             "p50": float(np.median(last_seen_m[mode])) if last_seen_m[mode] else None
         }

@@ -133,6 +133,8 @@ class IntegrationStats:
     """What this keyframe concluded about the world (added, moved, removed)."""
     retracted_added: list[int] = field(default_factory=list)
     """Published objects merged into another: an `added` change of theirs no longer stands."""
+    dropped_ids: list[int] = field(default_factory=list)
+    """Duplicates of things that moved or left, taken out with them (no change of their own)."""
     retracted_removed: list[int] = field(default_factory=list)
     """Removed objects found at a new place: their `removed` change gives way to `moved`."""
     timings_ms: dict[str, float] = field(default_factory=dict)
@@ -173,25 +175,10 @@ def _project(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """World points float32 [N, 3] into the frame's RGB image: (u, v) int pixel, z metres
     (in front of the camera, inside the image) and the bool [N] mask of those points."""
-    pose = np.asarray(frame.pose, np.float64)
-    cam = (points.astype(np.float64) - pose[:3, 3]) @ pose[:3, :3]
-    fx, fy, cx, cy = frame.intrinsics
+    u, v, z = geo.project_to_pixels(points, frame.pose, frame.intrinsics)
     width, height = frame.rgb_size
-    z = cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.floor(fx * cam[:, 0] / z + cx + 0.5)
-        v = np.floor(fy * cam[:, 1] / z + cy + 0.5)
     kept = (z > 1e-3) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
     return u[kept].astype(np.int64), v[kept].astype(np.int64), z[kept], kept
-
-
-def _pixels(image: np.ndarray, u: np.ndarray, v: np.ndarray, rgb_width: int) -> np.ndarray:
-    """The values of an image at the RGB size divided by an integer ratio (depth, instance
-    ids) under RGB pixels (u, v): each of its pixels stands for a ratio x ratio block."""
-    ratio = max(1, round(rgb_width / image.shape[1]))
-    return image[
-        np.minimum(v // ratio, image.shape[0] - 1), np.minimum(u // ratio, image.shape[1] - 1)
-    ]
 
 
 def _check_size_ratio(field_name: str, image: np.ndarray, rgb_size: tuple[int, int]) -> None:
@@ -408,8 +395,10 @@ class MappingEngine:
             stats.cleanup = True
         t4 = time.perf_counter()
 
-        published = self._confirm((touched | self._sighted) - removed, stats)
+        moved = {c.id for c in stats.changes if c.kind == "moved"}  # found from the old side
+        published = self._confirm((touched | self._sighted | moved) - removed, stats)
         self._sighted.clear()
+        removed |= set(stats.dropped_ids)
         published -= removed
         for oid in published:
             self.objects[oid].refresh_stay()
@@ -934,6 +923,7 @@ class MappingEngine:
         geometry and observations (its old points are dropped), starts a new stay; `new`
         leaves the map. A `moved` change."""
         old.refresh_stay()
+        self._vacate(old, stats, keep=new.id)
         from_xyz, _ = old.place()
         old.set_points(new.points.copy(), new.resolution_m)
         old.absorb_labels(new)
@@ -960,22 +950,15 @@ class MappingEngine:
         else removed from the present map (kept as history). Returns the ids removed."""
         self._suspects.pop(obj.id, None)
         if self._second_reading_of_vacated(obj):
-            # a duplicate of a thing that just moved or left (a confused label): it goes
-            # with it, as a clean-up merge would, without a change of its own
-            del self.objects[obj.id]
-            self._appeared.discard(obj.id)
-            for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
-                ids.discard(obj.id)
-            stats.retracted_added.append(obj.id)
+            self._drop_second_reading(obj, stats)
             return {obj.id}
         appeared = [o for o in self.objects.values() if o.confirmed and o.id not in self._suspects]
         new = self._like_object(obj, appeared, obj_is_new=False)
         if new is not None:
-            self._vacate(obj)
             self._move(obj, new, stats)
             stats.retracted_added.append(new.id)
             return {new.id}
-        self._vacate(obj)
+        self._vacate(obj, stats)
         obj.refresh_stay()
         from_xyz, _ = obj.place()
         obj.state = "removed"
@@ -1011,9 +994,32 @@ class MappingEngine:
         stats.retracted_removed.append(old.id)
         return old
 
-    def _vacate(self, obj: MapObject) -> None:
-        """Remember the place `obj` leaves (for `_second_reading_of_vacated`)."""
-        self._vacated.append((self.keyframes, obj.bbox.copy()))
+    def _vacate(self, obj: MapObject, stats: IntegrationStats, keep: int | None = None) -> None:
+        """`obj` leaves its place: remember it (`_second_reading_of_vacated`), and drop the
+        like objects whose boxes lie mostly in it, second readings of the same thing that
+        would otherwise answer queries from where it no longer is (but `keep`)."""
+        box = obj.bbox.copy()
+        self._vacated.append((self.keyframes, box))
+        for other in list(self.objects.values()):
+            if other.id in (obj.id, keep) or not other.confirmed:
+                continue
+            alike = (
+                other.label == obj.label
+                or float(other.embedding @ obj.embedding) >= self.knobs.move_min_similarity
+            )
+            if alike and geo.bbox_inside_fraction(other.bbox, box) >= VACATED_INSIDE:
+                self._drop_second_reading(other, stats)
+
+    def _drop_second_reading(self, obj: MapObject, stats: IntegrationStats) -> None:
+        """Take a duplicate of a thing that moved or left out of the map, as a clean-up
+        merge would: its id is removed, with no change of its own."""
+        del self.objects[obj.id]
+        self._appeared.discard(obj.id)
+        self._suspects.pop(obj.id, None)
+        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
+            ids.discard(obj.id)
+        stats.retracted_added.append(obj.id)
+        stats.dropped_ids.append(obj.id)
 
     def _second_reading_of_vacated(self, obj: MapObject) -> bool:
         """Whether most of `obj`'s box lies in the box of a place vacated within
@@ -1089,10 +1095,12 @@ class MappingEngine:
         u, v, z, kept = _project(np.concatenate(samples), frame)
         owner = owner[kept]
         width, height = frame.rgb_size
-        sensed = _pixels(frame.depth_m, u, v, width)
+        sensed = geo.pixels_of(frame.depth_m, u, v, width)
         visible = (sensed > 0) & (np.abs(z - sensed) <= SIGHTING_DEPTH_TOLERANCE_M + 0.05 * z)
         owner, u, v = owner[visible], u[visible], v[visible]
-        det_ids, column = np.unique(_pixels(sent.instance_image, u, v, width), return_inverse=True)
+        det_ids, column = np.unique(
+            geo.pixels_of(sent.instance_image, u, v, width), return_inverse=True
+        )
         # counts[i, k]: visible sample points of objects[i] in detection det_ids[k] (0: none)
         counts = np.bincount(
             owner * len(det_ids) + column, minlength=len(objects) * len(det_ids)

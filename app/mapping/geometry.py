@@ -241,6 +241,30 @@ def bbox_of(points: np.ndarray) -> np.ndarray:
     return np.concatenate([points.min(axis=0), points.max(axis=0)]).astype(np.float64)
 
 
+def project_to_pixels(
+    points: np.ndarray, pose: np.ndarray, intrinsics: tuple[float, float, float, float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World points float [N, 3] through a camera-to-world pose [4, 4] (OpenCV camera) to
+    float64 (u, v) pixel centres (rounded, NaN or inf behind the camera) and z metres."""
+    pose = np.asarray(pose, np.float64)
+    cam = (points.astype(np.float64) - pose[:3, 3]) @ pose[:3, :3]
+    fx, fy, cx, cy = intrinsics
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.floor(fx * cam[:, 0] / z + cx + 0.5)
+        v = np.floor(fy * cam[:, 1] / z + cy + 0.5)
+    return u, v, z
+
+
+def pixels_of(image: np.ndarray, u: np.ndarray, v: np.ndarray, rgb_width: int) -> np.ndarray:
+    """The values of an image at the RGB size divided by an integer ratio (depth, instance
+    ids) under integer RGB pixels (u, v): each of its pixels stands for a ratio x ratio block."""
+    ratio = max(1, round(rgb_width / image.shape[1]))
+    return image[
+        np.minimum(v // ratio, image.shape[0] - 1), np.minimum(u // ratio, image.shape[1] - 1)
+    ]
+
+
 def bbox_iou(a: np.ndarray, b: np.ndarray) -> float:
     """Intersection over union of two boxes [x0, y0, z0, x1, y1, z1] (0 when both are
     empty); flat boxes get a 1 mm thickness so that a flat thing still has a volume."""

@@ -44,6 +44,7 @@ from typing import Literal
 import numpy as np
 
 from app.config import Knobs
+from app.mapping import geometry as geo
 
 EvidenceKind = Literal["depth", "thin"]
 
@@ -130,24 +131,10 @@ def object_sample(points: np.ndarray, n: int = ABSENCE_SAMPLE_POINTS) -> np.ndar
     return points[:: max(1, len(points) // n)]
 
 
-def _gather(image: np.ndarray, u: np.ndarray, v: np.ndarray, width: int) -> np.ndarray:
-    """Values of an image at the RGB size divided by an integer ratio under RGB pixels."""
-    ratio = max(1, round(width / image.shape[1]))
-    rows = np.minimum(v // ratio, image.shape[0] - 1)
-    cols = np.minimum(u // ratio, image.shape[1] - 1)
-    return image[rows, cols]
-
-
 def classify_points(points: np.ndarray, view: EvidenceView, knobs: Knobs) -> PointVerdicts:
     """Project world points float32 [N, 3] into the view and classify each (module doc)."""
-    pose = np.asarray(view.pose, np.float64)
-    cam = (points.astype(np.float64) - pose[:3, 3]) @ pose[:3, :3]
-    fx, fy, cx, cy = view.intrinsics
+    u, v, z = geo.project_to_pixels(points, view.pose, view.intrinsics)
     width, height = view.rgb_size
-    z = cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.floor(fx * cam[:, 0] / z + cx + 0.5)
-        v = np.floor(fy * cam[:, 1] / z + cy + 0.5)
     in_view = (
         (z >= knobs.absence_min_depth_m)
         & (z <= knobs.absence_max_depth_m)
@@ -236,7 +223,7 @@ def absence_evidence_batched(
     # object's place, it is whatever lies beyond (another mug behind where this one was).
     at = verdicts.matching & candidates[owner]
     owner_m = owner[at]
-    det = _gather(view.label_image, verdicts.u[at], verdicts.v[at], view.rgb_size[0])
+    det = geo.pixels_of(view.label_image, verdicts.u[at], verdicts.v[at], view.rgb_size[0])
     det = det.astype(np.int64)
     base = int(det.max(initial=0)) + 1
     pairs, counts = np.unique(owner_m * base + det, return_counts=True)

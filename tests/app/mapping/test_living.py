@@ -222,6 +222,8 @@ def test_a_move_seen_new_place_first_merges_when_the_old_place_is_contradicted(e
     assert (mug, "moved") in changes(all_stats)
     assert any(newcomer in s.removed_ids for s in later)
     assert newcomer in [i for s in later for i in s.retracted_added]
+    concluded = next(s for s in later if (mug, "moved") in changes([s]))
+    assert mug in concluded.published_ids  # subscribers get it at its new place
 
 
 def test_a_thing_removed_then_found_elsewhere_soon_after_was_moved(encoder):

@@ -12,11 +12,10 @@ import msgpack
 import numpy as np
 import pytest
 import websockets
-from analytic_world import INTRINSICS, Rect, render_rects
-from devices import TIMEOUT_S, stream_in_step
+from analytic_world import Rect
+from devices import TIMEOUT_S, frame_message, stream_in_step
 from helpers_device import assert_local_map_equals
 
-from client_sim.encoder import FrameEncoder
 from client_sim.local_map import LocalMap
 
 pytestmark = pytest.mark.timeout(180)
@@ -42,22 +41,7 @@ WALK_2_T = 600.0
 
 
 def frame(rects, seq: int, t: float, cam_x: float) -> dict:
-    full = render_rects(rects, cam_xy=(cam_x, 0.0), ratio=1, seq=seq)
-    rgb = np.full((*full.depth_m.shape, 3), 128, np.uint8)
-    return (
-        FrameEncoder(2)
-        .encode(
-            seq=seq,
-            t=t,
-            rgb=rgb,
-            depth_m=full.depth_m,
-            pose=full.pose,
-            intrinsics=INTRINSICS,
-            instance_ids=full.instance_ids,
-            instances=full.instances,
-        )
-        .message
-    )
+    return frame_message(rects, seq, cam_xy=(cam_x, 0.0), t=t)
 
 
 def walk(rects, t0: float, n: int = 7) -> list[dict]:
