@@ -160,7 +160,9 @@ def test_an_object_record_rounds_geometry_and_leaves_out_points_not_asked_for():
         "bbox": [0.1235, 0.0, 0.0, 1.0, 1.0, 1.0],
         "centroid": [0.5, 0.5, 0.5556],
         "n_obs": 4,
-        "state": "present",  # the living map's times are left out while unknown
+        "state": "present",  # the living map: its times are null while unknown
+        "first_seen_t": None,
+        "last_seen_t": None,
     }
     points = np.array([[0.123456, 1, 2]], np.float32)
     with_points = ObjectRecord(id=1, version=2, label="cup", n_obs=4, points=points, **geometry)
