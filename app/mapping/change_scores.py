@@ -61,14 +61,17 @@ def _rates(
 ) -> tuple[dict, list[float]]:
     """Precision, recall, F1 (with Wilson bounds) and the times to update of the matches."""
     unmatched = {(c.instance, c.kind): c for c in truth}
-    hits, delays = 0, []
+    hits, delays, matched, wrong = 0, [], [], []
     for change in concluded:
         true = unmatched.pop((change.instance, change.kind), None)
         if true is None:
+            wrong.append({"instance": change.instance, "kind": change.kind, "t": change.t})
             continue
         hits += 1
-        if true.t_evidence is not None:
-            delays.append(max(0.0, change.t - true.t_evidence))
+        delay = None if true.t_evidence is None else max(0.0, change.t - true.t_evidence)
+        if delay is not None:
+            delays.append(delay)
+        matched.append({"instance": change.instance, "kind": change.kind, "delay_s": delay})
     precision = hits / len(concluded) if concluded else 1.0
     recall = hits / len(truth) if truth else 1.0
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
@@ -81,6 +84,9 @@ def _rates(
         "correct": hits,
         "concluded": len(concluded),
         "true": len(truth),
+        "matched": matched,
+        "wrong": wrong,
+        "missed": [{"instance": c.instance, "kind": c.kind} for c in unmatched.values()],
     }, delays
 
 
