@@ -1083,9 +1083,11 @@ class MappingEngine:
 
         Nothing is lifted and no geometry changes; a candidate that now qualifies is
         confirmed, and published, by the next keyframe. Returns the sighted ids."""
-        if sent is None or not (
-            self._suspects or any(not o.confirmed for o in self.objects.values())
-        ):
+        if sent is None:
+            return []
+        if self._suspects:
+            self._clear_seen_suspects(frame, sent)
+        if not any(not o.confirmed for o in self.objects.values()):
             return []
         objects = [o for o in self.objects.values() if len(o.points)]
         samples = [o.points[:: max(1, len(o.points) // SIGHTING_SAMPLE_POINTS)] for o in objects]
@@ -1124,7 +1126,6 @@ class MappingEngine:
                 if obj.confirmed:
                     if row[k] >= SIGHTING_MIN_POINTS:
                         taken.add(int(k))
-                        self._suspects.pop(obj.id, None)  # seen: not absent
                 elif (int(row[k]), int(i)) > best_candidate.get(int(k), (0, -1)):
                     best_candidate[int(k)] = (int(row[k]), int(i))
             if not obj.confirmed:
@@ -1146,6 +1147,38 @@ class MappingEngine:
             self._sighted.add(obj.id)
             sighted.append(obj.id)
         return sorted(sighted)
+
+    def _clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
+        """A sighting that shows a suspect object where it was clears its suspicion: at
+        least SIGHTING_MIN_POINTS of its points at the sensed depth (the evidence test's
+        tolerance) under a detection of one of its labels. A like thing detected nearby, or
+        beyond its place, clears nothing."""
+        suspects = [self.objects[i] for i in list(self._suspects) if i in self.objects]
+        if not suspects:
+            return
+        view = living.EvidenceView(
+            pose=np.asarray(frame.pose, np.float64),
+            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
+            rgb_size=frame.rgb_size,
+            depth_m=frame.depth_m,
+            label_image=sent.instance_image,
+            labels={d.instance_id: d.label for d in sent.detections},
+        )
+        own = self._own_labels(suspects, view)
+        for obj, labels in zip(suspects, own, strict=True):
+            sample = living.object_sample(obj.points)
+            verdicts = living.classify_points(sample, view, self.knobs)
+            at = verdicts.matching
+            if at.sum() < SIGHTING_MIN_POINTS:
+                continue
+            ids = geo.pixels_of(view.label_image, verdicts.u[at], verdicts.v[at], frame.rgb_size[0])
+            hits = sum(
+                int(n)
+                for d, n in zip(*np.unique(ids, return_counts=True), strict=True)
+                if d and view.labels.get(int(d)) in labels
+            )
+            if hits >= SIGHTING_MIN_POINTS:
+                del self._suspects[obj.id]
 
     # ------------------------------------------------------------------ reading the map
     def confirmed_objects(self) -> list[MapObject]:

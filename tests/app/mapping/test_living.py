@@ -284,6 +284,17 @@ def test_a_sighting_clears_suspicion(encoder):
     assert mug not in engine._suspects
 
 
+def test_a_sighting_of_a_like_thing_elsewhere_clears_nothing(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 3)
+    (mug,) = mug_ids(engine)
+    walk.walk([WALL], 1)
+    frame = render_rects([WALL, MUG_MOVED], seq=999)  # a mug, but not where this one was
+    engine.sight(frame, engine.validate_frame(frame))
+    assert mug in engine._suspects
+
+
 def test_negative_evidence_off_keeps_everything(encoder):
     engine = make_engine(encoder, negative_evidence=False)
     walk = Walk(engine)
