@@ -317,8 +317,9 @@ def overlap_fractions(
         near = slice(None)
     else:
         near = np.all((points >= bbox[:3] - radius_m) & (points <= bbox[3:] + radius_m), axis=1)
-    dist, _ = tree.query(points[near], k=1, distance_upper_bound=radius_m)
-    hit[near] = np.isfinite(dist)
+    # the query's bound is exclusive: "within radius_m" includes a point at radius_m
+    dist, _ = tree.query(points[near], k=1, distance_upper_bound=np.nextafter(radius_m, np.inf))
+    hit[near] = dist <= radius_m
     starts = np.cumsum(sizes[nonempty]) - sizes[nonempty]
     fractions[nonempty] = np.add.reduceat(hit, starts) / sizes[nonempty]
     return fractions
