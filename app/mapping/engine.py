@@ -133,6 +133,8 @@ class IntegrationStats:
     """What this keyframe concluded about the world (added, moved, removed)."""
     retracted_added: list[int] = field(default_factory=list)
     """Published objects merged into another: an `added` change of theirs no longer stands."""
+    unremoved_ids: list[int] = field(default_factory=list)
+    """Objects this keyframe removed and then found at a new place (moved, not removed)."""
     dropped_ids: list[int] = field(default_factory=list)
     """Duplicates of things that moved or left, taken out with them (no change of their own)."""
     retracted_removed: list[int] = field(default_factory=list)
@@ -399,6 +401,7 @@ class MappingEngine:
         published = self._confirm((touched | self._sighted | moved) - removed, stats)
         self._sighted.clear()
         removed |= set(stats.dropped_ids)
+        removed -= set(stats.unremoved_ids)
         published -= removed
         for oid in published:
             self.objects[oid].refresh_stay()
@@ -980,18 +983,19 @@ class MappingEngine:
         for oid, (_, t_removed, _) in list(self._recently_removed.items()):
             if self._now - t_removed > REVIVE_WINDOW_S:
                 del self._recently_removed[oid]
-        removed = [
-            obj
-            for keyframe, _, obj in self._recently_removed.values()
-            if keyframe < self.keyframes  # not one this keyframe removed
-        ]
+        removed = [obj for _, _, obj in self._recently_removed.values()]
         old = self._like_object(new, removed, obj_is_new=True)
         if old is None:
             return None
-        del self._recently_removed[old.id]
+        keyframe, _, _ = self._recently_removed.pop(old.id)
         old.state = "present"
         self.objects[old.id] = old
-        stats.retracted_removed.append(old.id)
+        if keyframe < self.keyframes:
+            stats.retracted_removed.append(old.id)
+        else:  # removed by this very keyframe: its removal never leaves it
+            stats.retired.remove(old)
+            stats.changes[:] = [c for c in stats.changes if c.id != old.id]
+            stats.unremoved_ids.append(old.id)
         return old
 
     def _vacate(self, obj: MapObject, stats: IntegrationStats, keep: int | None = None) -> None:

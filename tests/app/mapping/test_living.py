@@ -241,6 +241,19 @@ def test_a_thing_removed_then_found_elsewhere_soon_after_was_moved(encoder):
     assert np.allclose(engine.objects[mug].centroid[:2], [0.5, -0.1], atol=0.05)
 
 
+def test_a_thing_removed_and_found_elsewhere_by_one_keyframe_was_moved(encoder):
+    engine = make_engine(encoder, min_observations=1)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 2)
+    (mug,) = mug_ids(engine)
+    walk.t = 600.0
+    walk.walk([WALL], 2)
+    (found,) = walk.walk([WALL, MUG_MOVED], 1)  # third evidence and the new place at once
+    assert changes([found]) == [(mug, "moved")] and mug_ids(engine) == [mug]
+    assert mug in found.published_ids and mug not in found.removed_ids
+    assert found.retired == [] and found.retracted_removed == []
+
+
 def test_a_thing_found_elsewhere_long_after_its_removal_is_a_new_thing(encoder):
     engine = make_engine(encoder)
     walk = Walk(engine)
