@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import asyncio
-import importlib.util
 import json
 import os
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import httpx
 import numpy as np
@@ -135,18 +133,9 @@ def test_an_import_over_the_body_limit_names_the_flag(live_server, tmp_path, cap
 # --- recent changes ----------------------------------------------------------------------
 
 
-def _living_map_scene():
-    """tests/app/server/test_living_map.py, whose walks change a room (a mug moved, a book
-    taken away, a box and a plant added): one scene for the server's and the CLI's tests."""
-    path = Path(__file__).resolve().parents[1] / "server" / "test_living_map.py"
-    spec = importlib.util.spec_from_file_location("living_map_scene", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_sessions_show_lists_the_recent_changes_in_words(server, capsys):
-    scene = _living_map_scene()
+    import living_world as scene
+
     headers = {"Authorization": f"Bearer {API_KEY}"}
     sid = httpx.post(
         f"{server.url}/v1/sessions", json={"name": "room", "knobs": scene.KNOBS}, headers=headers

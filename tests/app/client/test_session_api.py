@@ -5,47 +5,13 @@ from __future__ import annotations
 
 import asyncio
 
-import numpy as np
 import pytest
-from analytic_world import INTRINSICS, Rect, render_rects
 from devices import stream_in_step
+from living_world import BOOK, KNOBS, MUG, WALK_2_T, WALL, walk
 
 from app.client import SessionApi, create_session
-from client_sim.encoder import FrameEncoder
 
 pytestmark = pytest.mark.timeout(120)
-
-KNOBS = {
-    "keyframe_interval": 1,
-    "min_observations": 2,
-    "min_mapping_bbox_area": 100,
-    "local_map_update_frequency": 1,
-    "cleanup_interval": 1000,
-}
-WALL = Rect(9, "whiteboard", -3.0, -2.0, 3.0, 2.0, 3.0)
-MUG = Rect(1, "mug", -0.5, -0.2, -0.3, 0.0, 2.0)
-BOOK = Rect(2, "book", 0.2, -0.5, 0.5, -0.3, 2.0)
-WALK_2_T = 600.0
-
-
-def walk(rects: list[Rect], t0: float, n: int = 7) -> list[dict]:
-    """n frames a second apart on the device clock, the camera sliding 3 cm a frame."""
-    messages = []
-    for i in range(n):
-        full = render_rects(rects, cam_xy=(0.03 * i, 0.0), ratio=1, seq=i)
-        rgb = np.full((*full.depth_m.shape, 3), 128, np.uint8)
-        encoded = FrameEncoder(2).encode(
-            seq=i,
-            t=t0 + i,
-            rgb=rgb,
-            depth_m=full.depth_m,
-            pose=full.pose,
-            intrinsics=INTRINSICS,
-            instance_ids=full.instance_ids,
-            instances=full.instances,
-        )
-        messages.append(encoded.message)
-    return messages
 
 
 @pytest.fixture

@@ -13,7 +13,7 @@ import httpx
 import pytest
 from analytic_world import Rect
 from devices import frame_message, stream_in_step
-from test_living_map import AFTER, BEFORE, KNOBS, WALK_2_T, walk
+from living_world import AFTER, BEFORE, KNOBS, WALK_2_T, walk
 
 from app.server.routes.pages import STATIC_DIR
 
