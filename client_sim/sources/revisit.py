@@ -3,10 +3,8 @@ scripted changes (`client_sim.world.revisit`), on one device clock."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from client_sim.sources.base import FrameSource
-from client_sim.sources.synthetic import SyntheticFrame
+from client_sim.sources.synthetic import SyntheticFrame, render_frame
 from client_sim.world.noise import DetectionModel
 from client_sim.world.render import Camera, Renderer, default_camera
 from client_sim.world.revisit import (
@@ -70,20 +68,13 @@ class RevisitSource(FrameSource):
     def frame(self, index: int) -> SyntheticFrame:
         """Render frame `index` (0 <= index < len(self))."""
         walk = self.walk_of(index)  # raises IndexError out of range
-        pose = self.scenario.pose_of(index)
-        rng = np.random.default_rng([self.seed, index, 3])
-        view = self.renderer(walk).render(pose, self.camera, self.texture_noise, rng)
-        detections = self.detectors[walk - 1].detect(view, index)
-        return SyntheticFrame(
-            index=index,
-            t=self.scenario.t_of(index),
-            rgb=view.rgb,
-            depth_m=detections.depth_m,
-            pose=pose,
-            intrinsics=self.camera.intrinsics,
-            instance_ids=detections.instance_ids,
-            instances=detections.instances,
-            camera=self.camera,
-            view=view,
-            detections=detections,
+        return render_frame(
+            index,
+            self.scenario.t_of(index),
+            self.scenario.pose_of(index),
+            self.camera,
+            self.renderer(walk),
+            self.detectors[walk - 1],
+            self.seed,
+            self.texture_noise,
         )

@@ -31,6 +31,36 @@ class SyntheticFrame(SourceFrame):
     detections: NoisyDetections | None = field(default=None, repr=False)
 
 
+def render_frame(
+    index: int,
+    t: float,
+    pose: np.ndarray,
+    camera: Camera,
+    renderer: Renderer,
+    detector: DetectionModel,
+    seed: int,
+    texture_noise: float,
+) -> SyntheticFrame:
+    """Frame `index` of a walk, rendered at `pose` [4, 4] and passed through the detector;
+    its texture noise is seeded by (seed, index), so any frame renders alone the same."""
+    rng = np.random.default_rng([seed, index, 3])
+    view = renderer.render(pose, camera, texture_noise, rng)
+    detections = detector.detect(view, index)
+    return SyntheticFrame(
+        index=index,
+        t=t,
+        rgb=view.rgb,
+        depth_m=detections.depth_m,
+        pose=pose,
+        intrinsics=camera.intrinsics,
+        instance_ids=detections.instance_ids,
+        instances=detections.instances,
+        camera=camera,
+        view=view,
+        detections=detections,
+    )
+
+
 class SyntheticSource(FrameSource):
     """Frames of a walk through a procedural scene, rendered lazily.
 
@@ -77,20 +107,13 @@ class SyntheticSource(FrameSource):
         """Render frame `index` (0 <= index < n_frames)."""
         if not 0 <= index < self.n_frames:
             raise IndexError(f"frame {index} out of range [0, {self.n_frames})")
-        pose = self.poses[index]
-        rng = np.random.default_rng([self.seed, index, 3])
-        view = self.renderer.render(pose, self.camera, self.texture_noise, rng)
-        detections = self.detector.detect(view, index)
-        return SyntheticFrame(
-            index=index,
-            t=index / self.fps,
-            rgb=view.rgb,
-            depth_m=detections.depth_m,
-            pose=pose,
-            intrinsics=self.camera.intrinsics,
-            instance_ids=detections.instance_ids,
-            instances=detections.instances,
-            camera=self.camera,
-            view=view,
-            detections=detections,
+        return render_frame(
+            index,
+            index / self.fps,
+            self.poses[index],
+            self.camera,
+            self.renderer,
+            self.detector,
+            self.seed,
+            self.texture_noise,
         )
