@@ -17,7 +17,8 @@ must be covered (a one-line change in `SqliteStore.__init__`).
 Arrays are stored as raw little-endian float32 bytes whose shape the schema records (never
 pickle): points [n_points, 3], embedding_sum [embedding_dim], label_embeddings [labels,
 embedding_dim] (one row per label of label_counts, in its order), a session's last pose [16];
-stays are `stays_to_bytes` records. Knobs and label counts are JSON.
+stays are `stays_to_bytes` records. Knobs and label counts are JSON. `rows.py` encodes and
+checks them, the same for every store.
 
 The living map (schema 4): an object removed from the map but kept as history keeps its row
 with state 'removed' (its last fields: stays, last points); every read of the present map
@@ -41,12 +42,9 @@ starts empty, so a recovery it reports is room on the disk, not a gap left in an
 from __future__ import annotations
 
 import contextlib
-import json
-import math
 import os
 import sqlite3
 import threading
-from collections import Counter
 from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -55,18 +53,8 @@ from typing import Any, TypeVar
 import numpy as np
 
 from app.mapping.deltas import DeltaLog
-from app.mapping.object import (
-    MAX_STAYS,
-    OBJECT_STATES,
-    STAY_BYTES,
-    Change,
-    MapObject,
-    stays_from_bytes,
-    stays_to_bytes,
-)
+from app.mapping.object import MAX_STAYS, STAY_BYTES, Change, MapObject
 from app.store.base import (
-    CHANGE_KINDS,
-    COUNTER_NAMES,
     SessionRecord,
     Store,
     StoredSession,
@@ -74,10 +62,24 @@ from app.store.base import (
     StoreUnavailableError,
     StoreVersionError,
 )
+from app.store.rows import (
+    CHANGE_COLUMNS,
+    N_OBJECT_COLUMNS,
+    N_SESSION_COLUMNS,
+    OBJECT_COLUMNS,
+    SESSION_COLUMNS,
+    change_filter,
+    change_from_row,
+    checked_counters,
+    object_from_row,
+    prepare_keyframe,
+    session_from_row,
+    session_to_row,
+    to_json,
+)
 
 __all__ = ["SCHEMA_VERSION", "SqliteStore"]
 
-_FLOAT32_LE = np.dtype("<f4")
 T = TypeVar("T")
 
 _SCHEMA: tuple[str, ...] = (
@@ -199,18 +201,6 @@ _STORAGE_ERROR_CODES = frozenset(
     }
 )
 """Primary result codes meaning "the storage cannot take this write now", not a bad write."""
-
-_SESSION_COLUMNS = (
-    "session_id, name, mode, perception, knobs, token_hash, created_at, "
-    "frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, last_pose"
-)
-_OBJECT_COLUMNS = (
-    "object_id, version, n_obs, frames_seen, first_seen, last_seen, resolution_m, "
-    "label_counts, n_points, points, embedding_dim, embedding_sum, "
-    "state, first_seen_t, last_seen_t, stays, label_embeddings"
-)
-_N_OBJECT_COLUMNS = len(_OBJECT_COLUMNS.split(","))
-_CHANGE_COLUMNS = "object_id, kind, t, label, from_x, from_y, from_z, to_x, to_y, to_z, seq"
 
 
 class SqliteStore(Store):
@@ -339,28 +329,12 @@ class SqliteStore(Store):
     # ------------------------------------------------------------------ sessions
     def create_session(self, rec: SessionRecord) -> None:
         """Persist a new session; ValueError if its id exists."""
-        row = (
-            rec.session_id,
-            rec.name,
-            rec.mode,
-            rec.perception,
-            _to_json(rec.knobs),
-            rec.token_hash,
-            float(rec.created_at),
-            int(rec.frames),
-            int(rec.keyframes),
-            int(rec.bytes_in),
-            int(rec.bytes_out),
-            int(rec.next_object_id),
-            float(rec.last_used_at if rec.last_used_at is not None else rec.created_at),
-            _checked_time("last_t", rec.last_t),
-            None if rec.last_pose is None else _pose_to_blob(rec.last_pose),
-        )
+        row = session_to_row(rec)
         try:
             self._write(
                 lambda conn: conn.execute(
-                    f"INSERT INTO sessions ({_SESSION_COLUMNS}, seq, delta_floor)"
-                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0)",
+                    f"INSERT INTO sessions ({SESSION_COLUMNS}, seq, delta_floor)"
+                    f" VALUES ({', '.join('?' * N_SESSION_COLUMNS)}, 0, 0)",
                     row,
                 )
             )
@@ -377,11 +351,11 @@ class SqliteStore(Store):
         last_used_at: float | None = None,
     ) -> None:
         """Change the given fields; counters are absolute values named as in COUNTER_NAMES."""
-        assignments: dict[str, Any] = _checked_counters(counters or {})
+        assignments: dict[str, Any] = checked_counters(counters or {})
         if name is not None:
             assignments["name"] = name
         if knobs is not None:
-            assignments["knobs"] = _to_json(knobs)
+            assignments["knobs"] = to_json(knobs)
         if last_used_at is not None:
             assignments["last_used_at"] = float(last_used_at)
 
@@ -407,14 +381,14 @@ class SqliteStore(Store):
         """Every session, oldest first."""
         with self._transaction(write=False) as conn:
             rows = conn.execute(
-                f"SELECT {_SESSION_COLUMNS} FROM sessions ORDER BY created_at, session_id"
+                f"SELECT {SESSION_COLUMNS} FROM sessions ORDER BY created_at, session_id"
             ).fetchall()
-        return [_session_from_row(row) for row in rows]
+        return [session_from_row(row) for row in rows]
 
     def load_session(self, session_id: str) -> SessionRecord:
         """One session as last committed; KeyError if unknown."""
         with self._transaction(write=False) as conn:
-            return _session_from_row(_session_row(conn, session_id, _SESSION_COLUMNS))
+            return session_from_row(_session_row(conn, session_id, SESSION_COLUMNS))
 
     def count_sessions(self) -> int:
         """How many sessions are stored."""
@@ -426,11 +400,11 @@ class SqliteStore(Store):
         are counted on the index by state, no map is read."""
         with self._transaction(write=False) as conn:
             rows = conn.execute(
-                f"SELECT {_SESSION_COLUMNS}, seq, (SELECT count(*) FROM objects AS o"
+                f"SELECT {SESSION_COLUMNS}, seq, (SELECT count(*) FROM objects AS o"
                 " WHERE o.session_id = s.session_id AND o.state = 'present')"
                 " FROM sessions AS s ORDER BY created_at, session_id"
             ).fetchall()
-        return [StoredSession(_session_from_row(row[:-2]), row[-1], row[-2]) for row in rows]
+        return [StoredSession(session_from_row(row[:-2]), row[-1], row[-2]) for row in rows]
 
     def idle_sessions(self, used_before: float) -> list[str]:
         """Ids of the sessions whose `last_used_at` is before `used_before` (unix time)."""
@@ -461,55 +435,26 @@ class SqliteStore(Store):
     ) -> None:
         """`Store.commit_keyframe`, in one SQLite transaction (WAL, synchronous): returns
         once the changes survive kill -9; storage errors raise StoreUnavailableError."""
-        seq = int(seq)
-        removed_ids = sorted({int(oid) for oid in removed})
-        gone = set(removed_ids)
-        kept = [obj for obj in upserts if int(obj.id) not in gone]
-        retired = list(retired)
-        retired_ids = [int(obj.id) for obj in retired]
-        for obj in kept:
-            if obj.state != "present":
-                raise ValueError(
-                    f"object {obj.id}: an upsert must be present, not {obj.state!r} (a removed "
-                    "object kept as history is retired)"
-                )
-        for obj in retired:
-            if obj.state != "removed":
-                raise ValueError(
-                    f"object {obj.id}: a retired object must be removed, not {obj.state!r}"
-                )
-        if len(set(retired_ids)) != len(retired_ids) or not gone.issuperset(retired_ids):
-            raise ValueError(
-                f"session {session_id!r}: retired ids {retired_ids} must be distinct and in "
-                f"removed {removed_ids}"
-            )
-        kept_as_history = set(retired_ids)
-        change_rows = [_change_to_row(change, seq) for change in changes]
-        retracted_ids = sorted({int(oid) for oid in retracted_added})
-        revived_ids = sorted({int(oid) for oid in retracted_removed})
-        assignments: dict[str, Any] = _checked_counters(counters)
-        if last_used_at is not None:
-            assignments["last_used_at"] = float(last_used_at)
-        if last_t is not None:
-            assignments["last_t"] = _checked_time("last_t", last_t)
-        if last_pose is not None:
-            assignments["last_pose"] = _pose_to_blob(last_pose)
+        keyframe = prepare_keyframe(
+            session_id,
+            seq,
+            upserts,
+            removed,
+            counters,
+            next_object_id,
+            last_used_at,
+            retired,
+            changes,
+            retracted_added,
+            retracted_removed,
+            last_t,
+            last_pose,
+        )
+        seq = keyframe.seq
 
         def commit(conn: sqlite3.Connection) -> None:
             stored_seq, stored_next_id = _session_row(conn, session_id, "seq, next_object_id")
-            # Resuming subscribers rely on "changed after S" meaning "seq > S": a change
-            # stored at a seq they may already have seen would never reach them (and
-            # neither would a change entry read with since_seq).
-            if seq < stored_seq or ((kept or removed_ids or change_rows) and seq == stored_seq):
-                raise ValueError(
-                    f"session {session_id!r}: seq {seq} does not follow the stored seq {stored_seq}"
-                )
-            touched_ids = [int(obj.id) for obj in kept] + removed_ids + [r[0] for r in change_rows]
-            if next_object_id < stored_next_id or any(i >= next_object_id for i in touched_ids):
-                raise ValueError(
-                    f"session {session_id!r}: next_object_id {next_object_id} would reuse an id"
-                )
-            assignments.update(seq=seq, next_object_id=int(next_object_id))
+            assignments = keyframe.check_follows(stored_seq, stored_next_id)
             columns = ", ".join(f"{column} = ?" for column in assignments)
             conn.execute(
                 f"UPDATE sessions SET {columns} WHERE session_id = ?",
@@ -518,37 +463,37 @@ class SqliteStore(Store):
             # Retired objects are rewritten below with state 'removed': only the others go.
             conn.executemany(
                 "DELETE FROM objects WHERE session_id = ? AND object_id = ?",
-                [(session_id, oid) for oid in removed_ids if oid not in kept_as_history],
+                [(session_id, oid) for oid in keyframe.deleted_ids],
             )
             conn.executemany(
                 "INSERT OR REPLACE INTO tombstones (session_id, object_id, seq) VALUES (?, ?, ?)",
-                [(session_id, oid, seq) for oid in removed_ids],
+                [(session_id, oid, seq) for oid in keyframe.removed_ids],
             )
             conn.executemany(
                 "DELETE FROM tombstones WHERE session_id = ? AND object_id = ?",
-                [(session_id, int(obj.id)) for obj in kept],
+                [(session_id, int(obj.id)) for obj in keyframe.kept],
             )
             # A generator: each object is serialised as it is written, so nothing is copied
             # twice, and a bad object aborts the transaction (rolling back the rows before it).
             conn.executemany(
-                f"INSERT OR REPLACE INTO objects (session_id, change_seq, {_OBJECT_COLUMNS})"
-                f" VALUES (?, ?, {', '.join('?' * _N_OBJECT_COLUMNS)})",
-                ((session_id, seq, *_object_to_row(obj)) for obj in [*kept, *retired]),
+                f"INSERT OR REPLACE INTO objects (session_id, change_seq, {OBJECT_COLUMNS})"
+                f" VALUES (?, ?, {', '.join('?' * N_OBJECT_COLUMNS)})",
+                ((session_id, seq, *row) for row in keyframe.object_rows()),
             )
             # Before the inserts: a removal this commit takes back is an earlier one.
             conn.executemany(
                 "DELETE FROM changes WHERE session_id = ? AND object_id = ? AND kind = 'removed'",
-                [(session_id, oid) for oid in revived_ids],
+                [(session_id, oid) for oid in keyframe.revived_ids],
             )
             conn.executemany(
-                f"INSERT INTO changes (session_id, {_CHANGE_COLUMNS})"
+                f"INSERT INTO changes (session_id, {CHANGE_COLUMNS})"
                 " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                [(session_id, *row) for row in change_rows],
+                [(session_id, *row) for row in keyframe.change_rows],
             )
             # After the inserts: no `added` change stays for a retracted id, this one's too.
             conn.executemany(
                 "DELETE FROM changes WHERE session_id = ? AND object_id = ? AND kind = 'added'",
-                [(session_id, oid) for oid in retracted_ids],
+                [(session_id, oid) for oid in keyframe.retracted_ids],
             )
 
         self._write(commit)
@@ -565,21 +510,21 @@ class SqliteStore(Store):
         with self._transaction(write=False) as conn:
             _session_row(conn, session_id, "1")
             rows = conn.execute(
-                f"SELECT {_OBJECT_COLUMNS} FROM objects WHERE session_id = ? AND state = ?"
+                f"SELECT {OBJECT_COLUMNS} FROM objects WHERE session_id = ? AND state = ?"
                 " ORDER BY object_id",
                 (session_id, state),
             ).fetchall()
-        return [_object_from_row(row) for row in rows]
+        return [object_from_row(row) for row in rows]
 
     def load_object(self, session_id: str, object_id: int) -> MapObject | None:
         """One object, present or removed, as last committed; None if there is none."""
         with self._transaction(write=False) as conn:
             _session_row(conn, session_id, "1")
             row = conn.execute(
-                f"SELECT {_OBJECT_COLUMNS} FROM objects WHERE session_id = ? AND object_id = ?",
+                f"SELECT {OBJECT_COLUMNS} FROM objects WHERE session_id = ? AND object_id = ?",
                 (session_id, int(object_id)),
             ).fetchone()
-        return None if row is None else _object_from_row(row)
+        return None if row is None else object_from_row(row)
 
     def load_changes(
         self,
@@ -592,36 +537,28 @@ class SqliteStore(Store):
         limit: int | None = None,
     ) -> list[Change]:
         """`Store.load_changes`: one indexed query, newest first when limited."""
+        wanted = change_filter(since_t, until_t, since_seq, kinds, limit)
         where, params = ["session_id = ?"], [session_id]
-        for name, bound, op in (("since_t", since_t, ">="), ("until_t", until_t, "<=")):
-            if bound is not None:
-                if math.isnan(bound):
-                    raise ValueError(f"{name} must be a number, not NaN")
-                where.append(f"t {op} ?")
-                params.append(float(bound))
-        if since_seq is not None:
-            where.append("seq > ?")
-            params.append(int(since_seq))
-        if kinds is not None:
-            kinds = sorted(set(kinds))
-            unknown = [kind for kind in kinds if kind not in CHANGE_KINDS]
-            if unknown:
-                raise ValueError(
-                    f"unknown change kinds {unknown}; kinds: {', '.join(CHANGE_KINDS)}"
-                )
-            where.append(f"kind IN ({', '.join('?' * len(kinds))})")
-            params.extend(kinds)
-        if limit is not None and int(limit) < 0:
-            raise ValueError(f"limit must be >= 0, got {limit}")
-        query = f"SELECT {_CHANGE_COLUMNS} FROM changes WHERE {' AND '.join(where)}"
+        for condition, value in (
+            ("t >= ?", wanted.since_t),
+            ("t <= ?", wanted.until_t),
+            ("seq > ?", wanted.since_seq),
+        ):
+            if value is not None:
+                where.append(condition)
+                params.append(value)
+        if wanted.kinds is not None:
+            where.append(f"kind IN ({', '.join('?' * len(wanted.kinds))})")
+            params.extend(wanted.kinds)
+        query = f"SELECT {CHANGE_COLUMNS} FROM changes WHERE {' AND '.join(where)}"
         with self._transaction(write=False) as conn:
             _session_row(conn, session_id, "1")
-            if limit is None:
+            if wanted.limit is None:
                 rows = conn.execute(f"{query} ORDER BY rowid", params).fetchall()
             else:
-                rows = conn.execute(f"{query} ORDER BY rowid DESC LIMIT ?", (*params, int(limit)))
+                rows = conn.execute(f"{query} ORDER BY rowid DESC LIMIT ?", (*params, wanted.limit))
                 rows = rows.fetchall()[::-1]
-        return [_change_from_row(row) for row in rows]
+        return [change_from_row(row) for row in rows]
 
     def load_delta_log(self, session_id: str) -> DeltaLog:
         """The session's delta log: each present object's change seq, the tombstones (removed
@@ -663,12 +600,7 @@ class SqliteStore(Store):
         self._write(trim)
 
 
-# ---------------------------------------------------------------------- rows <-> objects
-def _to_json(value: Any) -> str:
-    # allow_nan=False: what is stored stays valid JSON for any reader.
-    return json.dumps(value, allow_nan=False)
-
-
+# ---------------------------------------------------------------------- helpers
 def _is_storage_error(exc: sqlite3.Error) -> bool:
     """True when SQLite says the storage refused the operation (full, I/O, read-only, busy)."""
     code = getattr(exc, "sqlite_errorcode", None)
@@ -683,218 +615,3 @@ def _session_row(conn: sqlite3.Connection, session_id: str, columns: str) -> tup
     if row is None:
         raise KeyError(f"unknown session {session_id!r}")
     return row
-
-
-def _checked_counters(counters: dict[str, int]) -> dict[str, int]:
-    unknown = set(counters) - set(COUNTER_NAMES)
-    if unknown:
-        raise ValueError(
-            f"unknown counters {sorted(unknown)}; known counters: {', '.join(COUNTER_NAMES)}"
-        )
-    return {name: int(value) for name, value in counters.items()}
-
-
-def _checked_time(name: str, t: float | None) -> float | None:
-    """`t` as a float (None stays None); ValueError naming it when it is not finite."""
-    if t is None:
-        return None
-    t = float(t)
-    if not math.isfinite(t):
-        raise ValueError(f"{name} must be a finite time in seconds, got {t}")
-    return t
-
-
-def _pose_to_blob(pose: Any) -> bytes:
-    """A camera-to-world pose ([4, 4] or [16], row-major) as 16 float32 little-endian."""
-    values = np.ascontiguousarray(pose, dtype=_FLOAT32_LE).reshape(-1)
-    if values.size != 16 or not np.isfinite(values).all():
-        raise ValueError(f"last_pose must be 16 finite values (4x4), got {np.shape(pose)}")
-    return values.tobytes()
-
-
-def _session_from_row(row: tuple) -> SessionRecord:
-    sid, name, mode, perception, knobs, token_hash, created_at, *counters = row
-    frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, pose = counters
-    return SessionRecord(
-        session_id=sid,
-        name=name,
-        mode=mode,
-        perception=perception,
-        knobs=json.loads(knobs),
-        token_hash=token_hash,
-        created_at=created_at,
-        frames=frames,
-        keyframes=keyframes,
-        bytes_in=bytes_in,
-        bytes_out=bytes_out,
-        next_object_id=next_object_id,
-        last_used_at=last_used_at,
-        last_t=last_t,
-        last_pose=None if pose is None else _float32_from_blob(pose, (16,)).tolist(),
-    )
-
-
-def _object_to_row(obj: MapObject) -> tuple:
-    """The columns of _OBJECT_COLUMNS for one object; ValueError on badly shaped arrays,
-    an unknown state, more than MAX_STAYS stays or a time that is not finite."""
-    points = np.ascontiguousarray(obj.points, dtype=_FLOAT32_LE)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"object {obj.id}: points must be [N, 3], got shape {points.shape}")
-    if not obj.confirmed:
-        raise ValueError(f"object {obj.id}: only confirmed objects are persisted")
-    embedding_dim: int | None = None
-    embedding_bytes: bytes | None = None
-    if obj.embedding_sum is not None:
-        embedding = np.ascontiguousarray(obj.embedding_sum, dtype=_FLOAT32_LE)
-        if embedding.ndim != 1:
-            raise ValueError(f"object {obj.id}: embedding_sum must be [d], got {embedding.shape}")
-        embedding_dim, embedding_bytes = len(embedding), embedding.tobytes()
-    # Counter keeps insertion order and JSON objects keep theirs: label ties (first seen
-    # wins) resolve the same way after a reload.
-    labels = _to_json({str(label): int(count) for label, count in obj.label_counts.items()})
-    if obj.state not in OBJECT_STATES:
-        raise ValueError(f"object {obj.id}: state {obj.state!r} is not one of {OBJECT_STATES}")
-    if len(obj.stays) > MAX_STAYS:
-        raise ValueError(f"object {obj.id}: {len(obj.stays)} stays, over MAX_STAYS={MAX_STAYS}")
-    for stay in obj.stays:
-        if not np.isfinite([stay.t_from, stay.t_to, *stay.centroid, *stay.bbox]).all():
-            raise ValueError(f"object {obj.id}: a stay holds a value that is not finite")
-    stays = stays_to_bytes(obj.stays) if obj.stays else None
-    return (
-        int(obj.id),
-        int(obj.version),
-        int(obj.n_obs),
-        int(obj.frames_seen),
-        int(obj.first_seen),
-        int(obj.last_seen),
-        float(obj.resolution_m),
-        labels,
-        len(points),
-        points.tobytes(),
-        embedding_dim,
-        embedding_bytes,
-        obj.state,
-        _checked_time(f"object {obj.id}: first_seen_t", obj.first_seen_t),
-        _checked_time(f"object {obj.id}: last_seen_t", obj.last_seen_t),
-        stays,
-        _label_embeddings_to_blob(obj, embedding_dim),
-    )
-
-
-def _label_embeddings_to_blob(obj: MapObject, embedding_dim: int | None) -> bytes | None:
-    """float32 LE [labels, embedding_dim], a row per label of label_counts in its order (NaN
-    for a label without a sum); None when the object has no per-label sums."""
-    if not obj.label_embeddings:
-        return None
-    unknown = [label for label in obj.label_embeddings if label not in obj.label_counts]
-    if unknown or embedding_dim is None:
-        raise ValueError(
-            f"object {obj.id}: per-label embedding sums need an embedding_sum and labels that "
-            f"are counted (not counted: {unknown})"
-        )
-    rows = np.full((len(obj.label_counts), embedding_dim), np.nan, _FLOAT32_LE)
-    for i, label in enumerate(obj.label_counts):
-        vector = obj.label_embeddings.get(label)
-        if vector is None:
-            continue
-        vector = np.asarray(vector, dtype=_FLOAT32_LE)
-        if vector.shape != (embedding_dim,):
-            raise ValueError(
-                f"object {obj.id}: the embedding sum of {label!r} must be [{embedding_dim}], "
-                f"got {vector.shape}"
-            )
-        rows[i] = vector
-    return rows.tobytes()
-
-
-def _float32_from_blob(blob: bytes, shape: tuple[int, ...]) -> np.ndarray:
-    """A writable native float32 array of `shape` from little-endian bytes."""
-    array = np.frombuffer(blob, dtype=_FLOAT32_LE)
-    if array.size != int(np.prod(shape)):
-        raise StoreError(f"stored array has {array.size} values, expected shape {shape}")
-    return array.astype(np.float32).reshape(shape)  # astype copies: frombuffer is read-only
-
-
-def _object_from_row(row: tuple) -> MapObject:
-    (
-        object_id,
-        version,
-        n_obs,
-        frames_seen,
-        first_seen,
-        last_seen,
-        resolution_m,
-        labels,
-        n_points,
-        points,
-        embedding_dim,
-        embedding_sum,
-        state,
-        first_seen_t,
-        last_seen_t,
-        stays,
-        label_embeddings,
-    ) = row
-    label_counts = Counter(json.loads(labels))
-    obj = MapObject(
-        id=object_id,
-        embedding_sum=(
-            None if embedding_sum is None else _float32_from_blob(embedding_sum, (embedding_dim,))
-        ),
-        label_counts=label_counts,
-        n_obs=n_obs,
-        frames_seen=frames_seen,
-        first_seen=first_seen,
-        last_seen=last_seen,
-        version=version,
-        confirmed=True,
-        label_embeddings=_label_embeddings_from_blob(label_embeddings, label_counts, embedding_dim),
-        first_seen_t=first_seen_t,
-        last_seen_t=last_seen_t,
-        state=state,
-        stays=[] if stays is None else stays_from_bytes(stays),
-    )
-    obj.set_points(_float32_from_blob(points, (n_points, 3)), resolution_m)
-    return obj
-
-
-def _label_embeddings_from_blob(
-    blob: bytes | None, label_counts: Counter, embedding_dim: int | None
-) -> dict[str, np.ndarray]:
-    if blob is None:
-        return {}
-    rows = _float32_from_blob(blob, (len(label_counts), embedding_dim or 0))
-    return {
-        label: row for label, row in zip(label_counts, rows, strict=True) if not np.isnan(row).all()
-    }
-
-
-def _change_to_row(change: Change, seq: int) -> tuple:
-    """The columns of _CHANGE_COLUMNS for one change at `seq`; ValueError on an unknown kind,
-    a time that is not finite or a place that is not 3 finite numbers."""
-    if change.kind not in CHANGE_KINDS:
-        raise ValueError(f"change of object {change.id}: unknown kind {change.kind!r}")
-    places: list[float | None] = []
-    for name, xyz in (("from", change.from_xyz), ("to", change.to_xyz)):
-        if xyz is None:
-            places += [None, None, None]
-            continue
-        values = [float(v) for v in xyz]
-        if len(values) != 3 or not all(math.isfinite(v) for v in values):
-            raise ValueError(f"change of object {change.id}: {name} must be 3 finite numbers")
-        places += values
-    t = _checked_time(f"change of object {change.id}: t", change.t)
-    return (int(change.id), change.kind, t, str(change.label), *places, seq)
-
-
-def _change_from_row(row: tuple) -> Change:
-    object_id, kind, t, label, fx, fy, fz, tx, ty, tz, seq = row
-    return Change(
-        id=object_id,
-        kind=kind,
-        t=t,
-        label=label,
-        from_xyz=None if fx is None else (fx, fy, fz),
-        to_xyz=None if tx is None else (tx, ty, tz),
-        seq=seq,
-    )
