@@ -444,6 +444,7 @@ async def load_run(
     interval = int(sessions[0][2]["knobs"]["keyframe_interval"])
     offsets_s = np.random.default_rng(seed).uniform(0.0, 1.0 / fps, devices)
     offer = {"subprotocols": [SIGHTINGS_SUBPROTOCOL]} if sightings else {}
+    load_before = os.getloadavg()[0]
     try:
         async with contextlib.AsyncExitStack() as sockets:
             streams = [
@@ -481,6 +482,8 @@ async def load_run(
     return {
         **summarize(runs, window, devices, elapsed_s, rss, rss_peak, interval),
         "server_cwd": server_cwd,
+        "load_avg_1m_before": load_before,
+        "load_avg_1m_after": os.getloadavg()[0],
     }
 
 
@@ -777,6 +780,12 @@ def main(argv: list[str] | None = None) -> int:
         if any(other.label == spec.label for other in specs[:i]):
             spec.label = f"{spec.label}#{i + 1}"
 
+    if os.getloadavg()[0] > 1.0:
+        print(
+            f"note: load average {os.getloadavg()[0]:.1f} before the runs: other work shares "
+            "the cores the server is measured on",
+            file=sys.stderr,
+        )
     n_frames = math.ceil(args.seconds * args.fps - 1e-9)
     print(f"encoding {n_frames} frames...", file=sys.stderr)
     walk = encode_walk(
