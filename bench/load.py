@@ -708,6 +708,9 @@ def plot(runs: list[dict], specs: list[ServerSpec], out_dir: str, title: str) ->
             color=color,
             label=spec.label,
         )
+    counts = sorted({r["devices"] for r in runs})
+    for ax in (latency_ax, cpu_ax):
+        ax.set_xticks(counts)
     latency_ax.set_xlabel("devices")
     latency_ax.set_ylabel("keyframe ingest-to-ack, ms")
     latency_ax.legend(fontsize=8)
