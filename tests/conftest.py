@@ -3,6 +3,7 @@
 import os
 
 import pytest
+from pg import fresh_pg_url, pg_cluster, pg_url  # noqa: F401 (the PostgreSQL fixtures)
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 

@@ -1,10 +1,15 @@
 """Persistence behind one interface (`Store`), opened from one URL (the `store` setting).
 
-A second implementation is a new module with a `Store` subclass and one line in `_OPENERS`.
+Two implementations: `SqliteStore` (`sqlite:///<path>`, one file, the default) and
+`PostgresStore` (`postgresql://user:password@host:port/database`, a server many processes
+share). Another is a new module with a `Store` subclass and a line in `_OPENERS`.
+
+Store URLs may carry a password: show them only through `redact_url`.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -31,6 +36,7 @@ __all__ = [
     "StoredSession",
     "check_store_url",
     "open_store",
+    "redact_url",
     "sqlite_url",
 ]
 
@@ -61,8 +67,46 @@ def _sqlite_path(location: str) -> str:
     return path
 
 
+def _open_postgres(url: str) -> Store:
+    from app.store.postgres import PostgresStore  # imported when used: psycopg and its pool
+
+    return PostgresStore(url)
+
+
+def _postgres_url(location: str) -> str:
+    """`user:pw@host:port/db?param=value` (after `postgresql://` or `postgres://`) -> the
+    `postgresql://` URL libpq opens; StoreURLError naming the setting (password redacted)
+    when libpq cannot parse it, a port is not a number, or it names no database."""
+    from psycopg import ProgrammingError  # imported when used, like the store itself
+    from psycopg.conninfo import conninfo_to_dict
+
+    url = f"postgresql://{location}"
+    example = "postgresql://user:password@host:port/database"
+    try:
+        params = conninfo_to_dict(url)
+    except ProgrammingError as exc:
+        raise StoreURLError(
+            f"{SETTING}: {redact_url(url)!r} is not a PostgreSQL URL such as {example} "
+            f"({str(exc).strip()})"
+        ) from None
+    ports = [port for port in str(params.get("port") or "").split(",") if port]
+    if not all(port.isdigit() and 0 < int(port) < 65536 for port in ports):
+        raise StoreURLError(
+            f"{SETTING}: the port of {redact_url(url)!r} must be a number from 1 to 65535 "
+            "(a password holding / : @ or ? must be percent-encoded)"
+        )
+    if not params.get("dbname"):
+        raise StoreURLError(
+            f"{SETTING}: {redact_url(url)!r} names no database; use {example} (or "
+            "postgresql:///database?host=/socket/dir for a Unix socket)"
+        )
+    return url
+
+
 _OPENERS: dict[str, tuple[Callable[[str], str], Callable[[str], Store]]] = {
     "sqlite": (_sqlite_path, _open_sqlite),
+    "postgresql": (_postgres_url, _open_postgres),
+    "postgres": (_postgres_url, _open_postgres),
 }
 """scheme -> (check and normalise the part after `scheme://`, open it)."""
 
@@ -71,13 +115,15 @@ def _split(url: str) -> tuple[str, str]:
     """(scheme, location) of a supported URL; StoreURLError naming the setting otherwise."""
     supported = ", ".join(f"{scheme}://" for scheme in _OPENERS)
     if not isinstance(url, str) or "://" not in url:
+        shown = redact_url(url) if isinstance(url, str) else url
         raise StoreURLError(
-            f"{SETTING} must be a URL such as sqlite:///data/semanticxr.sqlite3, got {url!r}"
+            f"{SETTING} must be a URL such as sqlite:///data/semanticxr.sqlite3 or "
+            f"postgresql://user:password@host:port/database, got {shown!r}"
         )
     scheme, rest = url.split("://", 1)
     if scheme not in _OPENERS:
         raise StoreURLError(
-            f"{SETTING}: unknown scheme {scheme!r} in {url!r}; supported: {supported}"
+            f"{SETTING}: unknown scheme {scheme!r} in {redact_url(url)!r}; supported: {supported}"
         )
     return scheme, _OPENERS[scheme][0](rest)
 
@@ -88,8 +134,12 @@ def check_store_url(url: str) -> None:
 
 
 def open_store(url: str) -> Store:
-    """The store at `url`: `sqlite:///<path>` (relative to the working directory) or
-    `sqlite:////<absolute path>`. Raises StoreURLError for an unknown scheme or bad URL."""
+    """The store at `url`: `sqlite:///<path>` (relative to the working directory),
+    `sqlite:////<absolute path>`, or a PostgreSQL database: `postgresql://` (or `postgres://`)
+    `user:password@host:port/database`, `postgresql:///database?host=/socket/dir` for a Unix
+    socket, with libpq's parameters after `?` (`connect_timeout=<s>`, `sslmode=...`). Raises
+    StoreURLError for an unknown scheme or bad URL, StoreUnavailableError when a PostgreSQL
+    server cannot be reached (in about `connect_timeout` seconds, 5 when unset)."""
     scheme, location = _split(url)
     return _OPENERS[scheme][1](location)
 
@@ -97,3 +147,19 @@ def open_store(url: str) -> Store:
 def sqlite_url(path: str | Path) -> str:
     """The URL of the SQLite file at `path` (absolute paths get the fourth slash)."""
     return f"sqlite:///{Path(path)}"
+
+
+_PASSWORD_PARAMETER = re.compile(r"((?:^|[?&\s])(?:ssl)?password\s*=\s*)('[^']*'|[^&\s]*)")
+
+
+def redact_url(url: str) -> str:
+    """`url` fit to log or show: its password (`user:password@`, or a `password=` or
+    `sslpassword=` parameter) replaced by `***`. Errs on hiding too much: a password with an
+    unescaped `/`, `?` or `@` is hidden whole, up to the last `@` before the path or query."""
+    scheme, sep, rest = url.partition("://")
+    if sep:
+        at = max(rest.split("/", 1)[0].rfind("@"), rest.split("?", 1)[0].rfind("@"))
+        user_info = rest[: max(at, 0)]
+        if ":" in user_info:
+            rest = user_info.split(":", 1)[0] + ":***" + rest[at:]
+    return _PASSWORD_PARAMETER.sub(r"\1***", f"{scheme}{sep}{rest}")

@@ -1,16 +1,18 @@
-"""The SQLite store: what the server acknowledged comes back after a close, a reopen or a kill -9.
+"""The stores: what the server acknowledged comes back after a close, a reopen or a kill -9.
 
-Every test uses real SQLite files under a temporary directory; nothing is mocked.
+Tests taking `store` or `store_url` run against each store (conftest.py): real SQLite files
+under a temporary directory, and a real PostgreSQL database; nothing is mocked. The rest are
+about the SQLite file itself.
 """
 
 from __future__ import annotations
 
+import itertools
 import queue
 import signal
 import sqlite3
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections import Counter
@@ -18,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from app.mapping.deltas import DeltaLog
@@ -98,10 +100,19 @@ def record(sid: str = "s1", **changes) -> SessionRecord:
     return SessionRecord(**values)
 
 
-@pytest.fixture
-def store(tmp_path):
-    with SqliteStore(tmp_path / "data" / "semanticxr.db") as store:
-        yield store
+def query(store_url: str, statement: str) -> list[tuple]:
+    """The rows of one SQL statement run on the store's own database (SQLite or PostgreSQL)."""
+    if store_url.startswith("sqlite:///"):
+        with sqlite3.connect(store_url.removeprefix("sqlite:///")) as db:
+            return db.execute(statement).fetchall()
+    import psycopg
+
+    with psycopg.connect(store_url) as conn:
+        return conn.execute(statement).fetchall()
+
+
+EXAMPLES = itertools.count()
+"""Hypothesis examples share a test's store: each takes a session id of its own."""
 
 
 def seeded(store: Store, sid: str = "s1") -> None:
@@ -303,7 +314,7 @@ def test_a_refused_commit_leaves_the_store_exactly_as_before(
     assert [o.id for o in store.load_objects("s1")] == [1, 4]
 
 
-def test_deleting_a_session_removes_its_objects_tombstones_and_changes(store):
+def test_deleting_a_session_removes_its_objects_tombstones_and_changes(store, store_url):
     seeded(store, "gone")
     seeded(store, "kept")
     store.commit_keyframe("gone", 3, [], [1], {}, 4, changes=[Change(1, "removed", 9.0, "x")])
@@ -314,10 +325,9 @@ def test_deleting_a_session_removes_its_objects_tombstones_and_changes(store):
 
     assert [s.session_id for s in store.list_sessions()] == ["kept"]
     assert everything(store)[1]["kept"] == kept_before
-    with sqlite3.connect(store.path) as db:
-        for table in ("objects", "tombstones", "changes"):
-            count = db.execute(f"SELECT count(*) FROM {table} WHERE session_id = 'gone'")
-            assert count.fetchone()[0] == 0, table
+    for table in ("objects", "tombstones", "changes"):
+        count = query(store_url, f"SELECT count(*) FROM {table} WHERE session_id = 'gone'")
+        assert count == [(0,)], table
     store.create_session(record("gone"))
     assert store.load_objects("gone") == []
     assert store.load_delta_log("gone").state() == DeltaLog().state()
@@ -348,16 +358,15 @@ def test_trimming_tombstones_raises_the_floor_past_the_dropped_ones(store):
     assert store.load_delta_log("s1").state() == log.state()
 
 
-def test_reopening_keeps_everything_and_the_same_deltas(tmp_path):
-    path = tmp_path / "semanticxr.db"
-    with SqliteStore(path) as store:
+def test_reopening_keeps_everything_and_the_same_deltas(store_url):
+    with open_store(store_url) as store:
         seeded(store, "s1")
         seeded(store, "s2")
         store.commit_keyframe("s2", 3, [make_object(2, version=7)], [1], {"bytes_in": 5}, 4)
         before = everything(store)
         log_before = store.load_delta_log("s2")
 
-    with SqliteStore(path) as store:
+    with open_store(store_url) as store:
         assert everything(store) == before
         log_after = store.load_delta_log("s2")
     for since in [None, *range(-1, log_before.seq + 2)]:
@@ -461,7 +470,7 @@ def test_open_store_opens_sqlite_urls_with_relative_and_absolute_paths(
 @pytest.mark.parametrize(
     ("url", "named"),
     [
-        ("postgres://db/semanticxr", "unknown scheme 'postgres'"),
+        ("mysql://db/semanticxr", "unknown scheme 'mysql'"),
         ("data/semanticxr.sqlite3", "must be a URL such as sqlite:///"),
         ("sqlite://data.db", "sqlite:///<relative path>"),
         ("sqlite:///", "sqlite:///<relative path>"),
@@ -487,8 +496,8 @@ def test_the_default_store_is_the_file_earlier_servers_wrote(tmp_path):
         assert everything(store) == before
 
 
-def test_a_closed_store_says_so(tmp_path):
-    store = SqliteStore(tmp_path / "semanticxr.db")
+def test_a_closed_store_says_so(store_url):
+    store = open_store(store_url)
     store.close()
     store.close()
     with pytest.raises(StoreError, match="closed"):
@@ -548,10 +557,9 @@ CRASH_CHILD = (
     + """
 import sys
 
-from app.store import SessionRecord
-from app.store.sqlite import SqliteStore
+from app.store import SessionRecord, open_store
 
-store = SqliteStore(sys.argv[1])
+store = open_store(sys.argv[1])
 store.create_session(SessionRecord("crash", "crash", "semanticxr", {}, "hash", 0.0))
 for k in range(1, 1_000_000):
     upserted, removed = keyframe_changes(k)
@@ -568,10 +576,9 @@ def _read_lines(stream, lines: queue.Queue) -> None:
     lines.put(None)  # EOF
 
 
-def test_every_acknowledged_keyframe_survives_kill_9(tmp_path):
-    path = tmp_path / "semanticxr.db"
+def test_every_acknowledged_keyframe_survives_kill_9(store_url):
     child = subprocess.Popen(
-        [sys.executable, "-c", CRASH_CHILD, str(path)],
+        [sys.executable, "-c", CRASH_CHILD, store_url],
         cwd=REPO_ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -602,7 +609,7 @@ def test_every_acknowledged_keyframe_survives_kill_9(tmp_path):
 
     workload: dict = {}
     exec(CRASH_WORKLOAD, workload)
-    with SqliteStore(path) as store:
+    with open_store(store_url) as store:
         log = store.load_delta_log("crash")
         objects = store.load_objects("crash")
         (session,) = store.list_sessions()
@@ -632,24 +639,27 @@ commits = st.lists(
 )
 
 
-@settings(max_examples=60, deadline=None)
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(history=commits, max_tombstones=st.sampled_from([3, 100_000]))
-def test_the_stored_delta_log_equals_an_in_memory_one_fed_the_same_commits(history, max_tombstones):
+def test_the_stored_delta_log_equals_an_in_memory_one_fed_the_same_commits(
+    store_url, history, max_tombstones
+):
     """Fed the same commits, and trimmed whenever the in-memory log raises its floor (as the
     server does), the store reloads to the same log."""
     model = DeltaLog(max_tombstones=max_tombstones)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "semanticxr.db"
-        with SqliteStore(path) as store:
-            store.create_session(record("s1"))
-            for n, (upserted, removed) in enumerate(history, 1):
-                seq = model.commit(upserted, removed)
-                objects = [make_object(i, version=seq, n_points=3) for i in sorted(upserted)]
-                store.commit_keyframe("s1", seq, objects, sorted(removed), {"keyframes": n}, 11)
-                store.trim_tombstones("s1", model.floor)
-        with SqliteStore(path) as store:  # what a restarted server would load
-            log = store.load_delta_log("s1")
-            objects = store.load_objects("s1")
+    sid = f"s{next(EXAMPLES)}"
+    with open_store(store_url) as store:
+        store.create_session(record(sid))
+        for n, (upserted, removed) in enumerate(history, 1):
+            seq = model.commit(upserted, removed)
+            objects = [make_object(i, version=seq, n_points=3) for i in sorted(upserted)]
+            store.commit_keyframe(sid, seq, objects, sorted(removed), {"keyframes": n}, 11)
+            store.trim_tombstones(sid, model.floor)
+    with open_store(store_url) as store:  # what a restarted server would load
+        log = store.load_delta_log(sid)
+        objects = store.load_objects(sid)
 
     assert (log.seq, log.floor) == (model.seq, model.floor)
     assert log.state() == model.state()

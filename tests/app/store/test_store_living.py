@@ -1,6 +1,8 @@
-"""The living map in the SQLite store (schema 4): removed objects kept as history, when and
-where objects were seen, per-label evidence, the changes the map concluded, and the
-session's last keyframe time and pose. Real SQLite files; nothing is mocked."""
+"""The living map in the stores (schema 4): removed objects kept as history, when and where
+objects were seen, per-label evidence, the changes the map concluded, and the session's last
+keyframe time and pose. Tests taking `store` or `store_url` run against each store
+(conftest.py: real SQLite files and a real PostgreSQL database); the migration tests are
+about SQLite files. Nothing is mocked."""
 
 from __future__ import annotations
 
@@ -10,19 +12,13 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_store import DIM, everything, fields, make_object, record, seeded
+from test_store import DIM, EXAMPLES, everything, fields, make_object, record, seeded
 
 from app.mapping.object import MAX_STAYS, Change, MapObject, Stay
-from app.store import CHANGE_KINDS, Store
+from app.store import CHANGE_KINDS, Store, open_store
 from app.store.sqlite import _MIGRATIONS, _SCHEMA, SCHEMA_VERSION, SqliteStore
-
-
-@pytest.fixture
-def store(tmp_path):
-    with SqliteStore(tmp_path / "semanticxr.db") as store:
-        yield store
 
 
 def f32(*values: float) -> tuple[float, ...]:
@@ -133,19 +129,18 @@ def test_a_new_store_has_the_schema_an_upgraded_one_has(tmp_path):
 
 
 # ---------------------------------------------------------------------- round trip
-def test_every_field_of_the_living_map_round_trips_exactly(tmp_path):
-    path = tmp_path / "semanticxr.db"
+def test_every_field_of_the_living_map_round_trips_exactly(store_url):
     full_history = living_object(1, n_stays=MAX_STAYS)
     tie = living_object(2)
     tie.label_counts = Counter({"mug": 2, "cup": 2})  # a tie: the first seen wins, after too
     tie.label_embeddings = {"cup": np.ones(DIM, np.float32), "mug": np.full(DIM, 2, np.float32)}
     bare = make_object(3)  # an object as an older store or an import leaves it
     gone = retired(living_object(4))
-    with SqliteStore(path) as store:
+    with open_store(store_url) as store:
         store.create_session(record("s1"))
         store.commit_keyframe("s1", 1, [full_history, tie, bare, living_object(4)], [], {}, 5)
         store.commit_keyframe("s1", 2, [], [4], {}, 5, retired=[gone])
-    with SqliteStore(path) as store:
+    with open_store(store_url) as store:
         present = store.load_objects("s1")
         removed = store.load_removed_objects("s1")
 
@@ -156,17 +151,16 @@ def test_every_field_of_the_living_map_round_trips_exactly(tmp_path):
     assert present[0].label_embeddings.keys() == {"label-1"}  # "other" has no sum
 
 
-def test_the_sessions_last_keyframe_time_and_pose_are_kept(tmp_path):
-    path = tmp_path / "semanticxr.db"
+def test_the_sessions_last_keyframe_time_and_pose_are_kept(store_url):
     pose = np.eye(4)
     pose[:3, 3] = (1.5, -0.25, 2.0)
-    with SqliteStore(path) as store:
+    with open_store(store_url) as store:
         seeded(store)
         assert (store.load_session("s1").last_t, store.load_session("s1").last_pose) == (None, None)
         store.commit_keyframe("s1", 3, [], [2], {}, 4, last_t=612.4, last_pose=pose)
         store.commit_keyframe("s1", 3, [], [], {"frames": 99}, 4)  # not given: kept
         store.create_session(record("s2", last_t=-3.5, last_pose=list(range(16))))
-    with SqliteStore(path) as store:
+    with open_store(store_url) as store:
         rec, listed = store.load_session("s1"), store.list_sessions()
 
     assert rec.last_t == 612.4 and rec.last_pose == pose.ravel().tolist()
@@ -323,18 +317,17 @@ def moved(oid: int, t: float) -> Change:
     return Change(oid, "moved", t, f"thing {oid}", from_xyz=(oid, 0.5, -1.0), to_xyz=(t, 0, 0))
 
 
-def test_changes_come_back_in_arrival_order_with_their_commits_seq(tmp_path):
-    path = tmp_path / "semanticxr.db"
+def test_changes_come_back_in_arrival_order_with_their_commits_seq(store_url):
     committed = [
         [Change(1, "added", 10.0, "mug", to_xyz=(0.1, 0.2, 0.3)), moved(2, 10.0)],
         [Change(3, "removed", 4.0, "laptop", from_xyz=(1.0, 1.0, 1.0), seq=77)],  # t went back
         [moved(1, 30.0)],
     ]
-    with SqliteStore(path) as store:
+    with open_store(store_url) as store:
         store.create_session(record("s1"))
         for seq, changes in enumerate(committed, 1):
             store.commit_keyframe("s1", seq, [make_object(seq)], [], {}, 4, changes=changes)
-    with SqliteStore(path) as store:
+    with open_store(store_url) as store:
         loaded = store.load_changes("s1")
 
     expected = [
@@ -458,7 +451,9 @@ def test_a_bad_changes_filter_is_a_value_error_naming_it(seven_changes, query, n
         seven_changes.load_changes("s1", **query)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(
     ts=st.lists(st.floats(-5, 5).map(lambda t: round(t, 1)), min_size=0, max_size=12),
     since_t=st.none() | st.floats(-5, 5),
@@ -468,17 +463,16 @@ def test_a_bad_changes_filter_is_a_value_error_naming_it(seven_changes, query, n
     limit=st.none() | st.integers(0, 13),
 )
 def test_load_changes_equals_filtering_the_committed_list(
-    tmp_path_factory, ts, since_t, until_t, since_seq, kinds, limit
+    store, ts, since_t, until_t, since_seq, kinds, limit
 ):
-    path = tmp_path_factory.mktemp("changes") / "semanticxr.db"
     committed = [Change(i + 1, CHANGE_KINDS[i % 3], t, "x", seq=i + 1) for i, t in enumerate(ts)]
-    with SqliteStore(path) as store:
-        store.create_session(record("s1"))
-        for change in committed:
-            store.commit_keyframe("s1", change.seq, [], [], {}, 20, changes=[change])
-        loaded = store.load_changes(
-            "s1", since_t=since_t, until_t=until_t, since_seq=since_seq, kinds=kinds, limit=limit
-        )
+    sid = f"s{next(EXAMPLES)}"
+    store.create_session(record(sid))
+    for change in committed:
+        store.commit_keyframe(sid, change.seq, [], [], {}, 20, changes=[change])
+    loaded = store.load_changes(
+        sid, since_t=since_t, until_t=until_t, since_seq=since_seq, kinds=kinds, limit=limit
+    )
     kept = [
         c
         for c in committed
