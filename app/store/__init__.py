@@ -154,11 +154,12 @@ _PASSWORD_PARAMETER = re.compile(r"((?:^|[?&\s])(?:ssl)?password\s*=\s*)('[^']*'
 
 def redact_url(url: str) -> str:
     """`url` fit to log or show: its password (`user:password@`, or a `password=` or
-    `sslpassword=` parameter) replaced by `***`. Errs on hiding too much: a password with an
-    unescaped `/`, `?` or `@` is hidden whole, up to the last `@` before the path or query."""
+    `sslpassword=` parameter) replaced by `***`. Errs on hiding too much: everything from the
+    first `:` to the last `@` counts as the password, so one holding an unescaped `/`, `?` or
+    `@` is hidden whole (and an `@` further on hides the host too)."""
     scheme, sep, rest = url.partition("://")
     if sep:
-        at = max(rest.split("/", 1)[0].rfind("@"), rest.split("?", 1)[0].rfind("@"))
+        at = rest.rfind("@")
         user_info = rest[: max(at, 0)]
         if ":" in user_info:
             rest = user_info.split(":", 1)[0] + ":***" + rest[at:]

@@ -1,9 +1,15 @@
-"""The store stops growing when the map does: tombstones are trimmed by the server itself."""
+"""The store stops growing when the map does: tombstones are trimmed by the server itself.
+
+Run against each store (conftest.py `store_url`): an SQLite file reuses the pages it frees;
+PostgreSQL keeps dead row versions until a vacuum (autovacuum's work) reclaims them, so its
+size is measured after one.
+"""
 
 from __future__ import annotations
 
 import asyncio
 import sqlite3
+from pathlib import Path
 
 import httpx
 import msgpack
@@ -51,33 +57,51 @@ async def _stream(url: str, seqs: range) -> None:
             assert reply["type"] == "ack" and reply["keyframe"], reply
 
 
-def _measure(db_path) -> dict:
-    """The database as a reader sees it, after moving the WAL into the main file."""
-    with sqlite3.connect(db_path) as db:
-        db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-        page_size = db.execute("PRAGMA page_size").fetchone()[0]
-        return {
-            "bytes": db.execute("PRAGMA page_count").fetchone()[0] * page_size,
-            "file_bytes": db_path.stat().st_size,
-            "tombstones": db.execute("SELECT count(*) FROM tombstones").fetchone()[0],
-            "objects": db.execute("SELECT count(*) FROM objects").fetchone()[0],
-            "seq_floor_next_id": db.execute(
-                "SELECT seq, delta_floor, next_object_id FROM sessions"
-            ).fetchone(),
-        }
+def _contents(db) -> dict:
+    """What the store holds (`db`: an sqlite3 or a psycopg connection)."""
+    return {
+        "tombstones": db.execute("SELECT count(*) FROM tombstones").fetchone()[0],
+        "objects": db.execute("SELECT count(*) FROM objects").fetchone()[0],
+        "seq_floor_next_id": tuple(
+            db.execute("SELECT seq, delta_floor, next_object_id FROM sessions").fetchone()
+        ),
+    }
 
 
-def test_the_database_stops_growing_when_the_map_does(live_server, tmp_path):
-    server = live_server(max_tombstones=MAX_TOMBSTONES)
-    db_path = tmp_path / "data" / "semanticxr.sqlite3"
+def _measure(store_url: str) -> dict:
+    """The database as a reader sees it: its size (an SQLite file after moving the WAL into
+    it; PostgreSQL's tables and indexes after a vacuum) and what it holds."""
+    if store_url.startswith("sqlite:///"):
+        db_path = Path(store_url.removeprefix("sqlite:///"))
+        with sqlite3.connect(db_path) as db:
+            db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            page_size = db.execute("PRAGMA page_size").fetchone()[0]
+            return {
+                "bytes": db.execute("PRAGMA page_count").fetchone()[0] * page_size,
+                "file_bytes": db_path.stat().st_size,
+                **_contents(db),
+            }
+    import psycopg
+
+    with psycopg.connect(store_url, autocommit=True) as db:
+        db.execute("VACUUM FULL")  # drops dead row versions, as (auto)vacuum lets them be reused
+        size = db.execute(
+            "SELECT sum(pg_total_relation_size(c.oid))::bigint FROM pg_class AS c"
+            " WHERE c.relname IN ('sessions', 'objects', 'tombstones', 'changes')"
+        ).fetchone()[0]
+        return {"bytes": size, "file_bytes": size, **_contents(db)}
+
+
+def test_the_database_stops_growing_when_the_map_does(store_url, live_server):
+    server = live_server(store=store_url, max_tombstones=MAX_TOMBSTONES)
     created = httpx.post(f"{server.url}/v1/sessions", json={"knobs": KNOBS}, timeout=10).json()
     url = f"{server.ws_url}/v1/sessions/{created['session_id']}/stream"
 
     n = 40
     asyncio.run(_stream(url, range(0, n)))
-    after_n = _measure(db_path)
+    after_n = _measure(store_url)
     asyncio.run(_stream(url, range(n, 2 * n)))
-    after_2n = _measure(db_path)
+    after_2n = _measure(store_url)
 
     # The workload removed far more objects than the store keeps tombstones for...
     seq, floor, next_id = after_2n["seq_floor_next_id"]
@@ -104,21 +128,20 @@ def test_the_database_stops_growing_when_the_map_does(live_server, tmp_path):
     assert not recent["full"]
 
 
-def test_a_restart_trims_a_store_that_kept_more_tombstones_than_the_setting(live_server, tmp_path):
+def test_a_restart_trims_a_store_that_kept_more_tombstones_than_the_setting(store_url, live_server):
     """Databases written before trimming (or with a larger setting) shrink as each session
     loads (on its first use: start-up loads no map)."""
-    db_path = tmp_path / "data" / "semanticxr.sqlite3"
-    first = live_server()
+    first = live_server(store=store_url)
     created = httpx.post(f"{first.url}/v1/sessions", json={"knobs": KNOBS}, timeout=10).json()
     asyncio.run(_stream(f"{first.ws_url}/v1/sessions/{created['session_id']}/stream", range(12)))
     first.stop()
-    before = _measure(db_path)
+    before = _measure(store_url)
     assert before["tombstones"] > MAX_TOMBSTONES and before["seq_floor_next_id"][1] == 0
 
-    again = live_server(max_tombstones=MAX_TOMBSTONES)
-    assert _measure(db_path)["tombstones"] == before["tombstones"]  # nothing loaded yet
+    again = live_server(store=store_url, max_tombstones=MAX_TOMBSTONES)
+    assert _measure(store_url)["tombstones"] == before["tombstones"]  # nothing loaded yet
     stats = httpx.get(f"{again.url}/v1/sessions/{created['session_id']}", timeout=10).json()
     assert (stats["objects"], stats["update_seq"]) == (len(BOXES), 12)
-    after = _measure(db_path)
+    after = _measure(store_url)
     assert after["tombstones"] <= MAX_TOMBSTONES // 2
     assert after["seq_floor_next_id"][1] > 0
