@@ -41,6 +41,10 @@ SETTINGS = {
     "listen_addresses": "'127.0.0.1'",
     "log_min_messages": "warning",
 }
+LOCALE_AWARE = "TEMPLATE template0 LOCALE_PROVIDER icu ICU_LOCALE 'en-US'"
+"""How test databases are created where PostgreSQL has ICU: sorting text by a language's
+rules, as an operator's database usually does, so a store that relies on code-point order
+fails here (without ICU they get the cluster's C locale)."""
 
 
 def find_pg_bin() -> Path | None:
@@ -75,6 +79,7 @@ class PgCluster:
         self.log_file = self.root / "postgres.log"
         self.port = _free_port()
         self._names = itertools.count(1)
+        self._database_options: str | None = LOCALE_AWARE
         if self.as_root:  # the cluster's files belong to the user that runs it
             owner = pwd.getpwnam(PG_USER)
             os.chown(self.root, owner.pw_uid, owner.pw_gid)
@@ -153,8 +158,17 @@ class PgCluster:
             conn.execute(statement)
 
     def create_database(self, prefix: str = "test") -> str:
-        """A new empty database (a name not used before in this cluster); returns its name."""
+        """A new empty database (a name not used before in this cluster), locale-aware where
+        PostgreSQL has ICU (`LOCALE_AWARE`); returns its name."""
+        import psycopg
+
         name = f"{re.sub(r'[^a-z0-9_]', '_', prefix.lower())[:40]}_{next(self._names)}"
+        if self._database_options is not None:
+            try:
+                self.admin(f'CREATE DATABASE "{name}" {self._database_options}')
+                return name
+            except psycopg.Error:  # no ICU in this build: the cluster's locale it is
+                self._database_options = None
         self.admin(f'CREATE DATABASE "{name}"')
         return name
 

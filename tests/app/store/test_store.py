@@ -154,6 +154,15 @@ def test_sessions_round_trip_with_their_knobs_and_counters(store):
     )
 
 
+def test_sessions_made_at_one_time_are_listed_by_id_in_code_point_order(store):
+    """As SQLite compares text (byte by byte): never by a database's locale."""
+    ids = ["b", "B", "_x", "a-1", "a1", "é", "Z"]
+    for sid in ids:
+        store.create_session(record(sid, created_at=7.0))
+    assert [rec.session_id for rec in store.list_sessions()] == sorted(ids)
+    assert [e.record.session_id for e in store.list_stored()] == sorted(ids)
+
+
 def test_a_new_session_counts_as_used_when_it_was_created(store):
     store.create_session(record("s1", created_at=5.0))
     assert store.load_session("s1").last_used_at == 5.0
