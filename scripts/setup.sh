@@ -35,4 +35,24 @@ if [ "${SEMANTICXR_SKIP_BROWSER:-0}" != "1" ] && ! command -v chromium >/dev/nul
     echo "[setup] no chromium: browser tests will be skipped ('sudo apt-get install chromium' adds it)"
   fi
 fi
+# The PostgreSQL store's tests start a throwaway cluster with initdb and pg_ctl: on PATH, or
+# where Debian puts them (/usr/lib/postgresql/<version>/bin, not on PATH). Optional: those
+# tests skip, saying why, where PostgreSQL cannot be found.
+postgres_found() {
+  if command -v initdb >/dev/null && command -v pg_ctl >/dev/null; then return 0; fi
+  for bin in /usr/lib/postgresql/*/bin; do
+    if [ -x "$bin/initdb" ] && [ -x "$bin/pg_ctl" ]; then return 0; fi
+  done
+  return 1
+}
+if [ "${SEMANTICXR_SKIP_POSTGRES:-0}" != "1" ] && ! postgres_found; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+    echo "[setup] installing Debian's postgresql for the PostgreSQL store's tests (once)"
+    (apt-get install -y -q postgresql >/dev/null 2>&1) || \
+      (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q postgresql >/dev/null 2>&1) || \
+      echo "[setup] could not install postgresql: the PostgreSQL tests will be skipped"
+  else
+    echo "[setup] no PostgreSQL: the PostgreSQL tests will be skipped ('sudo apt-get install postgresql' adds it)"
+  fi
+fi
 echo "[setup] ok"
