@@ -8,13 +8,18 @@ skip, saying why, where PostgreSQL cannot be found (the URL checks need no serve
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections.abc import Callable
 
 import httpx
+import msgpack
 import psycopg
 import pytest
+import websockets
+from analytic_world import KITCHEN
+from devices import TIMEOUT_S, frame_message
 from pg import PG_PASSWORD
 from test_store import everything, make_object, query, record, seeded
 
@@ -263,3 +268,45 @@ def test_a_server_on_postgresql_keeps_its_sessions_across_a_restart(fresh_pg_url
     assert [s["session_id"] for s in httpx.get(f"{again.url}/v1/sessions", timeout=10).json()] == [
         sid
     ]
+
+
+def test_a_server_refuses_keyframes_while_its_database_is_down_and_recovers_by_itself(
+    pg_cluster, fresh_pg_url, live_server
+):
+    """As on a full disk, the keyframe is refused (`storage_unavailable`) and /healthz answers
+    503; the server's probe notices the database is back without a keyframe. Unlike a full
+    disk, the session's map cannot be read back either, so the server closes the session's
+    socket; the device's next connection loads it again."""
+    server = live_server(store=with_timeout(fresh_pg_url))
+    created = httpx.post(f"{server.url}/v1/sessions", json={"knobs": {"keyframe_interval": 1}})
+    stream_url = f"{server.ws_url}/v1/sessions/{created.json()['session_id']}/stream"
+
+    def health() -> int:
+        return httpx.get(f"{server.url}/healthz", timeout=10).status_code
+
+    async def keyframe(ws, seq: int) -> dict:
+        await ws.send(msgpack.packb(frame_message(list(KITCHEN), seq, cam_xy=(0.01 * seq, 0))))
+        return msgpack.unpackb(await asyncio.wait_for(ws.recv(), TIMEOUT_S))
+
+    async def stream() -> tuple[list[dict], int]:
+        async with websockets.connect(stream_url) as ws:
+            replies = [await keyframe(ws, 0)]
+            pg_cluster.stop()
+            try:
+                replies.append(await keyframe(ws, 1))
+                down = await asyncio.to_thread(health)
+            finally:
+                pg_cluster.start()
+        deadline = time.monotonic() + RECOVERY_S
+        while await asyncio.to_thread(health) != 200:
+            assert time.monotonic() < deadline, "/healthz still 503"
+            await asyncio.sleep(0.1)  # polling the server's answer, not synchronisation
+        async with websockets.connect(stream_url) as ws:  # the device reconnects
+            replies.append(await keyframe(ws, 2))
+        return replies, down
+
+    replies, down = asyncio.run(stream())
+    assert [r["type"] for r in replies] == ["ack", "error", "ack"], replies
+    assert replies[1]["code"] == "storage_unavailable" and down == 503
+    session = httpx.get(stream_url.replace("ws://", "http://").removesuffix("/stream")).json()
+    assert session["keyframes"] == 2  # the refused one was not mapped
