@@ -165,9 +165,9 @@ def run_revisit_scenario(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     result = run_revisit(cfg, get_text_encoder())
-    print(format_revisit_table(result))
-    if args.json:
+    if args.json:  # first: the hour of mapping is kept whatever printing does
         write_json(args.json, result)
+    print(format_revisit_table(result))
     return 0
 
 

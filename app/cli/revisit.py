@@ -13,7 +13,10 @@ Scoring (issue 24, "Measured"; pooled over seeds, `app.mapping.change_scores`):
   id, so its change is judged by what it was), new ones against the second scene.
 - A change counts when object and kind are right; `added` is scored apart.
 - Time to update: from the first keyframe of the second walk that showed the evidence
-  (the old place without the thing, the new place with it) to the change's `t`.
+  (the old place without the thing, the new place with it) to the change's `t`. Beside it,
+  the walk's bound (how long after that the walk had shown enough for the rules to conclude:
+  a removal needs `removal_min_evidence` keyframes showing the empty place) and the map's
+  delay beyond that bound.
 - False removals under occlusion: removed or moved changes of a hidden object.
 - Stale answers: after the second walk, a query for a moved or removed thing's category
   whose top-1 is the map's object for that thing still at its old place (within
@@ -91,8 +94,8 @@ class _Walks:
     sightings: dict[int, list[_Sighting]]
     keyframe_t: list[float]
     walk1_keyframes: int
-    old_place_seen_t: dict[int, float] = field(default_factory=dict)
-    """Instance -> t of the first walk-2 keyframe showing its old place without it."""
+    old_place_shown_t: dict[int, list[float]] = field(default_factory=dict)
+    """Instance -> t of every walk-2 keyframe showing its old place without it."""
     new_place_seen_t: dict[int, float] = field(default_factory=dict)
     """Instance -> t of the first walk-2 keyframe showing it (at its new place)."""
     last_seen_walk1_t: dict[int, float] = field(default_factory=dict)
@@ -147,7 +150,7 @@ def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
                 if instance < len(counts) and counts[instance] >= seen_px:
                     walks.new_place_seen_t.setdefault(instance, frame.t)
                 held = first_walk_pixels.get(same_pose, {}).get(instance)
-                if held is not None and instance not in walks.old_place_seen_t:
+                if held is not None:
                     where, before = held
                     now = depth[where]
                     behind = (now >= before - 0.05) & (ids[where] != instance)
@@ -157,10 +160,29 @@ def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
                         <= cfg.knobs.absence_max_depth_m
                     )
                     if in_range and behind.mean() >= PLACE_VISIBLE_FRACTION:
-                        walks.old_place_seen_t[instance] = frame.t
+                        walks.old_place_shown_t.setdefault(instance, []).append(frame.t)
         if len(walks.messages) % 50 == 0:
             progress(f"[revisit] seed {seed}: rendered and encoded {len(walks.messages)} keyframes")
     return walks
+
+
+def _true_change(walks: _Walks, change, key: int, min_evidence: int) -> TrueChange:
+    """A scripted change with the times its evidence was shown. A removal's bound is the
+    `min_evidence`-th keyframe showing the empty place (keyframes are 1 s apart, so the span
+    rule holds by then); a move or an addition can be concluded once both places were shown
+    (a suspect old place and a new candidate confirmed from sightings)."""
+    old = walks.old_place_shown_t.get(change.instance_id, [])
+    new = walks.new_place_seen_t.get(change.instance_id)
+    if change.kind == "removed":
+        t_evidence = old[0] if old else None
+        t_bound = old[min_evidence - 1] if len(old) >= min_evidence else None
+        if t_evidence is not None and t_bound is None:
+            t_bound = old[-1]  # shown fewer times than the rule asks: its last showing
+    elif change.kind == "added":
+        t_evidence = t_bound = new
+    else:
+        t_evidence = t_bound = None if not old or new is None else max(old[0], new)
+    return TrueChange(key + change.instance_id, change.kind, t_evidence, t_bound)
 
 
 def _identities(objects: list[MapObject], tree: cKDTree, instance_of_point: np.ndarray):
@@ -240,17 +262,7 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
                 first[name].latencies_ms + second[name].latencies_ms
             )
         for change in scenario.changes:
-            if change.kind == "removed":
-                t_evidence = walks.old_place_seen_t.get(change.instance_id)
-            elif change.kind == "added":
-                t_evidence = walks.new_place_seen_t.get(change.instance_id)
-            else:
-                seen = (
-                    walks.old_place_seen_t.get(change.instance_id),
-                    walks.new_place_seen_t.get(change.instance_id),
-                )
-                t_evidence = None if None in seen else max(seen)  # type: ignore[type-var]
-            truth.append(TrueChange(key + change.instance_id, change.kind, t_evidence))
+            truth.append(_true_change(walks, change, key, cfg.knobs.removal_min_evidence))
         seed_report: dict = {"seed": seed, "changes": len(scenario.changes), "modes": {}}
         removed_truth = [c for c in scenario.changes if c.kind == "removed"]
         remaining = set(scenario.after.categories_present)
@@ -364,6 +376,7 @@ def format_revisit_table(result: dict) -> str:
         f"revisit of {result['scene']}: seeds {result['seeds']}, {result['scripted_changes']} "
         f"scripted changes, walks of {result['walk_frames']} frames {result['gap_s']:g} s apart",
         f"{'mode':<11} {'prec':>5} {'(low)':>6} {'recall':>6} {'(low)':>6} {'t2u p95 s':>9} "
+        f"{'walk':>5} {'beyond':>6} "
         f"{'occl':>4} {'stale':>5} {'seen m':>6} {'seen s':>6} {'cost %':>6} "
         f"{'added p/r':>10}",
     ]
@@ -376,11 +389,17 @@ def format_revisit_table(result: dict) -> str:
         lines.append(
             f"{mode:<11} {c['precision']:5.2f} {fmt(c['precision_wilson_low']):>6} "
             f"{c['recall']:6.2f} {fmt(c['recall_wilson_low']):>6} "
-            f"{fmt(c['time_to_update_s']['p95'], '.1f'):>9} {c['false_removals_occluded']:4d} "
+            f"{fmt(c['time_to_update_s']['p95'], '.1f'):>9} "
+            f"{fmt(c['walk_bound_s']['p95'], '.1f'):>5} "
+            f"{fmt(c['beyond_walk_bound_s']['p95'], '.1f'):>6} {c['false_removals_occluded']:4d} "
             f"{c['stale_answers']:5d} {fmt(c['last_seen_error_m']['p50']):>6} "
             f"{fmt(c['last_seen_error_s']['p50'], '.1f'):>6} {c['mapping_cost_pct']:6.1f} "
             f"{c['added']['precision']:4.2f}/{c['added']['recall']:4.2f}"
         )
+    lines.append(
+        "(t2u, walk, beyond: p95 of the time to update, of the walk's share of it, of the map's "
+        "delay beyond the walk's bound)"
+    )
     lines.append(
         "targets: precision >= 0.95, recall >= 0.9, time to update p95 <= 3 s, 0 false removals "
         "under occlusion, 0 stale answers, last seen p50 <= 0.3 m, cost <= +15 %"

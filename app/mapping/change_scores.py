@@ -32,11 +32,14 @@ class ConcludedChange:
 class TrueChange:
     """A change of the world. t_evidence: device time of the first keyframe that showed the
     evidence the map needs (its old place without it, its new place with it); None when no
-    keyframe did."""
+    keyframe did. t_bound: the earliest time the map's settled rules could conclude it from
+    what the walk showed (a removal needs several keyframes showing the empty place, and the
+    walk may look away between them); None: t_evidence."""
 
     instance: int
     kind: str
     t_evidence: float | None
+    t_bound: float | None = None
 
 
 def wilson_lower(successes: int, trials: int, z: float = WILSON_Z) -> float:
@@ -61,7 +64,7 @@ def _rates(
 ) -> tuple[dict, list[float]]:
     """Precision, recall, F1 (with Wilson bounds) and the times to update of the matches."""
     unmatched = {(c.instance, c.kind): c for c in truth}
-    hits, delays, matched, wrong = 0, [], [], []
+    hits, delays, beyond, walk_bound, matched, wrong = 0, [], [], [], [], []
     for change in concluded:
         true = unmatched.pop((change.instance, change.kind), None)
         if true is None:
@@ -69,8 +72,11 @@ def _rates(
             continue
         hits += 1
         delay = None if true.t_evidence is None else max(0.0, change.t - true.t_evidence)
-        if delay is not None:
+        bound = true.t_evidence if true.t_bound is None else true.t_bound
+        if delay is not None and bound is not None:
             delays.append(delay)
+            beyond.append(max(0.0, change.t - bound))
+            walk_bound.append(bound - true.t_evidence)
         matched.append({"instance": change.instance, "kind": change.kind, "delay_s": delay})
     precision = hits / len(concluded) if concluded else 1.0
     recall = hits / len(truth) if truth else 1.0
@@ -87,12 +93,18 @@ def _rates(
         "matched": matched,
         "wrong": wrong,
         "missed": [{"instance": c.instance, "kind": c.kind} for c in unmatched.values()],
+        "walk_bound_s": _percentiles(walk_bound),
+        "beyond_walk_bound_s": _percentiles(beyond),
     }, delays
 
 
 def score_changes(concluded: Sequence[ConcludedChange], truth: Sequence[TrueChange]) -> dict:
     """The `changes` figures of `semanticxr eval --scenario revisit` for moved and removed
-    (pooled), with `added` apart under "added". Rates are fractions 0..1; times seconds."""
+    (pooled), with `added` apart under "added". Rates are fractions 0..1; times seconds.
+
+    `time_to_update_s` runs from the first keyframe that showed the evidence; `walk_bound_s`
+    is how much of that the walk itself imposes (from the first showing keyframe to the
+    earliest the rules could conclude); `beyond_walk_bound_s` is the map's own delay."""
     main = [c for c in concluded if c.kind != "added"]
     main_truth = [c for c in truth if c.kind != "added"]
     scores, delays = _rates(main, main_truth)

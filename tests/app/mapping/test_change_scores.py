@@ -41,3 +41,15 @@ def test_wilson_lower_bound_is_below_the_rate_and_tightens_with_trials():
     assert wilson_lower(10, 10) < 1.0
     assert wilson_lower(95, 100) < 0.95 < wilson_lower(950, 1000) + 0.03
     assert wilson_lower(60, 60) > wilson_lower(12, 12)
+
+
+def test_the_walks_bound_splits_the_time_to_update():
+    # the empty place first shown at 10 s, shown the third time at 16 s (the walk looked
+    # away), concluded at 17 s: 7 s to update, 6 s of it the walk's, 1 s the map's
+    truth = [TrueChange(1, "removed", 10.0, 16.0), TrueChange(2, "moved", 20.0)]
+    concluded = [ConcludedChange(1, "removed", 17.0), ConcludedChange(2, "moved", 21.0)]
+    scores = score_changes(concluded, truth)
+    assert sorted(m["delay_s"] for m in scores["matched"]) == [1.0, 7.0]
+    assert scores["walk_bound_s"]["p50"] == pytest.approx(3.0)  # of 6 and 0
+    assert scores["beyond_walk_bound_s"]["p50"] == pytest.approx(1.0)  # of 1 and 1
+    assert scores["beyond_walk_bound_s"]["p95"] == pytest.approx(1.0)
