@@ -1116,7 +1116,7 @@ class MappingEngine:
         in_view = np.flatnonzero(n_visible >= np.minimum(SIGHTING_MIN_POINTS, sample_sizes))
 
         skip = {label.lower() for label in self.knobs.skip_mapping_set}
-        label_of = {d.instance_id: d.label for d in sent.detections if d.label.lower() not in skip}
+        label_of = {i: label for i, label in sent.labels().items() if label.lower() not in skip}
         labels = [label_of.get(int(d)) for d in det_ids]
         taken: set[int] = set()  # columns a confirmed object carrying their label is seen in
         best_candidate: dict[int, tuple[int, int]] = {}  # column -> (points, object index)
@@ -1166,7 +1166,7 @@ class MappingEngine:
             rgb_size=frame.rgb_size,
             depth_m=frame.depth_m,
             label_image=sent.instance_image,
-            labels={d.instance_id: d.label for d in sent.detections},
+            labels=sent.labels(),
         )
         own = self._own_labels(suspects, view)
         for obj, labels in zip(suspects, own, strict=True):

@@ -50,6 +50,10 @@ class FrameDetections:
         """bool [H, W] mask of one detection (a full-image pass)."""
         return self.instance_image == detection.instance_id
 
+    def labels(self) -> dict[int, str]:
+        """instance id -> label of every detection."""
+        return {d.instance_id: d.label for d in self.detections}
+
 
 class PerceptionBackend(abc.ABC):
     """keyframe -> the keyframe's detections.

@@ -224,7 +224,7 @@ _NO_BUDGET = FrameBudget()
 
 
 def parse_frame(
-    message: Any, rgb_pixels: bool = True, budget: FrameBudget = _NO_BUDGET
+    message: Any, rgb_pixels: bool = True, budget: FrameBudget = _NO_BUDGET, mapped: bool = True
 ) -> FrameInput:
     """A v1 `frame` message (already unpacked from msgpack) -> FrameInput.
 
@@ -236,6 +236,9 @@ def parse_frame(
     instance count are checked against it before that part is decoded (`LimitError`).
     Keys the protocol does not know are ignored (v1 extensions); what they may hold is
     bounded by `FRAME_LIMITS` when the message is unpacked.
+    mapped=False: a frame no stage maps (not a keyframe), so only what every frame needs is
+    decoded: the JPEG and the depth patches are checked as far as their headers and boxes
+    (`rgb` and `depth_patches` are left empty); pose, depth and detections in full.
     """
     if not isinstance(message, dict):
         raise InputError("message", f"must be a map, got {type(message).__name__}")
@@ -247,12 +250,15 @@ def parse_frame(
     if rgb_msg.get("codec") != "jpeg":
         raise InputError("rgb.codec", f"must be 'jpeg', got {rgb_msg.get('codec')!r}")
     rgb_data = _require(rgb_msg, "data", bytes, "rgb.")
-    budget.check_pixels("rgb", *codecs.jpeg_size(rgb_data, field="rgb"))
-    if rgb_pixels:
+    declared = codecs.jpeg_size(rgb_data, field="rgb")
+    budget.check_pixels("rgb", *declared)
+    rgb = None
+    if not mapped:
+        width, height = declared
+    elif rgb_pixels:
         rgb = codecs.decode_jpeg(rgb_data, field="rgb")
         height, width = rgb.shape[:2]
     else:
-        rgb = None
         width, height = codecs.validate_jpeg(rgb_data, field="rgb")
 
     depth_m = parse_depth(message, budget)
@@ -262,7 +268,9 @@ def parse_frame(
     if det_msg is not None:
         instance_ids, instances = parse_detections(det_msg, budget, rgb_size=(width, height))
     scale = float(message["depth"]["scale"])  # validated by parse_depth
-    patches = _parse_depth_patches(message.get("depth_patches"), width, height, scale, budget)
+    patches = _parse_depth_patches(
+        message.get("depth_patches"), width, height, scale, budget, decode=mapped
+    )
 
     return FrameInput(
         seq=seq,
@@ -350,10 +358,11 @@ def parse_detections(
 
 
 def _parse_depth_patches(
-    part: Any, width: int, height: int, scale: float, budget: FrameBudget
+    part: Any, width: int, height: int, scale: float, budget: FrameBudget, decode: bool = True
 ) -> list[DepthPatch]:
     """The optional `depth_patches` part (v1 extension): boxes inside the RGB image, their
-    pixels at most the RGB image's, in the depth's units (`depth.scale`)."""
+    pixels at most the RGB image's, in the depth's units (`depth.scale`). decode=False:
+    the boxes and the declared size are checked, the data is not decoded (no patches)."""
     if part is None:
         return []
     if not isinstance(part, dict):
@@ -381,6 +390,10 @@ def _parse_depth_patches(
     if rows > height:
         raise InputError("depth_patches", "the boxes hold more pixels than the RGB image")
     budget.check_pixels("depth_patches", width, rows)
+    if not decode:
+        _require(part, "data", bytes, "depth_patches.")
+        _require(part, "codec", str, "depth_patches.")
+        return []
     units = codecs.decode_uint16_image(
         _require(part, "data", bytes, "depth_patches."),
         _require(part, "codec", str, "depth_patches."),

@@ -895,6 +895,12 @@ class SessionManager:
                 self.decode_pool, session.sight, frame, sent
             )
 
+    @staticmethod
+    def keyframe_next(session: Session) -> bool:
+        """Whether the session's next valid frame is the shared selector's keyframe (what
+        `count_frame` will say of it, unless another socket's frame is counted first)."""
+        return is_keyframe(session.record.frames, session.knobs.keyframe_interval)
+
     def count_frame(
         self, session: Session, frame_bytes: dict[str, int], keyframe: bool | None = None
     ) -> bool:

@@ -92,6 +92,8 @@ class _Decoded:
     payload_bytes: dict[str, int]
     sighting: bool = False
     """A `sighting` (the sightings extension), not a `frame`."""
+    mapped: bool = True
+    """Decoded for mapping (a keyframe): its RGB stream and depth patches in full."""
 
 
 class _Refused(Exception):
@@ -105,14 +107,20 @@ class _Refused(Exception):
 
 
 def _decode_and_validate(
-    data: bytes, session: Session, budget: FrameBudget, sightings: bool = False
+    data: bytes,
+    session: Session,
+    budget: FrameBudget,
+    sightings: bool = False,
+    keyframe_next: bool = True,
 ) -> _Decoded:
     """In a decode thread, once per message, never on the event loop: unpack it within the
     protocol's limits, check it against the server's budget before any pixel is decoded,
     decode and validate it, so everything the engine would refuse is refused here, keyframe
     or not. Perception runs later, on keyframes only. `sightings`: the socket negotiated the
-    sightings extension, so a `sighting` message is welcome. Raises _Refused with the
-    reply."""
+    sightings extension, so a `sighting` message is welcome (and every `frame` is a
+    keyframe). keyframe_next: without the extension, whether the next valid frame is the
+    selector's keyframe; a frame that will not be mapped skips what only mapping reads
+    (`parse_frame(mapped=False)`). Raises _Refused with the reply."""
     t0 = time.perf_counter()
     try:
         message = unpack_frame_message(data)
@@ -133,14 +141,22 @@ def _decode_and_validate(
             frame = parse_sighting(message, budget=budget)
             sent = engine.validate_sighting(frame)
         else:
-            frame = parse_frame(message, rgb_pixels=engine.backend.needs_rgb, budget=budget)
+            mapped = sightings or keyframe_next
+            frame = parse_frame(
+                message, rgb_pixels=engine.backend.needs_rgb, budget=budget, mapped=mapped
+            )
             sent = engine.validate_frame(frame)
     except LimitError as exc:
         raise _Refused(ErrorReply(seq, "over_limit", str(exc)), is_frame=True) from None
     except InputError as exc:
         raise _Refused(ErrorReply(seq, "bad_frame", str(exc)), is_frame=True) from None
     return _Decoded(
-        frame, sent, (time.perf_counter() - t0) * 1e3, _payload_bytes(message), sighting
+        frame,
+        sent,
+        (time.perf_counter() - t0) * 1e3,
+        _payload_bytes(message),
+        sighting,
+        mapped=not sighting and (sightings or keyframe_next),
     )
 
 
@@ -199,12 +215,17 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
                 await ws.close(code=CLOSE_TOO_BIG, reason="message too big")
                 return
             else:
+                decode = functools.partial(
+                    _decode_and_validate, data, session, manager.frame_budget, sightings
+                )
                 try:
                     decoded = await manager.decode(
-                        functools.partial(
-                            _decode_and_validate, data, session, manager.frame_budget, sightings
-                        )
+                        functools.partial(decode, keyframe_next=manager.keyframe_next(session))
                     )
+                    picked = (not decoded.sighting) if sightings else None
+                    keyframe = manager.count_frame(session, decoded.payload_bytes, picked)
+                    if keyframe and not decoded.mapped:  # another socket's frame came first
+                        decoded = await manager.decode(decode)
                 except _Refused as refused:
                     if refused.is_frame:
                         manager.metrics.frames.labels(outcome="bad").inc()
@@ -214,9 +235,7 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
                     bad_in_a_row = 0
                     manager.metrics.frames.labels(outcome="ok").inc()
                     frame = decoded.frame
-                    # With the extension the device picks the keyframes: its whole frames.
-                    picked = (not decoded.sighting) if sightings else None
-                    if manager.count_frame(session, decoded.payload_bytes, picked):
+                    if keyframe:
                         await manager.submit_keyframe(
                             session, frame, reply, decoded.sent, decoded.decode_ms
                         )

@@ -67,6 +67,21 @@ def test_without_rgb_pixels_everything_but_the_pixels_is_the_same():
         parse_frame(bad, rgb_pixels=False)
 
 
+def test_a_frame_not_mapped_skips_only_what_mapping_reads():
+    full, lean = parse_frame(encoded()), parse_frame(encoded(), mapped=False)
+    assert full.depth_patches and lean.depth_patches == [] and lean.rgb is None
+    assert lean.rgb_size == full.rgb_size
+    np.testing.assert_array_equal(lean.depth_m, full.depth_m)
+    np.testing.assert_array_equal(lean.instance_ids, full.instance_ids)
+    # the JPEG's stream and the patches' data are read only where the frame is mapped
+    message = encoded()
+    message["rgb"]["data"] = message["rgb"]["data"][: len(message["rgb"]["data"]) // 2]
+    message["depth_patches"]["data"] = b"\x28\xb5\x2f\xfd garbage"
+    assert parse_frame(message, mapped=False).seq == 7
+    with pytest.raises(InputError, match="^rgb: "):
+        parse_frame(message)
+
+
 def test_a_small_detection_carries_its_box_at_full_depth_resolution():
     _, full_depth = sensor()
     frame = parse_frame(encoded(ratio=5))
@@ -114,6 +129,8 @@ def _set(path: str, value):
     return mutate
 
 
+GARBLED_PATCHES = _set("depth_patches.data", b"\x28\xb5\x2f\xfd garbage")
+
 CASES = [
     ("type", _set("type", "hello")),
     ("seq", _set("seq", KeyError)),
@@ -134,7 +151,7 @@ CASES = [
     ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 90, 30]])),
     ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 20, 30]])),
     ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 50.5, 30]])),
-    ("depth_patches", _set("depth_patches.data", b"\x28\xb5\x2f\xfd garbage")),
+    ("depth_patches", GARBLED_PATCHES),
     ("depth_patches", _set("depth_patches.boxes", [[0, 0, W, H], [0, 0, W, H]])),
 ]
 
@@ -148,6 +165,10 @@ def test_a_bad_frame_raises_an_error_naming_the_field(field, mutate):
     with pytest.raises(InputError) as err:
         parse_frame(message)
     assert err.value.field.startswith(field), str(err.value)
+    if mutate is not GARBLED_PATCHES:  # the one check that needs the patches decoded
+        with pytest.raises(InputError) as err:
+            parse_frame(message, mapped=False)
+        assert err.value.field.startswith(field), str(err.value)
 
 
 def test_a_message_that_is_not_a_map_is_refused():
