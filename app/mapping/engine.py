@@ -252,7 +252,6 @@ class MappingEngine:
         self._sighted: set[int] = set()
         """Candidates sighted since the last keyframe: `_confirm` considers them there."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
-        geo.preload_outlier_removal()
 
     def restore(
         self,

@@ -60,7 +60,6 @@ from app.mapping.engine import (
     QueryHit,
 )
 from app.mapping.export import imported_object, imported_stay
-from app.mapping.geometry import preload_outlier_removal
 from app.mapping.object import Change, MapObject
 from app.mapping.publish import update_message
 from app.mapping.relevance import Rating, rate_hits
@@ -459,9 +458,6 @@ class SessionManager:
         """At start: delete the sessions past their retention (when it is set) and count the
         stored sessions; returns how many. Loads no map: each loads on its first use."""
         self.apply_retention()
-        # What every engine imports (about a second, once): while the server starts
-        # answering, rather than inside the first session's first use.
-        self._socket_pool.submit(preload_outlier_removal)
         stored = self.store.count_sessions()
         self.metrics.sessions_stored.set(stored)
         log.info(

@@ -215,6 +215,37 @@ def test_outlier_removal_drops_a_far_stray_cluster():
     assert len(kept) == 400 and kept.max() <= 0.5
 
 
+def _plane(n_side: int, spacing: float, origin=(0.0, 0.0, 0.0)) -> np.ndarray:
+    u, v = np.meshgrid(np.arange(n_side) * spacing, np.arange(n_side) * spacing)
+    return (np.stack([u.ravel(), v.ravel(), np.zeros(u.size)], axis=1) + origin).astype(np.float32)
+
+
+def test_outlier_removal_drops_lone_points_and_keeps_the_largest_of_two_bodies():
+    body, smaller = _plane(20, 0.025), _plane(8, 0.025, origin=(2.0, 0.0, 0.0))
+    lone = np.array([[0.8, 0.8, 0.8], [-0.6, 0.2, 0.1]], np.float32)  # nothing within 10 cm
+    kept = geo.remove_outliers(np.concatenate([body, smaller, lone]), eps_m=0.1)
+    np.testing.assert_array_equal(np.sort(kept, axis=0), np.sort(body, axis=0))
+
+
+def test_outlier_removal_keeps_a_thin_edge_joined_to_the_body():
+    # a handle one point thick, 2.5 cm apart: each has 4 to 8 others within eps
+    body = _plane(20, 0.025)
+    handle = np.stack([0.475 + 0.025 * np.arange(1, 21), np.zeros(20), np.zeros(20)], 1)
+    cloud = np.concatenate([body, handle.astype(np.float32)])
+    assert len(geo.remove_outliers(cloud, eps_m=0.1)) == len(cloud)
+
+
+@given(st.lists(st.floats(-50, 50), min_size=3, max_size=3))
+def test_outlier_removal_does_not_depend_on_where_the_object_is(offset):
+    rng = np.random.default_rng(1)
+    cloud = np.concatenate(
+        [_plane(15, 0.025), rng.uniform(0.6, 1.5, size=(12, 3)).astype(np.float32)]
+    )
+    moved = cloud + np.asarray(offset, np.float32)
+    kept, kept_moved = geo.remove_outliers(cloud, 0.1), geo.remove_outliers(moved, 0.1)
+    assert len(kept) == len(kept_moved) == 225
+
+
 @given(st.lists(st.floats(-5, 5), min_size=3, max_size=3), st.floats(0.01, 2))
 def test_box_iou_is_one_with_itself_and_zero_apart(corner, size):
     box = np.array([*corner, *(c + size for c in corner)])
@@ -228,3 +259,20 @@ def test_a_box_inside_another_is_wholly_inside_and_not_the_other_way():
     large = np.array([-1.0, -1, -1, 2, 2, 2])
     assert geo.bbox_inside_fraction(small, large) == pytest.approx(1.0)
     assert geo.bbox_inside_fraction(large, small) == pytest.approx(1 / 27)
+
+
+@given(st.integers(1, 40), st.lists(st.tuples(st.integers(0, 39), st.integers(0, 39)), max_size=80))
+def test_components_match_a_graph_search(n, pairs):
+    edges = np.array([(a, b) for a, b in pairs if a < n and b < n], np.int64).reshape(-1, 2)
+    roots = geo._components(n, edges)
+    neighbours = {i: set() for i in range(n)}
+    for a, b in edges:
+        neighbours[a].add(b)
+        neighbours[b].add(a)
+    for start in range(n):  # the component found by a search has one root, its smallest node
+        seen, todo = {start}, [start]
+        while todo:
+            for other in neighbours[todo.pop()] - seen:
+                seen.add(other)
+                todo.append(other)
+        assert {int(roots[i]) for i in seen} == {min(seen)}
