@@ -20,7 +20,9 @@ Scoring (issue 24, "Measured"; pooled over seeds, `app.mapping.change_scores`):
 - False removals under occlusion: removed or moved changes of a hidden object.
 - Stale answers: after the second walk, a query for a moved or removed thing's category
   whose top-1 is the map's object for that thing still at its old place (within
-  STALE_RADIUS_M of it, and nearer it than the new place).
+  STALE_RADIUS_M of it, and nearer it than the new place); apart, those about things whose
+  old place the walk showed at least `removal_min_evidence` times (the rest it showed too
+  few times for the map to conclude anything).
 - Last-seen errors: "where did I last see X" for each removed thing whose category has no
   other instance left (else the question is ambiguous), ranked over present and removed
   objects (`include=removed`): the top-1's distance to where X was and its `last_seen_t`
@@ -217,6 +219,8 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
     latencies: dict[str, list[float]] = {}
     occluded_removals = dict.fromkeys(cfg.modes, 0)
     stale = dict.fromkeys(cfg.modes, 0)
+    stale_shown_enough = dict.fromkeys(cfg.modes, 0)
+    """Stale answers about things whose old place the walk showed often enough to conclude."""
     stale_cases: dict[str, list[dict]] = {m: [] for m in cfg.modes}
     stale_asked = 0
     last_seen_m: dict[str, list[float]] = {m: [] for m in cfg.modes}
@@ -305,7 +309,9 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
                 near_old = to_old <= STALE_RADIUS_M and to_old < to_new
                 # stale: the map's object for the changed thing, still at the old place
                 if near_old and before_identity.get(top.id) == change.instance_id:
+                    shown = len(walks.old_place_shown_t.get(change.instance_id, []))
                     stale[mode] += 1
+                    stale_shown_enough[mode] += shown >= cfg.knobs.removal_min_evidence
                     stale_cases[mode].append(
                         {
                             "seed": seed,
@@ -313,6 +319,7 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
                             "kind": change.kind,
                             "top1": {"id": top.id, "label": top.label},
                             "top1_was_instance": before_identity.get(top.id),
+                            "old_place_shown_keyframes": shown,
                         }
                     )
             for change in removed_truth:
@@ -355,6 +362,7 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
         without_ms = float(np.mean(latencies[mode + NO_EVIDENCE]))
         scores["false_removals_occluded"] = occluded_removals[mode]
         scores["stale_answers"] = stale[mode]
+        scores["stale_answers_shown_enough"] = stale_shown_enough[mode]
         scores["stale_questions"] = stale_asked
         scores["stale_cases"] = stale_cases[mode]
         scores["last_seen_error_m"] = {
@@ -392,13 +400,14 @@ def format_revisit_table(result: dict) -> str:
             f"{fmt(c['time_to_update_s']['p95'], '.1f'):>9} "
             f"{fmt(c['walk_bound_s']['p95'], '.1f'):>5} "
             f"{fmt(c['beyond_walk_bound_s']['p95'], '.1f'):>6} {c['false_removals_occluded']:4d} "
-            f"{c['stale_answers']:5d} {fmt(c['last_seen_error_m']['p50']):>6} "
+            f"{c['stale_answers']:2d}/{c['stale_answers_shown_enough']:<2d} "
+            f"{fmt(c['last_seen_error_m']['p50']):>6} "
             f"{fmt(c['last_seen_error_s']['p50'], '.1f'):>6} {c['mapping_cost_pct']:6.1f} "
             f"{c['added']['precision']:4.2f}/{c['added']['recall']:4.2f}"
         )
     lines.append(
         "(t2u, walk, beyond: p95 of the time to update, of the walk's share of it, of the map's "
-        "delay beyond the walk's bound)"
+        "delay beyond the walk's bound; stale: all / about things the walk showed enough)"
     )
     lines.append(
         "targets: precision >= 0.95, recall >= 0.9, time to update p95 <= 3 s, 0 false removals "

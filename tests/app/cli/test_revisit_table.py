@@ -16,6 +16,7 @@ def test_the_table_has_a_row_per_mode_and_the_walks_share_of_the_time_to_update(
         "beyond_walk_bound_s": {"p95": None},
         "false_removals_occluded": 0,
         "stale_answers": 2,
+        "stale_answers_shown_enough": 0,
         "last_seen_error_m": {"p50": 0.06},
         "last_seen_error_s": {"p50": 0.0},
         "mapping_cost_pct": 12.6,
@@ -34,4 +35,5 @@ def test_the_table_has_a_row_per_mode_and_the_walks_share_of_the_time_to_update(
     row = lines[2].split()
     assert row[0] == "semanticxr"
     assert row[5:8] == ["8.4", "6.0", "-"]  # t2u, walk, beyond (none measured)
+    assert row[9] == "2/0"  # stale answers: all, about things the walk showed enough
     assert lines[-1].startswith("targets:")
