@@ -16,6 +16,7 @@ RUN_FIELDS = {
     "frames_sent",
     "frames_acked",
     "acked_percent",
+    "acked_not_superseded_percent",
     "acked_per_s",
     "keyframe_ack_ms",
     "frame_ack_ms",
