@@ -50,7 +50,7 @@ from psycopg_pool import ConnectionPool, PoolClosed
 
 from app.mapping.deltas import DeltaLog
 from app.mapping.object import MAX_STAYS, STAY_BYTES, Change, MapObject
-from app.store import redact_url
+from app.store import StoreURLError, redact_url
 from app.store.base import (
     SessionRecord,
     Store,
@@ -225,10 +225,14 @@ class PostgresStore(Store):
 
         StoreUnavailableError when the server cannot be reached or refuses the connection
         (its reason included); StoreError when the database holds other tables, or the
-        schema cannot be created; StoreVersionError when a newer SemanticXR wrote it."""
+        schema cannot be created; StoreVersionError when a newer SemanticXR wrote it;
+        StoreURLError when libpq cannot parse `url` (`open_store` checks more)."""
         self.where = redact_url(url)
         """The URL as errors and logs show it (no password)."""
-        params = conninfo_to_dict(url)
+        try:
+            params = conninfo_to_dict(url)
+        except psycopg.ProgrammingError as exc:
+            raise StoreURLError(f"{self.where}: {_reason(exc)}") from None
         timeout_s = int(params.get("connect_timeout") or 0)
         self._wait_s = float(timeout_s if timeout_s > 0 else CONNECT_TIMEOUT_S)
         connect_args: dict[str, Any] = {"connect_timeout": max(2, round(self._wait_s))}
