@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -93,9 +93,28 @@ class EvidenceView:
     keyframe: int = 0
     neighbourhood: bool = True
 
+    _stacked: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+
     @property
     def position(self) -> np.ndarray:
         return np.asarray(self.pose, np.float64)[:3, 3]
+
+    def depth_neighbourhoods(self) -> np.ndarray:
+        """float32 [h * w, k]: each depth pixel's 3 x 3 neighbourhood (edges repeated), the
+        centre first; k = 1 without `neighbourhood`. Built once per view: every point read
+        from it is one gather, however many objects the view is asked about."""
+        if self._stacked is None:
+            depth = self.depth_m
+            if not self.neighbourhood:
+                self._stacked = depth.reshape(-1, 1)
+            else:
+                padded = np.pad(depth, 1, mode="edge")
+                h, w = depth.shape
+                shifts = [(0, 0)] + [(r, c) for r in (-1, 0, 1) for c in (-1, 0, 1) if r or c]
+                self._stacked = np.stack(
+                    [padded[1 + r : 1 + r + h, 1 + c : 1 + c + w] for r, c in shifts], axis=-1
+                ).reshape(h * w, len(shifts))
+        return self._stacked
 
     @property
     def direction(self) -> np.ndarray:
@@ -154,20 +173,13 @@ def classify_points(points: np.ndarray, view: EvidenceView, knobs: Knobs) -> Poi
         tau = knobs.absence_depth_tolerance_m + knobs.absence_depth_tolerance_rel * zi
         depth = view.depth_m
         ratio = max(1, round(width / depth.shape[1]))
-        rows, cols = vi[idx] // ratio, ui[idx] // ratio
-        offsets = (-1, 0, 1) if view.neighbourhood else (0,)
-        nearest = np.full(len(idx), np.inf)
-        match = np.zeros(len(idx), bool)
-        for dr in offsets:
-            r = np.clip(rows + dr, 0, depth.shape[0] - 1)
-            for dc in offsets:
-                c = np.clip(cols + dc, 0, depth.shape[1] - 1)
-                sensed = depth[r, c].astype(np.float64)
-                valid = sensed > 0
-                match |= valid & (np.abs(sensed - zi) <= tau)
-                nearest = np.where(valid, np.minimum(nearest, sensed), nearest)
-        centre = depth[np.minimum(rows, depth.shape[0] - 1), np.minimum(cols, depth.shape[1] - 1)]
-        through = ~match & (centre > 0) & np.isfinite(nearest) & (nearest - zi > tau)
+        rows = np.minimum(vi[idx] // ratio, depth.shape[0] - 1)
+        cols = np.minimum(ui[idx] // ratio, depth.shape[1] - 1)
+        sensed = view.depth_neighbourhoods()[rows * depth.shape[1] + cols].astype(np.float64)
+        valid = sensed > 0
+        match = (valid & (np.abs(sensed - zi[:, None]) <= tau[:, None])).any(axis=1)
+        nearest = np.where(valid, sensed, np.inf).min(axis=1)
+        through = ~match & valid[:, 0] & np.isfinite(nearest) & (nearest - zi > tau)
         matching[idx] = match
         seen_through[idx] = through
     return PointVerdicts(in_view, matching, seen_through, ui, vi)
