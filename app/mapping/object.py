@@ -109,6 +109,9 @@ class MapObject:
     _tree: cKDTree | None = field(default=None, repr=False)
     _bbox: np.ndarray | None = field(default=None, repr=False)
     _client_cache: tuple | None = field(default=None, repr=False)
+    _unit: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    """(the sum the embedding was normalised from, the embedding): sums are replaced, never
+    changed in place, so the same sum object means the same embedding."""
 
     @property
     def embedding(self) -> np.ndarray:
@@ -119,8 +122,10 @@ class MapObject:
         if vector is None:
             vector = self.embedding_sum
         assert vector is not None
-        norm = float(np.linalg.norm(vector))
-        return vector / max(norm, 1e-12)
+        if self._unit is None or self._unit[0] is not vector:
+            norm = float(np.linalg.norm(vector))
+            self._unit = (vector, vector / max(norm, 1e-12))
+        return self._unit[1]
 
     def observe_label(self, label: str, embedding: np.ndarray) -> None:
         """Count one detection of `label` with its embedding float32 [d]."""
