@@ -252,6 +252,10 @@ class MappingEngine:
         self._sighted: set[int] = set()
         """Candidates sighted since the last keyframe: `_confirm` considers them there."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
+        self._sight_samples: tuple[int, list[MapObject], np.ndarray, np.ndarray, np.ndarray] | None
+        self._sight_samples = None
+        """(keyframes, objects, their samples concatenated, owner index per point, sample
+        sizes): what every sighting projects, the same from one keyframe to the next."""
 
     def restore(
         self,
@@ -281,6 +285,7 @@ class MappingEngine:
         self._sightings.clear()
         self._sighted.clear()
         self._confirmed_matrix = None
+        self._sight_samples = None
 
     # ------------------------------------------------------------------ validation
     def validate_frame(self, frame: FrameInput) -> FrameDetections | None:
@@ -1092,12 +1097,10 @@ class MappingEngine:
             self._clear_seen_suspects(frame, sent)
         if not any(not o.confirmed for o in self.objects.values()):
             return []
-        objects = [o for o in self.objects.values() if len(o.points)]
-        samples = [o.points[:: max(1, len(o.points) // SIGHTING_SAMPLE_POINTS)] for o in objects]
-        if not samples:
+        objects, points, owner, sample_sizes = self._samples_to_sight()
+        if not objects:
             return []
-        owner = np.repeat(np.arange(len(objects)), [len(p) for p in samples])
-        u, v, z, kept = _project(np.concatenate(samples), frame)
+        u, v, z, kept = _project(points, frame)
         owner = owner[kept]
         width, height = frame.rgb_size
         sensed = geo.pixels_of(frame.depth_m, u, v, width)
@@ -1111,7 +1114,6 @@ class MappingEngine:
             owner * len(det_ids) + column, minlength=len(objects) * len(det_ids)
         ).reshape(len(objects), len(det_ids))
         n_visible = counts.sum(axis=1)
-        sample_sizes = np.array([len(p) for p in samples])
         in_view = np.flatnonzero(n_visible >= np.minimum(SIGHTING_MIN_POINTS, sample_sizes))
 
         skip = {label.lower() for label in self.knobs.skip_mapping_set}
@@ -1150,6 +1152,22 @@ class MappingEngine:
             self._sighted.add(obj.id)
             sighted.append(obj.id)
         return sorted(sighted)
+
+    def _samples_to_sight(self) -> tuple[list[MapObject], np.ndarray, np.ndarray, np.ndarray]:
+        """(objects with points, a sample of about SIGHTING_SAMPLE_POINTS of each's points
+        concatenated, the object index of each sample point, each sample's size), made once
+        per keyframe: the geometry only changes when a keyframe is mapped."""
+        cached = self._sight_samples
+        if cached is None or cached[0] != self.keyframes:
+            objects = [o for o in self.objects.values() if len(o.points)]
+            samples = [
+                o.points[:: max(1, len(o.points) // SIGHTING_SAMPLE_POINTS)] for o in objects
+            ]
+            sizes = np.array([len(p) for p in samples], np.int64)
+            points = np.concatenate(samples) if samples else np.zeros((0, 3), np.float32)
+            owner = np.repeat(np.arange(len(objects)), sizes)
+            cached = self._sight_samples = (self.keyframes, objects, points, owner, sizes)
+        return cached[1], cached[2], cached[3], cached[4]
 
     def _clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
         """A sighting that shows a suspect object where it was clears its suspicion: at
