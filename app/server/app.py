@@ -23,7 +23,7 @@ from app.server.metrics import HttpMetricsMiddleware, Metrics, make_metrics
 from app.server.routes import pages, rest, ws
 from app.server.sessions import SessionManager
 from app.server.settings import ServerSettings
-from app.store import open_store
+from app.store import open_store, redact_url
 
 log = logging.getLogger("semanticxr")
 ERROR_BODY_REF = "#/components/schemas/ErrorBody"
@@ -48,7 +48,7 @@ def create_app(
             log.warning(
                 "no API key set: the server runs OPEN (anyone can create and read sessions)"
             )
-        log.info("store %s; %d sessions restored", settings.store_url, restored)
+        log.info("store %s; %d sessions restored", redact_url(settings.store_url), restored)
         storage_watch = asyncio.create_task(manager.watch_storage())
         # Embed the query rater's label vocabulary now (~1 s), not in the first query.
         rater_warm_up = asyncio.create_task(asyncio.to_thread(rater_for, manager.encoder))

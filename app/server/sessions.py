@@ -140,7 +140,7 @@ class StorageHealth:
     """Whether the store takes writes; a failure streak runs from the first failed write to
     the next successful one (a commit or a probe). Thread-safe."""
 
-    REASON = "storage unavailable: the server cannot save changes (disk full or I/O error)"
+    REASON = "storage unavailable: the server cannot save changes (disk full, I/O error or database down)"
     """What /healthz says while a streak lasts (details, such as paths, go to the log only)."""
 
     def __init__(self) -> None:

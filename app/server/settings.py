@@ -26,7 +26,7 @@ class ServerSettings:
     data_dir: str = "data"
     """Folder of the default store's SQLite file (sessions, knobs, confirmed objects, delta seq)."""
     store: str | None = None
-    """Store URL: sqlite:///<relative path> or sqlite:////<absolute path>; default semanticxr.sqlite3 in data_dir."""
+    """Store URL: sqlite:///<relative path>, sqlite:////<absolute path> or postgresql://user:password@host:port/db; default semanticxr.sqlite3 in data_dir."""
     max_tombstones: int = 100_000
     """Removed ids a session keeps for resuming subscribers (older resumes get a full snapshot)."""
     api_key: str | None = None

@@ -9,6 +9,7 @@ skip, saying why, where PostgreSQL cannot be found (the URL checks need no serve
 from __future__ import annotations
 
 import asyncio
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -254,8 +255,13 @@ def test_a_wrong_password_is_unavailable_with_the_servers_reason_not_the_passwor
 
 
 # ---------------------------------------------------------------------- the server
-def test_a_server_on_postgresql_keeps_its_sessions_across_a_restart(fresh_pg_url, live_server):
+def test_a_server_on_postgresql_keeps_its_sessions_across_a_restart(
+    fresh_pg_url, live_server, caplog
+):
+    caplog.set_level(logging.INFO, logger="semanticxr")
     first = live_server(store=fresh_pg_url)
+    assert redact_url(fresh_pg_url) in caplog.text  # the start-up names its store
+    assert PG_PASSWORD not in caplog.text
     created = httpx.post(f"{first.url}/v1/sessions", json={"name": "kitchen"}, timeout=10)
     assert created.status_code == 201, created.text
     sid = created.json()["session_id"]
