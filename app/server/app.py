@@ -13,6 +13,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Match
 
 from app import __version__
+from app.mapping.engine import limit_numpy_threads
 from app.mapping.relevance import rater_for
 from app.semantics import TextEncoder, get_text_encoder
 from app.server.auth import require_api_key
@@ -40,6 +41,7 @@ def create_app(
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        limit_numpy_threads()
         store = open_store(settings.store_url)
         manager = SessionManager(settings, store, encoder or get_text_encoder(), make_metrics())
         restored = manager.restore()
