@@ -58,6 +58,7 @@ from app.mapping.engine import (
     IntegrationStats,
     MappingEngine,
     QueryHit,
+    limit_numpy_threads,
 )
 from app.mapping.export import imported_object, imported_stay
 from app.mapping.object import Change, MapObject
@@ -399,13 +400,19 @@ class SessionManager:
         self.store = store
         self.encoder = encoder
         self.metrics = metrics
+        # every worker limits numpy's BLAS itself: where torch is loaded, a limit set in one
+        # thread (the server's, when it does not run in the main thread) may not reach others
         self.pool = ThreadPoolExecutor(
-            max_workers=settings.mapping_workers, thread_name_prefix="map"
+            max_workers=settings.mapping_workers,
+            thread_name_prefix="map",
+            initializer=limit_numpy_threads,
         )
         self.scheduler = RoundRobinScheduler(self.pool, settings.mapping_workers)
         self._map_tasks: set[asyncio.Task] = set()
         self.decode_pool = ThreadPoolExecutor(
-            max_workers=settings.decode_workers, thread_name_prefix="decode"
+            max_workers=settings.decode_workers,
+            thread_name_prefix="decode",
+            initializer=limit_numpy_threads,
         )
         """Frames are decoded apart from mapping: a slow keyframe never delays the acks of
         other frames, and a burst of frames never delays a keyframe's mapping."""

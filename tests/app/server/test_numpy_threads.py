@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-from threadpoolctl import ThreadpoolController, threadpool_info
+from threadpoolctl import threadpool_info
 
 
-def test_a_started_server_limits_numpy_blas_to_one_thread(live_server):
-    ThreadpoolController().select(internal_api="openblas").limit(limits=2)  # as a fresh process
-    live_server()
-    blas = [pool for pool in threadpool_info() if pool["internal_api"] == "openblas"]
-    assert blas and all(pool["num_threads"] == 1 for pool in blas)
+def _blas_threads() -> list[int]:
+    return [pool["num_threads"] for pool in threadpool_info() if pool["internal_api"] == "openblas"]
+
+
+def test_the_servers_workers_use_numpy_blas_on_one_thread(live_server):
+    manager = live_server().app.state.manager
+    for pool in (manager.pool, manager.decode_pool):
+        threads = pool.submit(_blas_threads).result(timeout=10)
+        assert threads and set(threads) == {1}
