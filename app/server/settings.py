@@ -47,10 +47,10 @@ class ServerSettings:
     """Perception backends loaded at start, comma-separated; sessions use the first unless they choose."""
     models_dir: str | None = None
     """Folder with one sub-folder per model for --perception models (load from it only, never the hub); default: Hugging Face ids."""
-    mapping_workers: int = 2
-    """Threads that map keyframes, shared round-robin by the sessions with one waiting (each maps one at a time)."""
-    decode_workers: int = 2
-    """Threads that unpack, decode and validate frames (apart from mapping, so neither queues behind the other)."""
+    mapping_workers: int = 1
+    """Threads that map keyframes, shared round-robin by the sessions with one waiting (each maps one at a time). Mapping holds the GIL: a second thread maps no faster and costs CPU (32 devices: 6.7 against 7.9 ms a frame, keyframe ack p95 893 against 975 ms); raise it for --perception models, whose networks release the GIL."""
+    decode_workers: int = 1
+    """Threads that unpack, decode and validate frames (apart from mapping, so neither queues behind the other); one is enough while decoding holds the GIL."""
     max_frame_pixels: int = 1920 * 1440
     """Most pixels of a frame's RGB, depth or instance image (refused from the declared size, before decoding)."""
     max_instances_per_frame: int = 256
