@@ -22,22 +22,27 @@ fi
 
 # open3d 0.20 links against libusb-1.0 from the system.
 bash scripts/ensure_libusb.sh .venv/bin/python
+# Optional Debian packages some tests need: installed as root with apt-get; elsewhere those
+# tests skip, saying why.
+install_optional() {  # install_optional PACKAGE WHAT-SKIPS-WITHOUT-IT
+  local package=$1 tests=$2
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+    echo "[setup] installing Debian's $package for $tests (once)"
+    (apt-get install -y -q "$package" >/dev/null 2>&1) || \
+      (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q "$package" >/dev/null 2>&1) || \
+      echo "[setup] could not install $package: $tests will be skipped"
+  else
+    echo "[setup] no $package: $tests will be skipped ('sudo apt-get install $package' adds it)"
+  fi
+}
 # Page tests drive a real headless Chromium from Debian (Playwright's own download cannot
-# work offline). Optional: the browser tests skip, saying why, where it cannot be installed.
+# work offline).
 if [ "${SEMANTICXR_SKIP_BROWSER:-0}" != "1" ] && ! command -v chromium >/dev/null \
     && ! command -v chromium-headless-shell >/dev/null; then
-  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
-    echo "[setup] installing Debian's chromium for the browser tests (once)"
-    (apt-get install -y -q chromium >/dev/null 2>&1) || \
-      (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q chromium >/dev/null 2>&1) || \
-      echo "[setup] could not install chromium: browser tests will be skipped"
-  else
-    echo "[setup] no chromium: browser tests will be skipped ('sudo apt-get install chromium' adds it)"
-  fi
+  install_optional chromium "the browser tests"
 fi
 # The PostgreSQL store's tests start a throwaway cluster with initdb and pg_ctl: on PATH, or
-# where Debian puts them (/usr/lib/postgresql/<version>/bin, not on PATH). Optional: those
-# tests skip, saying why, where PostgreSQL cannot be found.
+# where Debian puts them (/usr/lib/postgresql/<version>/bin, not on PATH).
 postgres_found() {
   if command -v initdb >/dev/null && command -v pg_ctl >/dev/null; then return 0; fi
   for bin in /usr/lib/postgresql/*/bin; do
@@ -46,13 +51,6 @@ postgres_found() {
   return 1
 }
 if [ "${SEMANTICXR_SKIP_POSTGRES:-0}" != "1" ] && ! postgres_found; then
-  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
-    echo "[setup] installing Debian's postgresql for the PostgreSQL store's tests (once)"
-    (apt-get install -y -q postgresql >/dev/null 2>&1) || \
-      (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q postgresql >/dev/null 2>&1) || \
-      echo "[setup] could not install postgresql: the PostgreSQL tests will be skipped"
-  else
-    echo "[setup] no PostgreSQL: the PostgreSQL tests will be skipped ('sudo apt-get install postgresql' adds it)"
-  fi
+  install_optional postgresql "the PostgreSQL store's tests"
 fi
 echo "[setup] ok"
