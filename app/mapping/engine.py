@@ -22,6 +22,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -84,10 +85,10 @@ PLACE_TAKEN_OVERLAP = 0.5
 """A new object is no `added` change when this much of it lies on another confirmed object
 that is alike..."""
 PLACE_TAKEN_BOX_IOU = 0.15
+"""...or whose box it shares this much of (intersection over union)."""
 VACATED_INSIDE = 0.5
 """An object leaving with most of its box in a place just vacated is a second reading of the
 thing that left (`_second_reading_of_vacated`)."""
-"""...or whose box it shares this much of (intersection over union)."""
 RECENT_CHANGES = 256
 """Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
 
@@ -170,6 +171,21 @@ class _Observation:
     points: np.ndarray
     embedding: np.ndarray
     bbox: np.ndarray
+
+
+class _SightSamples(NamedTuple):
+    """What sightings project between two keyframes."""
+
+    keyframe: int
+    """The engine's keyframe count they were drawn at."""
+    objects: list[MapObject]
+    """The objects with points."""
+    points: np.ndarray
+    """float32 [N, 3]: about SIGHTING_SAMPLE_POINTS of each object's points, concatenated."""
+    owner: np.ndarray
+    """int [N]: the index in `objects` of each point."""
+    sizes: np.ndarray
+    """int64 [len(objects)]: each sample's size."""
 
 
 def limit_numpy_threads() -> None:
@@ -264,10 +280,8 @@ class MappingEngine:
         self._sighted: set[int] = set()
         """Candidates sighted since the last keyframe: `_confirm` considers them there."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
-        self._sight_samples: tuple[int, list[MapObject], np.ndarray, np.ndarray, np.ndarray] | None
-        self._sight_samples = None
-        """(keyframes, objects, their samples concatenated, owner index per point, sample
-        sizes): what every sighting projects, the same from one keyframe to the next."""
+        self._sight_samples: _SightSamples | None = None
+        """What every sighting projects, the same from one keyframe to the next."""
 
     def restore(
         self,
@@ -1109,7 +1123,7 @@ class MappingEngine:
             self._clear_seen_suspects(frame, sent)
         if not any(not o.confirmed for o in self.objects.values()):
             return []
-        objects, points, owner, sample_sizes = self._samples_to_sight()
+        _, objects, points, owner, sample_sizes = self._samples_to_sight()
         if not objects:
             return []
         u, v, z, kept = _project(points, frame)
@@ -1165,12 +1179,11 @@ class MappingEngine:
             sighted.append(obj.id)
         return sorted(sighted)
 
-    def _samples_to_sight(self) -> tuple[list[MapObject], np.ndarray, np.ndarray, np.ndarray]:
-        """(objects with points, a sample of about SIGHTING_SAMPLE_POINTS of each's points
-        concatenated, the object index of each sample point, each sample's size), made once
-        per keyframe: the geometry only changes when a keyframe is mapped."""
+    def _samples_to_sight(self) -> _SightSamples:
+        """The objects' samples, drawn once per keyframe: the geometry only changes when a
+        keyframe is mapped."""
         cached = self._sight_samples
-        if cached is None or cached[0] != self.keyframes:
+        if cached is None or cached.keyframe != self.keyframes:
             objects = [o for o in self.objects.values() if len(o.points)]
             samples = [
                 o.points[:: max(1, len(o.points) // SIGHTING_SAMPLE_POINTS)] for o in objects
@@ -1178,8 +1191,10 @@ class MappingEngine:
             sizes = np.array([len(p) for p in samples], np.int64)
             points = np.concatenate(samples) if samples else np.zeros((0, 3), np.float32)
             owner = np.repeat(np.arange(len(objects)), sizes)
-            cached = self._sight_samples = (self.keyframes, objects, points, owner, sizes)
-        return cached[1], cached[2], cached[3], cached[4]
+            cached = self._sight_samples = _SightSamples(
+                self.keyframes, objects, points, owner, sizes
+            )
+        return cached
 
     def _clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
         """A sighting that shows a suspect object where it was clears its suspicion: at
