@@ -73,6 +73,7 @@ from app.protocol.rest import (
     SessionSummary,
     UnprocessableBody,
     parse_query_result,
+    parse_record,
 )
 from app.protocol.sighting import SIGHTINGS_SUBPROTOCOL, pack_sighting, parse_sighting
 
@@ -125,6 +126,7 @@ __all__ = [
     "parse_frame",
     "parse_sighting",
     "parse_query_result",
+    "parse_record",
     "parse_reply",
     "unpack_frame_message",
     "unpack_reply",

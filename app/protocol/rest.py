@@ -10,7 +10,7 @@ Geometry is rounded to 0.1 mm and scores to 5 decimals on the wire (JSON text is
 from __future__ import annotations
 
 import dataclasses
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model
@@ -68,6 +68,9 @@ class Record(BaseModel):
     def to_json(self) -> dict:
         """The JSON body."""
         return self.model_dump(mode="json")
+
+
+R = TypeVar("R", bound=Record)
 
 
 class ErrorBody(Record):
@@ -171,6 +174,13 @@ class SessionSummary(Record):
     objects: int
     """Confirmed objects."""
     frames: int
+    """Frames walked: received whole or as sightings."""
+    frames_whole: int | None = None
+    """Extension: of `frames`, those received whole (None from a server that does not count
+    them apart)."""
+    sightings: int | None = None
+    """Extension: of `frames`, those received as sightings, the sightings extension's frames
+    between keyframes (None from a server that does not count them apart)."""
     keyframes: int
     fps: float
     update_seq: int
@@ -195,7 +205,13 @@ class SessionStats(Record):
     """Perception backend mapping the session's keyframes."""
     created_at: float
     frames: int
-    """Valid frames received."""
+    """Frames walked: valid frames received, whole or as sightings."""
+    frames_whole: int | None = None
+    """Extension: of `frames`, those received whole (None from a server that does not count
+    them apart)."""
+    sightings: int | None = None
+    """Extension: of `frames`, those received as sightings, the sightings extension's frames
+    between keyframes (None from a server that does not count them apart)."""
     keyframes: int
     """Keyframes mapped."""
     dropped_frames: int
@@ -301,6 +317,18 @@ def parse_query_result(body: Any) -> QueryResult:
     except ValidationError as exc:
         first = exc.errors()[0]
         raise InputError(_field_name(first["loc"]), first["msg"]) from None
+
+
+def parse_record(model: type[R], body: Any) -> R:
+    """A decoded JSON answer as its `model` (keys beyond its fields left out); InputError
+    naming the first wrong field (e.g. `mapping_latency_ms.p50`)."""
+    if not isinstance(body, dict):
+        raise InputError("body", f"must be a JSON object, got {type(body).__name__}")
+    try:
+        return model.model_validate(body)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise InputError(".".join(map(str, first["loc"])) or "body", first["msg"]) from None
 
 
 def _field_name(loc: tuple) -> str:

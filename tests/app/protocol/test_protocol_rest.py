@@ -21,6 +21,7 @@ from app.protocol import (
     SessionStats,
     SessionSummary,
     parse_query_result,
+    parse_record,
 )
 
 FEW = settings(max_examples=40, deadline=None)
@@ -119,6 +120,8 @@ def test_session_records_answer_v1_bodies_with_the_protocol_version():
         "perception": "detections",
         "created_at": 1.0,
         "frames": 10,
+        "frames_whole": 4,
+        "sightings": 6,
         "keyframes": 2,
         "dropped_frames": 0,
         "objects": 3,
@@ -142,12 +145,38 @@ def test_session_records_answer_v1_bodies_with_the_protocol_version():
         "mode": "semanticxr",
         "objects": 3,
         "frames": 10,
+        "frames_whole": 4,
+        "sightings": 6,
         "keyframes": 2,
         "fps": 5.0,
         "update_seq": 7,
         "resident": True,  # a server before stored sessions listed only the ones in memory
         "last_used_at": None,
     }
+
+
+def test_stats_of_a_server_that_does_not_count_sightings_apart_parse_without_them():
+    older = {
+        "session_id": "s1",
+        "name": "n",
+        "mode": "semanticxr",
+        "objects": 3,
+        "frames": 10,
+        "keyframes": 2,
+        "fps": 5.0,
+        "update_seq": 7,
+    }
+    summary = parse_record(SessionSummary, older)
+    assert (summary.frames, summary.frames_whole, summary.sightings) == (10, None, None)
+
+
+def test_a_malformed_stats_answer_raises_one_error_naming_the_field():
+    with pytest.raises(InputError) as err:
+        parse_record(SessionSummary, {"session_id": "s1", "name": "n", "mode": "semanticxr"})
+    assert err.value.field == "objects", str(err.value)
+    with pytest.raises(InputError) as err:
+        parse_record(SessionStats, [1, 2])
+    assert err.value.field == "body", str(err.value)
 
 
 def test_an_object_record_rounds_geometry_and_leaves_out_points_not_asked_for():
