@@ -11,12 +11,22 @@ When the storage cannot take a write (disk full, I/O error, read-only), a write 
 The store is where sessions live: a server keeps only the maps in use in memory and loads
 the others from here on first use, so listing, counting and finding idle sessions read the
 sessions' rows only, never their maps.
+
+Map shards (several server processes on one store) hold each session on one shard at a time.
+A shard claims a session (`claim_session`): it becomes the owner, with a lease it renews
+(`renew_leases`) while it keeps the session, and the session's epoch goes up by one. Each
+write the owner makes names that epoch: once another shard has claimed the session (the
+owner hung past its lease, or restarted), the old epoch is stale and its writes raise
+`SessionFenced`, changing nothing. Shards say they are alive in the shard registry
+(`heartbeat_shard`, `live_shards`). A keyframe's commit can also remember its ack under the
+frame's (stream, seq) (`done_ack`), so a frame sent again after a reconnection is answered
+with the same ack instead of being mapped twice.
 """
 
 from __future__ import annotations
 
 import abc
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -26,10 +36,13 @@ if TYPE_CHECKING:  # annotations only: settings check store URLs without loading
     from app.mapping.deltas import DeltaLog
     from app.mapping.object import Change, MapObject
 
-COUNTER_NAMES: tuple[str, ...] = ("frames", "keyframes", "bytes_in", "bytes_out")
+COUNTER_NAMES: tuple[str, ...] = ("frames", "keyframes", "bytes_in", "bytes_out", "sightings")
 """Per-session counters a store keeps (absolute values, set by the server)."""
 CHANGE_KINDS: tuple[str, ...] = ("added", "moved", "removed")
 """The kinds of `Change` a store keeps."""
+DONE_WINDOW = 256
+"""Per session, how many (stream, seq) acks a store remembers (`Store.done_ack`): the newest,
+by the order they were committed."""
 
 
 class StoreError(RuntimeError):
@@ -43,6 +56,44 @@ class StoreVersionError(StoreError):
 class StoreUnavailableError(StoreError):
     """The storage cannot take a write now (disk full, I/O error, read-only); the write
     changed nothing. Transient: retry later (`Store.probe` says when)."""
+
+
+class SessionFenced(StoreError):
+    """The session was claimed by another owner: this owner's epoch is stale. The write
+    changed nothing; the session is no longer this owner's to write."""
+
+    def __init__(self, session_id: str, epoch: int | None = None, stored_epoch: int | None = None):
+        stale = "" if epoch is None else f" {epoch}"
+        now = "" if stored_epoch is None else f" (the session is at epoch {stored_epoch})"
+        super().__init__(
+            f"session {session_id!r} was claimed by another owner: this owner's epoch{stale} "
+            f"is stale{now}"
+        )
+        self.session_id = session_id
+        self.epoch = epoch
+        """The stale epoch the write named."""
+        self.stored_epoch = stored_epoch
+        """The session's epoch in the store."""
+
+
+class SessionHeld(StoreError):
+    """A claim refused: a live owner holds the session (its lease has not run out)."""
+
+    def __init__(self, session_id: str, owner: str, lease_until: float | None):
+        super().__init__(f"session {session_id!r} is held by {owner!r} (lease until {lease_until})")
+        self.session_id = session_id
+        self.owner = owner
+        """The owner holding the session (a shard's name)."""
+        self.lease_until = lease_until
+        """Unix time (seconds) the owner's lease ends, unless renewed."""
+
+
+class StoredSessionsLimit(StoreError):
+    """A session not created: the store already holds `limit` sessions (max_sessions)."""
+
+    def __init__(self, limit: int):
+        super().__init__(f"the store holds its maximum of {limit} sessions")
+        self.limit = limit
 
 
 @dataclass
@@ -61,6 +112,8 @@ class SessionRecord:
     keyframes: int = 0
     bytes_in: int = 0
     bytes_out: int = 0
+    sightings: int = 0
+    """Frames that arrived as sightings (a non-keyframe's detections) rather than whole."""
     next_object_id: int = 1
     """Id the session's next new object gets (ids are never reused, even after a restart)."""
     perception: str = "detections"
@@ -73,6 +126,12 @@ class SessionRecord:
     None before its first (or in a store from before it was kept)."""
     last_pose: list[float] | None = None
     """That keyframe's camera-to-world pose: 16 floats (float32 values), row-major 4x4."""
+    owner: str | None = None
+    """The shard that holds the session (`Store.claim_session`); None when none does."""
+    epoch: int = 0
+    """Bumped at every claim; an owner's writes name the epoch its claim returned."""
+    lease_until: float | None = None
+    """Unix time (seconds) the owner's lease ends unless renewed; None without an owner."""
 
     def __post_init__(self) -> None:
         if self.last_used_at is None:
@@ -91,17 +150,37 @@ class StoredSession:
     """The delta log's seq (the session's update seq)."""
 
 
+@dataclass(frozen=True)
+class ShardRecord:
+    """One map shard in the shard registry (`Store.heartbeat_shard`)."""
+
+    name: str
+    url: str
+    """Where gateways reach the shard."""
+    heartbeat_at: float
+    """Unix time (seconds) of the shard's last heartbeat."""
+
+
 class Store(abc.ABC):
     """Sessions and their confirmed maps. Implementations are thread-safe.
 
-    Unknown session ids raise KeyError, except in `delete_session` (idempotent) and
-    `create_session` (ValueError on a duplicate).
+    Unknown session ids raise KeyError, except in `delete_session` (idempotent),
+    `create_session` (ValueError on a duplicate), `release_session` and `renew_leases` (no
+    error). Every call raises StoreUnavailableError (having changed nothing) when the storage
+    cannot be used now.
+
+    A write given an `epoch` (the one `claim_session` returned to its owner) applies only
+    while the session is still at that epoch; otherwise it raises SessionFenced and changes
+    nothing (checked in the write's own transaction). Without one it applies regardless (a
+    server that is not a map shard).
     """
 
     # ------------------------------------------------------------------ sessions
     @abc.abstractmethod
-    def create_session(self, rec: SessionRecord) -> None:
-        """Persist a new session; ValueError if its id exists."""
+    def create_session(self, rec: SessionRecord, max_sessions: int | None = None) -> None:
+        """Persist a new session; ValueError if its id exists. With `max_sessions`, the count
+        and the insert are one transaction (two creations at once never both take the last
+        place): StoredSessionsLimit, nothing written, when the store holds that many."""
 
     @abc.abstractmethod
     def update_session(
@@ -112,12 +191,15 @@ class Store(abc.ABC):
         knobs: dict | None = None,
         counters: dict[str, int] | None = None,
         last_used_at: float | None = None,
+        epoch: int | None = None,
     ) -> None:
-        """Change the given fields; counters are absolute values named as in COUNTER_NAMES."""
+        """Change the given fields; counters are absolute values named as in COUNTER_NAMES.
+        SessionFenced (nothing changed) when `epoch` is given and stale."""
 
     @abc.abstractmethod
     def delete_session(self, session_id: str) -> None:
-        """Remove the session with its objects, tombstones and changes (no-op if unknown)."""
+        """Remove the session with its objects, tombstones, changes and remembered acks
+        (no-op if unknown)."""
 
     @abc.abstractmethod
     def list_sessions(self) -> list[SessionRecord]:
@@ -154,6 +236,48 @@ class Store(abc.ABC):
             if rec.last_used_at is not None and rec.last_used_at < used_before
         ]
 
+    # ------------------------------------------------------------------ owners (map shards)
+    @abc.abstractmethod
+    def claim_session(
+        self, session_id: str, owner: str, lease_s: float, now: float | None = None
+    ) -> int:
+        """Make `owner` the session's owner until `now + lease_s` and return the session's new
+        epoch (one more than before: the previous holder's writes are fenced from now on, a
+        re-claim by the same owner included, which fences its previous incarnation).
+
+        Atomic. Allowed when the session has no owner, `owner` holds it, or the holder's lease
+        ended before `now`; otherwise SessionHeld (naming the holder), nothing changed.
+        now: unix time, seconds (time.time() when None); ValueError on a lease_s that is not
+        a finite number > 0."""
+
+    @abc.abstractmethod
+    def renew_leases(
+        self, owner: str, epochs: Mapping[str, int], lease_s: float, now: float | None = None
+    ) -> list[str]:
+        """Extend to `now + lease_s` the lease of each session `owner` still holds at the epoch
+        given (`epochs`: session id -> epoch), in one transaction; the ids (of `epochs`, in its
+        order) it no longer holds there (claimed by another, or deleted): drop them."""
+
+    @abc.abstractmethod
+    def release_session(self, session_id: str, owner: str, epoch: int) -> None:
+        """Let the session go (no owner, no lease; the epoch kept) if `owner` holds it at
+        `epoch`, so another can claim it at once; otherwise nothing (no error, an unknown
+        session included)."""
+
+    @abc.abstractmethod
+    def heartbeat_shard(self, name: str, url: str, now: float | None = None) -> None:
+        """Record that shard `name`, reached at `url`, is alive at `now` (time.time() when
+        None): its row in the shard registry, made or replaced."""
+
+    @abc.abstractmethod
+    def live_shards(self, max_age_s: float, now: float | None = None) -> list[ShardRecord]:
+        """The shards whose last heartbeat is at or after `now - max_age_s`, by name."""
+
+    @abc.abstractmethod
+    def forget_shard(self, name: str) -> None:
+        """Remove shard `name` from the registry and let go of every session it owns (no
+        owner, no lease; epochs kept), so other shards can claim them at once."""
+
     # ------------------------------------------------------------------ the map
     @abc.abstractmethod
     def commit_keyframe(
@@ -172,6 +296,8 @@ class Store(abc.ABC):
         retracted_removed: Collection[int] = (),
         last_t: float | None = None,
         last_pose: np.ndarray | None = None,
+        epoch: int | None = None,
+        done: tuple[str, int, bytes] | None = None,
     ) -> None:
         """Persist one keyframe's changes at once; returns once they survive a crash.
 
@@ -193,15 +319,26 @@ class Store(abc.ABC):
                  object found at a new place: the move replaces its removal).
         last_t, last_pose: the keyframe's frame `t` and camera-to-world pose (float [4, 4]
                  or [16], row-major), kept on the session row when given.
+        epoch: when given, the commit applies only while the session is at that epoch;
+                 SessionFenced (and nothing changed) otherwise.
+        done: (stream_id, seq, ack): the ack of the frame committed, remembered under its
+                 (stream_id, seq) in the same transaction (`done_ack`; replacing an earlier one
+                 under that key); the session keeps the newest DONE_WINDOW.
         Raises ValueError (and changes nothing) on a seq older than the stored one, changes
         to objects or change entries without a newer seq, an unconfirmed object, an upsert
         that is not present or a retired object that is not removed or not in `removed`, an
         id not below `next_object_id`, more than MAX_STAYS stays, a time that is not finite,
-        a change of an unknown kind, or arrays that are not float32 points [N, 3] /
-        embedding [d] / per-label sums [d] of the object's labels / a pose of 16 values;
-        KeyError on an unknown session; StoreUnavailableError (and changes nothing) when the
-        storage cannot take it.
+        a change of an unknown kind, arrays that are not float32 points [N, 3] /
+        embedding [d] / per-label sums [d] of the object's labels / a pose of 16 values, or a
+        `done` that is not (str, int, bytes); KeyError on an unknown session; SessionFenced
+        on a stale epoch; StoreUnavailableError (and changes nothing) when the storage cannot
+        take it.
         """
+
+    @abc.abstractmethod
+    def done_ack(self, session_id: str, stream_id: str, seq: int) -> bytes | None:
+        """The ack a commit remembered for frame `seq` of stream `stream_id` (its `done`);
+        None if none is remembered (never committed, or older than the newest DONE_WINDOW)."""
 
     @abc.abstractmethod
     def load_objects(self, session_id: str) -> list[MapObject]:
@@ -245,13 +382,14 @@ class Store(abc.ABC):
         deleted and of removed objects alike), seq and floor."""
 
     @abc.abstractmethod
-    def trim_tombstones(self, session_id: str, floor: int) -> None:
+    def trim_tombstones(self, session_id: str, floor: int, *, epoch: int | None = None) -> None:
         """Forget the removals at or before seq `floor` and raise the stored floor to it.
 
         Mirrors `DeltaLog.floor`: a subscriber resuming from before the floor gets a full
         snapshot, so those tombstones can no longer reach anyone. Removed objects kept as
         history stay. A floor at or below the stored one changes nothing; ValueError on a
-        floor beyond the stored seq.
+        floor beyond the stored seq; SessionFenced (nothing changed) when `epoch` is given
+        and stale.
         """
 
     # ------------------------------------------------------------------ health

@@ -12,18 +12,21 @@ The tables go in the connection's current schema (`options=-csearch_path%3Dname`
 another); an empty schema gets them on first open, one holding other tables is refused.
 
 Schema: `schema_version` holds the version, the same number as SQLite's `user_version` for
-the same logical schema (4: the living map). PostgreSQL stores start at version 4; a future
-schema change is an entry in `_MIGRATIONS` here and in `sqlite.py` (a test holds the two
-versions equal). Opening migrates under an advisory lock, so processes opening one database
+the same logical schema (4: the living map; 5: map shards). PostgreSQL stores start at
+version 4 (`_SCHEMA`) and are migrated from there, new ones too; a schema change is an entry
+in `_MIGRATIONS` here and in `sqlite.py` (a test holds the two versions equal). Opening migrates under an advisory lock, so processes opening one database
 together migrate it once. Points and embeddings are bytea in the bytes `rows.py` writes
 (float32 little-endian); knobs and label counts `json` (its text kept as written: key order
 is meaning for label ties); session ids sort by code point (`COLLATE "C"`), as in SQLite.
 Changes keep their arrival order in an identity column.
 
 Concurrency: a pool of connections (`psycopg_pool`), so reads and the commits of different
-sessions run side by side; a commit locks its session's row first, so commits, trims and
-deletions of one session land one at a time in the order they take the lock. A read of more
-than one statement is one REPEATABLE READ snapshot.
+sessions run side by side; a commit locks its session's row first, so commits, trims, claims
+and deletions of one session land one at a time in the order they take the lock (a claim
+and a fenced write can never interleave). Creations take one advisory lock, so a count
+against max_sessions and its insert are never split by another creation. Writes run at READ
+COMMITTED (each statement sees what committed before it, the lock waited for included); a
+read of more than one statement is one REPEATABLE READ snapshot.
 
 Faults: a server that cannot be reached (stopped, restarting, unreachable within the URL's
 `connect_timeout`, 5 s when unset), a connection lost mid-call, a full disk or a read-only
@@ -37,7 +40,7 @@ not an error.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
@@ -53,6 +56,7 @@ from app.mapping.object import MAX_STAYS, STAY_BYTES, Change, MapObject
 from app.store import StoreURLError, redact_url
 from app.store.base import (
     SessionRecord,
+    ShardRecord,
     Store,
     StoredSession,
     StoreError,
@@ -61,18 +65,34 @@ from app.store.base import (
 )
 from app.store.rows import (
     CHANGE_COLUMNS,
+    CLAIM_SESSION,
+    COUNT_SESSIONS,
+    DONE_ACK,
+    FORGET_SHARD,
+    HEARTBEAT_SHARD,
+    LIVE_SHARDS,
     N_OBJECT_COLUMNS,
     N_SESSION_COLUMNS,
     OBJECT_COLUMNS,
+    RELEASE_OWNED,
+    RELEASE_SESSION,
     SESSION_COLUMNS,
     change_filter,
     change_from_row,
+    check_epoch,
+    check_room,
     checked_counters,
+    claimed_epoch,
+    clock,
+    lease_end,
+    not_renewed,
     object_from_row,
     prepare_keyframe,
     session_from_row,
     session_to_row,
+    shard_from_row,
     to_json,
+    with_format_params,
 )
 
 __all__ = ["SCHEMA_VERSION", "PostgresStore"]
@@ -191,7 +211,39 @@ _SCHEMA: tuple[str, ...] = (
 )
 """Schema version 4 (`_FIRST_VERSION`), the same logical tables as SQLite's."""
 
-_MIGRATIONS: tuple[tuple[str, ...], ...] = ()
+_MIGRATIONS: tuple[tuple[str, ...], ...] = (
+    # 4 -> 5: map shards. Each session's owner (the shard holding it), epoch (bumped at each
+    # claim: a write naming an older one is fenced) and the owner's lease; frames that came
+    # as sightings; the acks of each session's newest frames, so a frame sent again is
+    # answered instead of mapped twice; the shard registry. Sessions from before it have no
+    # owner, epoch 0 and no sightings.
+    (
+        "ALTER TABLE sessions ADD COLUMN sightings bigint NOT NULL DEFAULT 0",
+        'ALTER TABLE sessions ADD COLUMN owner text COLLATE "C"',  # the shard; NULL: none
+        "ALTER TABLE sessions ADD COLUMN epoch bigint NOT NULL DEFAULT 0",
+        "ALTER TABLE sessions ADD COLUMN lease_until double precision",  # unix time, seconds
+        "CREATE INDEX sessions_by_owner ON sessions (owner)",
+        """
+        CREATE TABLE done_acks (
+            done_id    bigint GENERATED ALWAYS AS IDENTITY PRIMARY KEY,  -- insertion order
+            session_id text COLLATE "C" NOT NULL
+                REFERENCES sessions (session_id) ON DELETE CASCADE,
+            stream_id  text NOT NULL,
+            seq        bigint NOT NULL,              -- the frame's seq in its stream
+            ack        bytea NOT NULL,               -- what the server answered, as it keeps it
+            UNIQUE (session_id, stream_id, seq)
+        )
+        """,
+        "CREATE INDEX done_acks_in_order ON done_acks (session_id, done_id)",
+        """
+        CREATE TABLE shards (
+            name         text COLLATE "C" PRIMARY KEY,  -- listed by code point, as in SQLite
+            url          text NOT NULL,                 -- where gateways reach the shard
+            heartbeat_at double precision NOT NULL      -- unix time, seconds
+        )
+        """,
+    ),
+)
 """_MIGRATIONS[i] takes a store from schema version _FIRST_VERSION + i to the next one,
 in one transaction with the new version number."""
 
@@ -200,11 +252,21 @@ SCHEMA_VERSION = _FIRST_VERSION + len(_MIGRATIONS)
 
 _SCHEMA_LOCK = "semanticxr.store.schema"
 """Names the advisory lock held while a store creates or migrates the schema."""
+_CREATE_LOCK = "semanticxr.store.create"
+"""Names the advisory lock a creation holds from its count to its commit."""
 
 _UNAVAILABLE = (psycopg.OperationalError, errors.ReadOnlySqlTransaction)
 """Errors meaning "the database cannot take this now" (unreachable, connection lost,
 shutting down, disk full, too many connections, a read-only standby), not a bad call.
 PoolTimeout, waiting for a connection, is an OperationalError."""
+
+_RENEW_LEASES = (
+    "UPDATE sessions AS s SET lease_until = %s"
+    " FROM unnest(%s::text[], %s::bigint[]) AS held (session_id, epoch)"
+    " WHERE s.session_id = held.session_id AND s.epoch = held.epoch AND s.owner = %s"
+    " RETURNING s.session_id"
+)
+"""rows.RENEW_LEASE for many sessions in one round trip: (lease_until, ids, epochs, owner)."""
 
 _OBJECT_UPSERT = (
     f"INSERT INTO objects (session_id, change_seq, {OBJECT_COLUMNS})"
@@ -325,7 +387,11 @@ class PostgresStore(Store):
         try:
             with self._pool.connection() as conn:
                 conn.read_only = not write
-                conn.isolation_level = None if write else IsolationLevel.REPEATABLE_READ
+                # Writes: each statement sees every commit before it (after a lock waited
+                # for too), whatever the server's default; reads: one snapshot.
+                conn.isolation_level = (
+                    IsolationLevel.READ_COMMITTED if write else IsolationLevel.REPEATABLE_READ
+                )
                 with conn.transaction():
                     yield conn
         except PoolClosed:
@@ -349,20 +415,26 @@ class PostgresStore(Store):
         self._write(lambda conn: conn.execute("UPDATE schema_version SET version = version"))
 
     # ------------------------------------------------------------------ sessions
-    def create_session(self, rec: SessionRecord) -> None:
-        """Persist a new session; ValueError if its id exists."""
+    def create_session(self, rec: SessionRecord, max_sessions: int | None = None) -> None:
+        """Persist a new session; ValueError if its id exists; StoredSessionsLimit when the
+        store holds `max_sessions` (counted under the creations' lock, in the insert's
+        transaction)."""
         row = session_to_row(rec)
-        inserted = self._write(
-            lambda conn: (
-                conn.execute(
-                    f"INSERT INTO sessions ({SESSION_COLUMNS}, seq, delta_floor)"
-                    f" VALUES ({', '.join(['%s'] * N_SESSION_COLUMNS)}, 0, 0)"
-                    " ON CONFLICT (session_id) DO NOTHING",
-                    row,
-                ).rowcount
-            )
-        )
-        if not inserted:
+
+        def create(conn: psycopg.Connection) -> int:
+            # Every creation, limited or not, queues here: none lands between a count and
+            # its insert. At READ COMMITTED the count sees each creation that went before.
+            conn.execute("SELECT pg_advisory_xact_lock(hashtext(%s))", (_CREATE_LOCK,))
+            if max_sessions is not None:
+                check_room(conn.execute(COUNT_SESSIONS).fetchone()[0], max_sessions)
+            return conn.execute(
+                f"INSERT INTO sessions ({SESSION_COLUMNS}, seq, delta_floor)"
+                f" VALUES ({', '.join(['%s'] * N_SESSION_COLUMNS)}, 0, 0)"
+                " ON CONFLICT (session_id) DO NOTHING",
+                row,
+            ).rowcount
+
+        if not self._write(create):
             raise ValueError(f"session {rec.session_id!r} already exists")
 
     def update_session(
@@ -373,8 +445,11 @@ class PostgresStore(Store):
         knobs: dict | None = None,
         counters: dict[str, int] | None = None,
         last_used_at: float | None = None,
+        epoch: int | None = None,
     ) -> None:
-        """Change the given fields; counters are absolute values named as in COUNTER_NAMES."""
+        """Change the given fields; counters are absolute values named as in COUNTER_NAMES.
+        SessionFenced (nothing changed) when `epoch` is given and stale (checked under the
+        session row's lock)."""
         assignments: dict[str, Any] = checked_counters(counters or {})
         if name is not None:
             assignments["name"] = name
@@ -384,15 +459,17 @@ class PostgresStore(Store):
             assignments["last_used_at"] = float(last_used_at)
 
         def update(conn: psycopg.Connection) -> None:
-            if not assignments:
-                _session_row(conn, session_id, "1")
-            elif not _set_session(conn, session_id, assignments):
+            if epoch is not None or not assignments:
+                (stored_epoch,) = _session_row(conn, session_id, "epoch", lock=epoch is not None)
+                check_epoch(session_id, stored_epoch, epoch)
+            if assignments and not _set_session(conn, session_id, assignments):
                 raise KeyError(f"unknown session {session_id!r}")
 
         self._write(update)
 
     def delete_session(self, session_id: str) -> None:
-        """Remove the session with its objects, tombstones and changes (no-op if unknown)."""
+        """Remove the session with its objects, tombstones, changes and remembered acks
+        (no-op if unknown)."""
         self._write(
             lambda conn: conn.execute("DELETE FROM sessions WHERE session_id = %s", (session_id,))
         )
@@ -438,6 +515,73 @@ class PostgresStore(Store):
             ).fetchall()
         return [row[0] for row in rows]
 
+    # ------------------------------------------------------------------ owners (map shards)
+    def claim_session(
+        self, session_id: str, owner: str, lease_s: float, now: float | None = None
+    ) -> int:
+        """`Store.claim_session`: the holder read under the session row's lock and the claim
+        written in the same transaction (a concurrent claim waits, then sees this one)."""
+        now = clock(now)
+        lease_until = lease_end(lease_s, now)
+
+        def claim(conn: psycopg.Connection) -> int:
+            held_by, held_until, stored_epoch = _session_row(
+                conn, session_id, "owner, lease_until, epoch", lock=True
+            )
+            epoch = claimed_epoch(session_id, held_by, held_until, stored_epoch, owner, now)
+            conn.execute(with_format_params(CLAIM_SESSION), (owner, epoch, lease_until, session_id))
+            return epoch
+
+        return self._write(claim)
+
+    def renew_leases(
+        self, owner: str, epochs: Mapping[str, int], lease_s: float, now: float | None = None
+    ) -> list[str]:
+        """`Store.renew_leases`, in one statement: the ids `owner` no longer holds there."""
+        lease_until = lease_end(lease_s, now)
+        if not epochs:
+            return []
+        ids, held_epochs = list(epochs), [int(epoch) for epoch in epochs.values()]
+        rows = self._write(
+            lambda conn: conn.execute(
+                _RENEW_LEASES, (lease_until, ids, held_epochs, owner)
+            ).fetchall()
+        )
+        return not_renewed(epochs, [row[0] for row in rows])
+
+    def release_session(self, session_id: str, owner: str, epoch: int) -> None:
+        """No owner, no lease (the epoch kept) if `owner` holds the session at `epoch`."""
+        self._write(
+            lambda conn: conn.execute(
+                with_format_params(RELEASE_SESSION), (session_id, owner, int(epoch))
+            )
+        )
+
+    def heartbeat_shard(self, name: str, url: str, now: float | None = None) -> None:
+        """Shard `name`, at `url`, is alive at `now` (time.time() when None)."""
+        heartbeat_at = clock(now)
+        self._write(
+            lambda conn: conn.execute(
+                with_format_params(HEARTBEAT_SHARD), (name, url, heartbeat_at)
+            )
+        )
+
+    def live_shards(self, max_age_s: float, now: float | None = None) -> list[ShardRecord]:
+        """The shards heard from at or after `now - max_age_s`, by name (code point order)."""
+        oldest = clock(now) - float(max_age_s)
+        with self._transaction(write=False) as conn:
+            rows = conn.execute(with_format_params(LIVE_SHARDS), (oldest,)).fetchall()
+        return [shard_from_row(row) for row in rows]
+
+    def forget_shard(self, name: str) -> None:
+        """Shard `name` leaves the registry; its sessions are released (epochs kept)."""
+
+        def forget(conn: psycopg.Connection) -> None:
+            conn.execute(with_format_params(FORGET_SHARD), (name,))
+            conn.execute(with_format_params(RELEASE_OWNED), (name,))
+
+        self._write(forget)
+
     # ------------------------------------------------------------------ the map
     def commit_keyframe(
         self,
@@ -455,9 +599,12 @@ class PostgresStore(Store):
         retracted_removed: Collection[int] = (),
         last_t: float | None = None,
         last_pose: np.ndarray | None = None,
+        epoch: int | None = None,
+        done: tuple[str, int, bytes] | None = None,
     ) -> None:
-        """`Store.commit_keyframe`, in one transaction under the session row's lock: returns
-        once the server has committed it; faults raise StoreUnavailableError."""
+        """`Store.commit_keyframe`, in one transaction under the session row's lock (the epoch
+        checked under it): returns once the server has committed it; faults raise
+        StoreUnavailableError."""
         keyframe = prepare_keyframe(
             session_id,
             seq,
@@ -472,15 +619,18 @@ class PostgresStore(Store):
             retracted_removed,
             last_t,
             last_pose,
+            epoch,
+            done,
         )
         seq = keyframe.seq
 
         def commit(conn: psycopg.Connection) -> None:
-            # The row lock orders this session's commits (and trims, deletions) one by one.
-            stored_seq, stored_next_id = _session_row(
-                conn, session_id, "seq, next_object_id", lock=True
+            # The row lock orders this session's commits (and trims, claims, deletions) one
+            # by one: no claim lands between the epoch's check and the commit.
+            stored_seq, stored_next_id, stored_epoch = _session_row(
+                conn, session_id, "seq, next_object_id, epoch", lock=True
             )
-            assignments = keyframe.check_follows(stored_seq, stored_next_id)
+            assignments = keyframe.check_follows(stored_seq, stored_next_id, stored_epoch)
             cursor = conn.cursor()
             # One round trip for the lot: statements go out without waiting for each answer.
             with conn.pipeline():
@@ -524,8 +674,19 @@ class PostgresStore(Store):
                         " AND kind = 'added'",
                         (session_id, keyframe.retracted_ids),
                     )
+                for statement, params in keyframe.done_statements():
+                    cursor.execute(with_format_params(statement), params)
 
         self._write(commit)
+
+    def done_ack(self, session_id: str, stream_id: str, seq: int) -> bytes | None:
+        """The ack remembered for frame `seq` of `stream_id`; None if none is."""
+        with self._transaction(write=False) as conn:
+            _session_row(conn, session_id, "1")
+            row = conn.execute(
+                with_format_params(DONE_ACK), (session_id, stream_id, int(seq)), binary=True
+            ).fetchone()
+        return None if row is None else bytes(row[0])
 
     def load_objects(self, session_id: str) -> list[MapObject]:
         """The session's present map: confirmed objects, state "present", in id order."""
@@ -608,13 +769,16 @@ class PostgresStore(Store):
             {"seq": seq, "floor": floor, "upserted_at": dict(upserted), "removed_at": dict(removed)}
         )
 
-    def trim_tombstones(self, session_id: str, floor: int) -> None:
+    def trim_tombstones(self, session_id: str, floor: int, *, epoch: int | None = None) -> None:
         """Forget the removals at or before `floor`; raise the stored floor to it (removed
-        objects kept as history stay)."""
+        objects kept as history stay). SessionFenced when `epoch` is given and stale."""
         floor = int(floor)
 
         def trim(conn: psycopg.Connection) -> None:
-            seq, stored_floor = _session_row(conn, session_id, "seq, delta_floor", lock=True)
+            seq, stored_floor, stored_epoch = _session_row(
+                conn, session_id, "seq, delta_floor, epoch", lock=True
+            )
+            check_epoch(session_id, stored_epoch, epoch)
             if floor > seq:
                 raise ValueError(
                     f"session {session_id!r}: floor {floor} is beyond the stored seq {seq}"

@@ -10,14 +10,19 @@ reload).
 
 `prepare_keyframe` checks and encodes one `Store.commit_keyframe` call before its
 transaction opens; `KeyframeCommit.check_follows` is the part that needs the stored row.
+
+Owners, remembered acks and the shard registry (schema 5) are the same statements in every
+store: they are written here once, with SQLite's `?` placeholders (`with_format_params`
+gives PostgreSQL's `%s`), with the decisions around them (`claimed_epoch`, `check_epoch`).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import time
 from collections import Counter
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,13 +36,24 @@ from app.mapping.object import (
     stays_from_bytes,
     stays_to_bytes,
 )
-from app.store.base import CHANGE_KINDS, COUNTER_NAMES, SessionRecord, StoreError
+from app.store.base import (
+    CHANGE_KINDS,
+    COUNTER_NAMES,
+    DONE_WINDOW,
+    SessionFenced,
+    SessionHeld,
+    SessionRecord,
+    ShardRecord,
+    StoredSessionsLimit,
+    StoreError,
+)
 
 FLOAT32_LE = np.dtype("<f4")
 
 SESSION_COLUMNS = (
     "session_id, name, mode, perception, knobs, token_hash, created_at, "
-    "frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, last_pose"
+    "frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, last_pose, "
+    "sightings, owner, epoch, lease_until"
 )
 """The columns of `session_to_row` / `session_from_row`, in order."""
 N_SESSION_COLUMNS = len(SESSION_COLUMNS.split(","))
@@ -50,6 +66,45 @@ OBJECT_COLUMNS = (
 N_OBJECT_COLUMNS = len(OBJECT_COLUMNS.split(","))
 CHANGE_COLUMNS = "object_id, kind, t, label, from_x, from_y, from_z, to_x, to_y, to_z, seq"
 """The columns of `change_to_row` / `change_from_row`, in order."""
+
+# ---------------------------------------------------------------------- shared statements
+# Written with SQLite's `?` placeholders; `with_format_params` turns them into PostgreSQL's.
+CLAIM_SESSION = "UPDATE sessions SET owner = ?, epoch = ?, lease_until = ? WHERE session_id = ?"
+"""(owner, new epoch, lease_until, session_id), once `claimed_epoch` allowed it."""
+RENEW_LEASE = "UPDATE sessions SET lease_until = ? WHERE session_id = ? AND owner = ? AND epoch = ?"
+"""(lease_until, session_id, owner, epoch): one row changed while the owner holds it there."""
+RELEASE_SESSION = (
+    "UPDATE sessions SET owner = NULL, lease_until = NULL"
+    " WHERE session_id = ? AND owner = ? AND epoch = ?"
+)
+"""(session_id, owner, epoch): the epoch stays, so the released owner stays fenced."""
+RELEASE_OWNED = "UPDATE sessions SET owner = NULL, lease_until = NULL WHERE owner = ?"
+"""(owner,): every session a forgotten shard held, claimable at once."""
+REMEMBER_DONE = (
+    "INSERT INTO done_acks (session_id, stream_id, seq, ack) VALUES (?, ?, ?, ?)"
+    " ON CONFLICT (session_id, stream_id, seq) DO UPDATE SET ack = excluded.ack"
+)
+"""(session_id, stream_id, seq, ack); done_id (insertion order) is given by the database."""
+FORGET_OLD_DONE = (
+    "DELETE FROM done_acks WHERE session_id = ? AND done_id <= (SELECT done_id FROM done_acks"
+    " WHERE session_id = ? ORDER BY done_id DESC LIMIT 1 OFFSET ?)"
+)
+"""(session_id, session_id, DONE_WINDOW): the session's acks older than its newest window."""
+DONE_ACK = "SELECT ack FROM done_acks WHERE session_id = ? AND stream_id = ? AND seq = ?"
+HEARTBEAT_SHARD = (
+    "INSERT INTO shards (name, url, heartbeat_at) VALUES (?, ?, ?)"
+    " ON CONFLICT (name) DO UPDATE SET url = excluded.url, heartbeat_at = excluded.heartbeat_at"
+)
+LIVE_SHARDS = "SELECT name, url, heartbeat_at FROM shards WHERE heartbeat_at >= ? ORDER BY name"
+"""(oldest heartbeat_at,): rows for `shard_from_row`."""
+FORGET_SHARD = "DELETE FROM shards WHERE name = ?"
+COUNT_SESSIONS = "SELECT count(*) FROM sessions"
+
+
+def with_format_params(statement: str) -> str:
+    """A shared statement with PostgreSQL's (psycopg's) `%s` placeholders instead of `?`."""
+    assert "%" not in statement, "a literal % would need escaping for psycopg"
+    return statement.replace("?", "%s")
 
 
 # ---------------------------------------------------------------------- one keyframe
@@ -77,11 +132,19 @@ class KeyframeCommit:
     """Ids whose earlier `removed` changes go (before this commit's changes are written)."""
     assignments: dict[str, Any]
     """Session columns to set: counters, last use, last t and pose."""
+    epoch: int | None
+    """The epoch the commit applies at (None: at any)."""
+    done: tuple[str, int, bytes] | None
+    """(stream_id, seq, ack) to remember, or None."""
 
-    def check_follows(self, stored_seq: int, stored_next_id: int) -> dict[str, Any]:
-        """The session columns to set, seq and next_object_id included; ValueError when the
-        commit does not follow the stored row (an older seq, changes without a newer seq,
-        an id that is not below next_object_id or a next_object_id going back)."""
+    def check_follows(
+        self, stored_seq: int, stored_next_id: int, stored_epoch: int
+    ) -> dict[str, Any]:
+        """The session columns to set, seq and next_object_id included; SessionFenced when
+        the commit names an epoch the session is no longer at; ValueError when the commit
+        does not follow the stored row (an older seq, changes without a newer seq, an id
+        that is not below next_object_id or a next_object_id going back)."""
+        check_epoch(self.session_id, stored_epoch, self.epoch)
         seq, next_object_id = self.seq, self.next_object_id
         # Resuming subscribers rely on "changed after S" meaning "seq > S": a change
         # stored at a seq they may already have seen would never reach them (and
@@ -103,6 +166,17 @@ class KeyframeCommit:
             )
         return {**self.assignments, "seq": seq, "next_object_id": int(next_object_id)}
 
+    def done_statements(self) -> list[tuple[str, tuple]]:
+        """(shared statement, parameters) remembering the commit's ack, then forgetting the
+        session's acks older than the newest DONE_WINDOW; none without `done`."""
+        if self.done is None:
+            return []
+        sid = self.session_id
+        return [
+            (REMEMBER_DONE, (sid, *self.done)),
+            (FORGET_OLD_DONE, (sid, sid, DONE_WINDOW)),
+        ]
+
     def object_rows(self) -> Iterator[tuple]:
         """`object_to_row` of the kept objects, then of the retired ones; a generator, so
         each object is encoded as it is written and a bad one stops the writing there."""
@@ -123,6 +197,8 @@ def prepare_keyframe(
     retracted_removed: Collection[int],
     last_t: float | None,
     last_pose: Any,
+    epoch: int | None = None,
+    done: tuple[str, int, bytes] | None = None,
 ) -> KeyframeCommit:
     """`Store.commit_keyframe`'s arguments checked and encoded; ValueError as it documents,
     except the checks against the stored row (`KeyframeCommit.check_follows`) and the
@@ -170,7 +246,80 @@ def prepare_keyframe(
         retracted_ids=sorted({int(oid) for oid in retracted_added}),
         revived_ids=sorted({int(oid) for oid in retracted_removed}),
         assignments=assignments,
+        epoch=None if epoch is None else int(epoch),
+        done=checked_done(done),
     )
+
+
+def checked_done(done: tuple[str, int, bytes] | None) -> tuple[str, int, bytes] | None:
+    """A commit's `done` as (str, int, bytes); ValueError when it is not one."""
+    if done is None:
+        return None
+    try:
+        stream_id, seq, ack = done
+    except (TypeError, ValueError):
+        raise ValueError(f"done must be (stream_id, seq, ack), got {done!r}") from None
+    if not isinstance(stream_id, str) or not isinstance(ack, bytes | bytearray | memoryview):
+        raise ValueError(
+            f"done must be (str stream_id, int seq, bytes ack), got ({type(stream_id).__name__},"
+            f" {type(seq).__name__}, {type(ack).__name__})"
+        )
+    return stream_id, int(seq), bytes(ack)
+
+
+# ---------------------------------------------------------------------- owners and shards
+def check_epoch(session_id: str, stored_epoch: int, epoch: int | None) -> None:
+    """SessionFenced when a write names an epoch (`epoch` not None) the session is no longer
+    at (`stored_epoch`, read in the write's transaction)."""
+    if epoch is not None and int(epoch) != stored_epoch:
+        raise SessionFenced(session_id, int(epoch), stored_epoch)
+
+
+def claimed_epoch(
+    session_id: str,
+    held_by: str | None,
+    lease_until: float | None,
+    stored_epoch: int,
+    owner: str,
+    now: float,
+) -> int:
+    """The epoch a claim by `owner` at `now` gives a session held by `held_by` until
+    `lease_until` (read under the claim's lock) at `stored_epoch`: one more. SessionHeld when
+    another owner's lease is still running (an owner without a lease holds nothing)."""
+    if held_by is not None and held_by != owner and lease_until is not None and lease_until >= now:
+        raise SessionHeld(session_id, held_by, lease_until)
+    return stored_epoch + 1
+
+
+def lease_end(lease_s: float, now: float | None) -> float:
+    """`now + lease_s` (now: time.time() when None); ValueError on a lease that is not a
+    finite number of seconds > 0 or a time that is not finite."""
+    lease_s = float(lease_s)
+    if not (math.isfinite(lease_s) and lease_s > 0):
+        raise ValueError(f"lease_s must be a finite number of seconds > 0, got {lease_s}")
+    return clock(now) + lease_s
+
+
+def clock(now: float | None) -> float:
+    """`now` as a float, time.time() when None; ValueError when it is not finite."""
+    return time.time() if now is None else checked_time("now", now)
+
+
+def not_renewed(epochs: Mapping[str, int], renewed: Collection[str]) -> list[str]:
+    """The ids of `epochs`, in its order, whose lease was not renewed."""
+    renewed = set(renewed)
+    return [sid for sid in epochs if sid not in renewed]
+
+
+def check_room(stored: int, max_sessions: int | None) -> None:
+    """StoredSessionsLimit when `stored` sessions leave no room under `max_sessions`."""
+    if max_sessions is not None and stored >= max_sessions:
+        raise StoredSessionsLimit(int(max_sessions))
+
+
+def shard_from_row(row: tuple) -> ShardRecord:
+    name, url, heartbeat_at = row
+    return ShardRecord(name=name, url=url, heartbeat_at=heartbeat_at)
 
 
 # ---------------------------------------------------------------------- reading changes
@@ -234,6 +383,10 @@ def session_to_row(rec: SessionRecord) -> tuple:
         float(rec.last_used_at if rec.last_used_at is not None else rec.created_at),
         checked_time("last_t", rec.last_t),
         None if rec.last_pose is None else pose_to_blob(rec.last_pose),
+        int(rec.sightings),
+        rec.owner,
+        int(rec.epoch),
+        checked_time("lease_until", rec.lease_until),
     )
 
 
@@ -271,7 +424,10 @@ def pose_to_blob(pose: Any) -> bytes:
 
 def session_from_row(row: tuple) -> SessionRecord:
     sid, name, mode, perception, knobs, token_hash, created_at, *counters = row
-    frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, pose = counters
+    frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, pose, *rest = (
+        counters
+    )
+    sightings, owner, epoch, lease_until = rest
     return SessionRecord(
         session_id=sid,
         name=name,
@@ -288,6 +444,10 @@ def session_from_row(row: tuple) -> SessionRecord:
         last_used_at=last_used_at,
         last_t=last_t,
         last_pose=None if pose is None else float32_from_blob(pose, (16,)).tolist(),
+        sightings=sightings,
+        owner=owner,
+        epoch=epoch,
+        lease_until=lease_until,
     )
 
 

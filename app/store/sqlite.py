@@ -26,6 +26,12 @@ with state 'removed' (its last fields: stays, last points); every read of the pr
 `tombstones` like any other. Changes are rows of `changes` in arrival (rowid) order, written
 in the keyframe's transaction.
 
+Map shards (schema 5): a session's owner, epoch and lease are columns of its row; a claim,
+a renewal or an epoch check reads and writes them in the transaction of the call (BEGIN
+IMMEDIATE: one writer at a time, across processes too), so two claims never both win and a
+fenced write changes nothing. The acks a commit remembers are rows of `done_acks`, in
+insertion (rowid) order; the shard registry is `shards`.
+
 One connection, shared by all threads (mapping runs in a thread pool) and serialised by a lock:
 SQLite allows one writer at a time anyway, and one connection keeps the ordering of commits
 the ordering of calls.
@@ -45,7 +51,7 @@ import contextlib
 import os
 import sqlite3
 import threading
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
@@ -56,6 +62,7 @@ from app.mapping.deltas import DeltaLog
 from app.mapping.object import MAX_STAYS, STAY_BYTES, Change, MapObject
 from app.store.base import (
     SessionRecord,
+    ShardRecord,
     Store,
     StoredSession,
     StoreError,
@@ -64,17 +71,33 @@ from app.store.base import (
 )
 from app.store.rows import (
     CHANGE_COLUMNS,
+    CLAIM_SESSION,
+    COUNT_SESSIONS,
+    DONE_ACK,
+    FORGET_SHARD,
+    HEARTBEAT_SHARD,
+    LIVE_SHARDS,
     N_OBJECT_COLUMNS,
     N_SESSION_COLUMNS,
     OBJECT_COLUMNS,
+    RELEASE_OWNED,
+    RELEASE_SESSION,
+    RENEW_LEASE,
     SESSION_COLUMNS,
     change_filter,
     change_from_row,
+    check_epoch,
+    check_room,
     checked_counters,
+    claimed_epoch,
+    clock,
+    lease_end,
+    not_renewed,
     object_from_row,
     prepare_keyframe,
     session_from_row,
     session_to_row,
+    shard_from_row,
     to_json,
 )
 
@@ -183,6 +206,36 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
         """,  # rowid order is arrival order
         "CREATE INDEX changes_by_seq ON changes (session_id, seq)",
         "CREATE INDEX changes_by_t ON changes (session_id, t)",
+    ),
+    # 4 -> 5: map shards. Each session's owner (the shard holding it), epoch (bumped at each
+    # claim: a write naming an older one is fenced) and the owner's lease; frames that came
+    # as sightings; the acks of each session's newest frames, so a frame sent again is
+    # answered instead of mapped twice; the shard registry. Sessions from before it have no
+    # owner, epoch 0 and no sightings.
+    (
+        "ALTER TABLE sessions ADD COLUMN sightings INTEGER NOT NULL DEFAULT 0",
+        "ALTER TABLE sessions ADD COLUMN owner TEXT",  # the shard holding it; NULL: none
+        "ALTER TABLE sessions ADD COLUMN epoch INTEGER NOT NULL DEFAULT 0",
+        "ALTER TABLE sessions ADD COLUMN lease_until REAL",  # unix time, seconds
+        "CREATE INDEX sessions_by_owner ON sessions (owner)",
+        """
+        CREATE TABLE done_acks (
+            done_id    INTEGER PRIMARY KEY,       -- the rowid: insertion order
+            session_id TEXT NOT NULL REFERENCES sessions (session_id) ON DELETE CASCADE,
+            stream_id  TEXT NOT NULL,
+            seq        INTEGER NOT NULL,          -- the frame's seq in its stream
+            ack        BLOB NOT NULL,             -- what the server answered, as it keeps it
+            UNIQUE (session_id, stream_id, seq)
+        )
+        """,
+        "CREATE INDEX done_acks_in_order ON done_acks (session_id, done_id)",
+        """
+        CREATE TABLE shards (
+            name         TEXT PRIMARY KEY,
+            url          TEXT NOT NULL,           -- where gateways reach the shard
+            heartbeat_at REAL NOT NULL            -- unix time, seconds
+        )
+        """,
     ),
 )
 """_MIGRATIONS[i] takes a store from schema version i + 1 to i + 2; a new store is created
@@ -327,17 +380,22 @@ class SqliteStore(Store):
             raise StoreUnavailableError(f"{self.path}: the disk refuses writes ({exc})") from exc
 
     # ------------------------------------------------------------------ sessions
-    def create_session(self, rec: SessionRecord) -> None:
-        """Persist a new session; ValueError if its id exists."""
+    def create_session(self, rec: SessionRecord, max_sessions: int | None = None) -> None:
+        """Persist a new session; ValueError if its id exists; StoredSessionsLimit when the
+        store holds `max_sessions` (counted in the insert's transaction)."""
         row = session_to_row(rec)
-        try:
-            self._write(
-                lambda conn: conn.execute(
-                    f"INSERT INTO sessions ({SESSION_COLUMNS}, seq, delta_floor)"
-                    f" VALUES ({', '.join('?' * N_SESSION_COLUMNS)}, 0, 0)",
-                    row,
-                )
+
+        def create(conn: sqlite3.Connection) -> None:
+            if max_sessions is not None:  # BEGIN IMMEDIATE: no other writer until COMMIT
+                check_room(conn.execute(COUNT_SESSIONS).fetchone()[0], max_sessions)
+            conn.execute(
+                f"INSERT INTO sessions ({SESSION_COLUMNS}, seq, delta_floor)"
+                f" VALUES ({', '.join('?' * N_SESSION_COLUMNS)}, 0, 0)",
+                row,
             )
+
+        try:
+            self._write(create)
         except sqlite3.IntegrityError:
             raise ValueError(f"session {rec.session_id!r} already exists") from None
 
@@ -349,8 +407,10 @@ class SqliteStore(Store):
         knobs: dict | None = None,
         counters: dict[str, int] | None = None,
         last_used_at: float | None = None,
+        epoch: int | None = None,
     ) -> None:
-        """Change the given fields; counters are absolute values named as in COUNTER_NAMES."""
+        """Change the given fields; counters are absolute values named as in COUNTER_NAMES.
+        SessionFenced (nothing changed) when `epoch` is given and stale."""
         assignments: dict[str, Any] = checked_counters(counters or {})
         if name is not None:
             assignments["name"] = name
@@ -360,7 +420,8 @@ class SqliteStore(Store):
             assignments["last_used_at"] = float(last_used_at)
 
         def update(conn: sqlite3.Connection) -> None:
-            _session_row(conn, session_id, "1")
+            (stored_epoch,) = _session_row(conn, session_id, "epoch")
+            check_epoch(session_id, stored_epoch, epoch)
             if assignments:
                 # Column names come from the fixed set above, never from the caller.
                 columns = ", ".join(f"{column} = ?" for column in assignments)
@@ -372,7 +433,8 @@ class SqliteStore(Store):
         self._write(update)
 
     def delete_session(self, session_id: str) -> None:
-        """Remove the session with its objects, tombstones and changes (no-op if unknown)."""
+        """Remove the session with its objects, tombstones, changes and remembered acks
+        (no-op if unknown)."""
         self._write(
             lambda conn: conn.execute("DELETE FROM sessions WHERE session_id = ?", (session_id,))
         )
@@ -415,6 +477,67 @@ class SqliteStore(Store):
             ).fetchall()
         return [row[0] for row in rows]
 
+    # ------------------------------------------------------------------ owners (map shards)
+    def claim_session(
+        self, session_id: str, owner: str, lease_s: float, now: float | None = None
+    ) -> int:
+        """`Store.claim_session`: the holder read and the claim written in one transaction
+        (BEGIN IMMEDIATE: no other writer in between, in any process)."""
+        now = clock(now)
+        lease_until = lease_end(lease_s, now)
+
+        def claim(conn: sqlite3.Connection) -> int:
+            held_by, held_until, stored_epoch = _session_row(
+                conn, session_id, "owner, lease_until, epoch"
+            )
+            epoch = claimed_epoch(session_id, held_by, held_until, stored_epoch, owner, now)
+            conn.execute(CLAIM_SESSION, (owner, epoch, lease_until, session_id))
+            return epoch
+
+        return self._write(claim)
+
+    def renew_leases(
+        self, owner: str, epochs: Mapping[str, int], lease_s: float, now: float | None = None
+    ) -> list[str]:
+        """`Store.renew_leases`, in one transaction: the ids `owner` no longer holds there."""
+        lease_until = lease_end(lease_s, now)
+        if not epochs:
+            return []
+
+        def renew(conn: sqlite3.Connection) -> list[str]:
+            return [
+                sid
+                for sid, epoch in epochs.items()
+                if conn.execute(RENEW_LEASE, (lease_until, sid, owner, int(epoch))).rowcount
+            ]
+
+        return not_renewed(epochs, self._write(renew))
+
+    def release_session(self, session_id: str, owner: str, epoch: int) -> None:
+        """No owner, no lease (the epoch kept) if `owner` holds the session at `epoch`."""
+        self._write(lambda conn: conn.execute(RELEASE_SESSION, (session_id, owner, int(epoch))))
+
+    def heartbeat_shard(self, name: str, url: str, now: float | None = None) -> None:
+        """Shard `name`, at `url`, is alive at `now` (time.time() when None)."""
+        heartbeat_at = clock(now)
+        self._write(lambda conn: conn.execute(HEARTBEAT_SHARD, (name, url, heartbeat_at)))
+
+    def live_shards(self, max_age_s: float, now: float | None = None) -> list[ShardRecord]:
+        """The shards heard from at or after `now - max_age_s`, by name."""
+        oldest = clock(now) - float(max_age_s)
+        with self._transaction(write=False) as conn:
+            rows = conn.execute(LIVE_SHARDS, (oldest,)).fetchall()
+        return [shard_from_row(row) for row in rows]
+
+    def forget_shard(self, name: str) -> None:
+        """Shard `name` leaves the registry; its sessions are released (epochs kept)."""
+
+        def forget(conn: sqlite3.Connection) -> None:
+            conn.execute(FORGET_SHARD, (name,))
+            conn.execute(RELEASE_OWNED, (name,))
+
+        self._write(forget)
+
     # ------------------------------------------------------------------ the map
     def commit_keyframe(
         self,
@@ -432,6 +555,8 @@ class SqliteStore(Store):
         retracted_removed: Collection[int] = (),
         last_t: float | None = None,
         last_pose: np.ndarray | None = None,
+        epoch: int | None = None,
+        done: tuple[str, int, bytes] | None = None,
     ) -> None:
         """`Store.commit_keyframe`, in one SQLite transaction (WAL, synchronous): returns
         once the changes survive kill -9; storage errors raise StoreUnavailableError."""
@@ -449,12 +574,16 @@ class SqliteStore(Store):
             retracted_removed,
             last_t,
             last_pose,
+            epoch,
+            done,
         )
         seq = keyframe.seq
 
         def commit(conn: sqlite3.Connection) -> None:
-            stored_seq, stored_next_id = _session_row(conn, session_id, "seq, next_object_id")
-            assignments = keyframe.check_follows(stored_seq, stored_next_id)
+            stored_seq, stored_next_id, stored_epoch = _session_row(
+                conn, session_id, "seq, next_object_id, epoch"
+            )
+            assignments = keyframe.check_follows(stored_seq, stored_next_id, stored_epoch)
             columns = ", ".join(f"{column} = ?" for column in assignments)
             conn.execute(
                 f"UPDATE sessions SET {columns} WHERE session_id = ?",
@@ -495,8 +624,17 @@ class SqliteStore(Store):
                 "DELETE FROM changes WHERE session_id = ? AND object_id = ? AND kind = 'added'",
                 [(session_id, oid) for oid in keyframe.retracted_ids],
             )
+            for statement, params in keyframe.done_statements():
+                conn.execute(statement, params)
 
         self._write(commit)
+
+    def done_ack(self, session_id: str, stream_id: str, seq: int) -> bytes | None:
+        """The ack remembered for frame `seq` of `stream_id`; None if none is."""
+        with self._transaction(write=False) as conn:
+            _session_row(conn, session_id, "1")
+            row = conn.execute(DONE_ACK, (session_id, stream_id, int(seq))).fetchone()
+        return None if row is None else bytes(row[0])
 
     def load_objects(self, session_id: str) -> list[MapObject]:
         """The session's present map: confirmed objects, state "present", in id order."""
@@ -577,13 +715,16 @@ class SqliteStore(Store):
             {"seq": seq, "floor": floor, "upserted_at": dict(upserted), "removed_at": dict(removed)}
         )
 
-    def trim_tombstones(self, session_id: str, floor: int) -> None:
+    def trim_tombstones(self, session_id: str, floor: int, *, epoch: int | None = None) -> None:
         """Forget the removals at or before `floor`; raise the stored floor to it (removed
-        objects kept as history stay)."""
+        objects kept as history stay). SessionFenced when `epoch` is given and stale."""
         floor = int(floor)
 
         def trim(conn: sqlite3.Connection) -> None:
-            seq, stored_floor = _session_row(conn, session_id, "seq, delta_floor")
+            seq, stored_floor, stored_epoch = _session_row(
+                conn, session_id, "seq, delta_floor, epoch"
+            )
+            check_epoch(session_id, stored_epoch, epoch)
             if floor > seq:
                 raise ValueError(
                     f"session {session_id!r}: floor {floor} is beyond the stored seq {seq}"

@@ -391,8 +391,19 @@ def test_the_database_is_created_in_wal_mode_with_its_parent_dirs(tmp_path):
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
 
+def back_to_version_4(db: sqlite3.Connection) -> None:
+    """Undo migration 4 -> 5 (map shards) on a store holding no owners or acks."""
+    for table in ("done_acks", "shards"):
+        db.execute(f"DROP TABLE {table}")
+    db.execute("DROP INDEX sessions_by_owner")
+    for column in ("sightings", "owner", "epoch", "lease_until"):
+        db.execute(f"ALTER TABLE sessions DROP COLUMN {column}")
+    db.execute("PRAGMA user_version = 4")
+
+
 def back_to_version_3(db: sqlite3.Connection) -> None:
-    """Undo migration 3 -> 4 (the living map) on a store holding no history."""
+    """Undo migrations 3 -> 4 (the living map) and after on a store holding no history."""
+    back_to_version_4(db)
     db.execute("DROP TABLE changes")
     db.execute("DROP INDEX objects_by_state")
     for column in ("state", "first_seen_t", "last_seen_t", "stays", "label_embeddings"):
@@ -420,7 +431,7 @@ def test_a_version_1_store_opens_with_its_sessions_on_the_detections_backend(tmp
     with SqliteStore(path) as store:
         assert [s.perception for s in store.list_sessions()] == ["detections", "models"]
     with sqlite3.connect(path) as db:
-        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 4
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 5
 
 
 def test_a_version_2_store_counts_its_sessions_as_used_at_the_upgrade(tmp_path):
