@@ -43,6 +43,7 @@ import numpy as np
 
 from app.client import CONNECTION_ERRORS, ApiError, create_session, open_websocket
 from app.client.rest import delete_session
+from app.protocol import SessionSummary
 from app.server.runner import ServerProcess
 from bench.common import bench_parser, check, machine, save_plot, write_outputs
 
@@ -435,12 +436,13 @@ def stored_sessions(sizes: list[int]) -> list[dict]:
                 startup_s = time.perf_counter() - t0
                 rss_after_start = rss_mb(server.pid)
                 t0 = time.perf_counter()
-                listed = httpx.get(f"{server.url}/v1/sessions", timeout=60).json()
+                answer = httpx.get(f"{server.url}/v1/sessions", timeout=60).json()
                 list_ms = (time.perf_counter() - t0) * 1e3
+                listed = [SessionSummary.model_validate(entry) for entry in answer]
                 use_ms, load_s = [], []
                 for entry in listed[:6]:  # the first use of each: its map loads from the store
                     t0 = time.perf_counter()
-                    url = f"{server.url}/v1/sessions/{entry['session_id']}/objects"
+                    url = f"{server.url}/v1/sessions/{entry.session_id}/objects"
                     objects = httpx.get(url, timeout=60).json()
                     use_ms.append((time.perf_counter() - t0) * 1e3)
                     assert len(objects) == STORED_OBJECTS

@@ -59,6 +59,7 @@ from app.protocol import (
     SIGHTINGS_SUBPROTOCOL,
     ErrorReply,
     InputError,
+    SessionStats,
     unpack_reply,
     unpack_update,
 )
@@ -224,7 +225,7 @@ class DeviceClient:
         return await create_session(server_url, name=name, mode=mode, knobs=knobs, api_key=api_key)
 
     @staticmethod
-    async def fetch_session(server_url: str, session_id: str, token: str | None) -> dict:
+    async def fetch_session(server_url: str, session_id: str, token: str | None) -> SessionStats:
         """GET /v1/sessions/{sid}: stats, knobs in force, embedding model and dimension."""
         async with SessionApi(server_url, session_id, token) as api:
             return await api.fetch()

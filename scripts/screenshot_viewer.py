@@ -64,10 +64,10 @@ def stream_scene(url: str, scene: str, frames: int) -> tuple[str, str, int]:
             session = await api.fetch()
         print(
             f"streamed {stats.frames_sent} frames ({stats.keyframes_acked} mapped): "
-            f"{session['objects']} objects",
+            f"{session.objects} objects",
             file=sys.stderr,
         )
-        return sid, token, session["update_seq"]
+        return sid, token, session.update_seq
 
     return asyncio.run(play())
 

@@ -34,7 +34,7 @@ from app.client import ApiError, Disconnect, SessionApi, UpdatesSubscriber
 from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
 from app.mapping.relevance import is_match
-from app.protocol import unpack_update
+from app.protocol import SessionStats, unpack_update
 from viewer.scene import (
     HIT_BOXES_NODE,
     HITS_GROUP,
@@ -156,7 +156,7 @@ class ViewerStatus:
     """Full-snapshot resyncs after a malformed update."""
     last_error: str | None = None
     """The most recent problem, for a human."""
-    stats: dict | None = None
+    stats: SessionStats | None = None
     """The last GET /v1/sessions/{sid} answer (None until the first one)."""
     stats_ok: bool = False
     """Whether the last stats poll succeeded."""
@@ -502,18 +502,24 @@ class ViewerApp:
         if stats is None:
             self.gui.stats.content = "stats unavailable (server unreachable)"
             return
-        latency = stats.get("mapping_latency_ms") or {}
+        latency = stats.mapping_latency_ms
         held, applied = len(self.model.objects), self.model.seq  # atomic reads, as above
         stale = "" if self.status.stats_ok else "\n\n*stale: the server is unreachable*"
+        apart = (
+            f" ({stats.frames_whole} whole, {stats.sightings} sightings)"
+            if stats.frames_whole is not None and stats.sightings is not None
+            else ""
+        )
         self.gui.stats.content = (
             "| | |\n|---|---|\n"
-            f"| objects | {stats.get('objects', '-')} (viewer {held}) |\n"
-            f"| frames | {stats.get('frames', '-')} ({stats.get('keyframes', '-')} keyframes) |\n"
-            f"| mapping p50 / p95 | {_milliseconds(latency.get('p50'))} / "
-            f"{_milliseconds(latency.get('p95'))} |\n"
-            f"| bytes in | {_megabytes((stats.get('bytes_in') or {}).get('total'))} |\n"
-            f"| bytes out | {_megabytes((stats.get('bytes_out') or {}).get('total'))} |\n"
-            f"| update seq | {stats.get('update_seq', '-')} (applied {applied}) |" + stale
+            f"| objects | {stats.objects} (viewer {held}) |\n"
+            f"| frames walked | {stats.frames}{apart} |\n"
+            f"| keyframes | {stats.keyframes} |\n"
+            f"| mapping p50 / p95 | {_milliseconds(latency.p50)} / "
+            f"{_milliseconds(latency.p95)} |\n"
+            f"| bytes in | {_megabytes(stats.bytes_in.get('total'))} |\n"
+            f"| bytes out | {_megabytes(stats.bytes_out.get('total'))} |\n"
+            f"| update seq | {stats.update_seq} (applied {applied}) |" + stale
         )
 
     # --- the device ---------------------------------------------------------------------------

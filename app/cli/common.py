@@ -1,4 +1,5 @@
-"""What several commands share: the scene argument type and writing a JSON result."""
+"""What several commands share: the scene argument type, writing a JSON result and a
+session's frames in words."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+from app.protocol import SessionStats, SessionSummary
 
 
 def scene_name(text: str) -> str:
@@ -17,6 +20,14 @@ def scene_name(text: str) -> str:
             f"unknown scene {text!r}; valid names: {', '.join(SCENE_NAMES)}"
         )
     return text
+
+
+def frames_words(stats: SessionStats | SessionSummary) -> str:
+    """The frames a session walked, whole and as sightings: "300 frames (60 whole, 240
+    sightings)"; "300 frames" from a server that does not count them apart."""
+    if stats.frames_whole is None or stats.sightings is None:
+        return f"{stats.frames} frames"
+    return f"{stats.frames} frames ({stats.frames_whole} whole, {stats.sightings} sightings)"
 
 
 def write_json(path: str, document: dict) -> None:

@@ -22,7 +22,7 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from app.cli.common import scene_name
+from app.cli.common import frames_words, scene_name
 from app.flags import positive_int
 
 if TYPE_CHECKING:
@@ -243,7 +243,7 @@ def _distance_m(a, b) -> float:
 async def _caught_up(api, device, timeout_s: float = SYNC_TIMEOUT_S) -> tuple[bool, str]:
     """Wait for the device to apply the server's newest update; (its map equals the server's,
     "N objects locally, M on the server" and the first differences)."""
-    server_seq = (await api.fetch())["update_seq"]
+    server_seq = (await api.fetch()).update_seq
     _say(f"waiting for the device to apply the server's updates up to {server_seq}...")
     synced = await device.wait_synced(server_seq, timeout_s=timeout_s)
     server_map = {o["id"]: o["version"] for o in await api.objects()}
@@ -405,7 +405,7 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
     t0 = time.perf_counter()
     first_part = max(1, int(args.frames * 0.8))
     await _stream_with_progress(device, source, start=0, limit=first_part, total=args.frames, t0=t0)
-    server_seq = (await api.fetch())["update_seq"]
+    server_seq = (await api.fetch()).update_seq
     await device.wait_synced(server_seq, timeout_s=15)
     _say(
         f"mapped: the device holds {len(device.local_map)} objects, "
@@ -446,10 +446,10 @@ async def _scripted(args: argparse.Namespace, server_url: str, encoder) -> dict:
         f"caught up: {'yes' if same else 'NO'} — {counts}; "
         f"resumed with since={resumed[-1] if resumed else None}"
     )
-    walked = session["frames"] == args.frames
+    walked = session.frames == args.frames
     _say(
-        f"walk continued: {'yes' if walked else 'NO'} — the server counted {session['frames']}"
-        f" frames of the {args.frames}-frame walk"
+        f"walk continued: {'yes' if walked else 'NO'} — the server counted"
+        f" {frames_words(session)} of the {args.frames}-frame walk"
     )
     _say("queries again (SQ):")
     for text in queries[:2]:

@@ -32,10 +32,12 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
-from app.cli.common import write_json
+from app.cli.common import frames_words, write_json
 from app.client import ApiError, http_base_url
+from app.client.rest import parsed_answer
 from app.config import Knobs, updated_knobs
 from app.flags import add_knob_flags, explicit_knobs, knobs_from_args, server_url
+from app.protocol import SessionCreated, SessionStats
 
 if TYPE_CHECKING:  # the real imports are in the functions: torch loads in ~1.5 s, and
     # app.cli builds this parser for every command, not only `device`
@@ -239,8 +241,11 @@ def make_device_source(spec: str, frames: int | None) -> FrameSource:
     return make_source(spec)
 
 
-async def _join_session(args: argparse.Namespace) -> tuple[str, str | None, dict]:
-    """(session id, token, session info with "knobs" and "embedding") for --create or --session."""
+async def _join_session(
+    args: argparse.Namespace,
+) -> tuple[str, str | None, SessionCreated | SessionStats]:
+    """(session id, token, the session's `knobs` and `embedding`: the answer creating it, or its
+    stats) for --create or --session."""
     from client_sim.streaming import DeviceClient
 
     changes = explicit_knobs(args)
@@ -249,7 +254,7 @@ async def _join_session(args: argparse.Namespace) -> tuple[str, str | None, dict
             args.server, name=args.name, mode=args.mode, knobs=changes, api_key=args.api_key
         )
         print(f"[device] created session {sid} (token {token})", file=sys.stderr)
-        return sid, token, answer
+        return sid, token, parsed_answer(SessionCreated, answer, "POST /v1/sessions")
     token = args.token or args.api_key
     if changes:  # knobs are settable at run time: the flags apply to the joined session
         await DeviceClient.patch_knobs(args.server, args.session, token, changes)
@@ -333,8 +338,8 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
     from client_sim.streaming import DeviceClient, make_local_map
 
     sid, token, info = await _join_session(args)
-    knobs = updated_knobs(Knobs(), info["knobs"])  # the knobs in force on the server
-    embedding = info["embedding"]
+    knobs = updated_knobs(Knobs(), info.knobs.model_dump())  # the knobs in force on the server
+    embedding = info.embedding.model_dump()
     n_frames = len(source) if args.frames is None else min(args.frames, len(source))
     client = DeviceClient(
         args.server,
@@ -371,8 +376,12 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
                 file=sys.stderr,
             )
         print(progress.line(), file=sys.stderr, flush=True)
-        with contextlib.suppress(ApiError):  # the session's warnings (said once), if reachable
-            for warning in (await client.fetch_session(args.server, sid, token))["warnings"]:
+        with contextlib.suppress(ApiError):  # what the server counted and warned of, if reachable
+            session = await client.fetch_session(args.server, sid, token)
+            print(
+                f"[device] the server counted {frames_words(session)}", file=sys.stderr, flush=True
+            )
+            for warning in session.warnings:  # each said once
                 print(f"[device] server warns: {warning}", file=sys.stderr, flush=True)
         encoder = None
         if encoder_task is not None:

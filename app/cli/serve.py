@@ -69,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(levelname)s %(name)s: %(message)s"
     )
+    if settings.cluster is not None:
+        return run_cluster(settings)
     try:
         load_backends(settings)
     except MissingModelsError as exc:
@@ -76,4 +78,38 @@ def run(args: argparse.Namespace) -> int:
         return 2
     print(f"SemanticXR on http://{settings.host}:{settings.port}  (data in {settings.data_dir})")
     Server(uvicorn_config(create_app(settings), settings)).run()
+    return 0
+
+
+def run_cluster(settings: ServerSettings) -> int:
+    """`serve --cluster`: join (or start) the Ray cluster, start the map shards as detached
+    actors, then serve the gateway on --port until Ctrl-C. Shards of a local cluster this
+    command started stop with it; on a cluster that was already running they stay up for
+    the other gateways (stop them with `ray stop`, or this command with --shards on a
+    fresh cluster)."""
+    import sys
+
+    from uvicorn import Server
+
+    from app.cluster.gateway import create_gateway_app
+    from app.cluster.shards import ClusterError, connect, start_shards
+    from app.server.runner import uvicorn_config
+    from app.store import StoreUnavailableError, open_store
+
+    try:  # a wrong --store fails here, before any shard starts
+        open_store(settings.store_url).close()
+    except StoreUnavailableError as exc:
+        print(f"semanticxr serve: --store: {exc}", file=sys.stderr)
+        return 2
+    try:
+        connect(settings.cluster)
+        start_shards(settings)
+    except ClusterError as exc:
+        print(f"semanticxr serve: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"SemanticXR gateway on http://{settings.host}:{settings.port} in front of "
+        f"{settings.shards} map shards (Ray: {settings.cluster})"
+    )
+    Server(uvicorn_config(create_gateway_app(settings), settings)).run()
     return 0

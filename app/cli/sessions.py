@@ -34,6 +34,7 @@ from app.client.rest import (
     request,
 )
 from app.flags import server_url
+from app.protocol import SessionStats, SessionSummary
 
 COLUMNS = (
     ("session_id", "SESSION", 16),
@@ -103,11 +104,11 @@ def _call(coroutine: Any) -> Any:
         raise SystemExit(1) from None
 
 
-def table(rows: list[dict], width: int) -> str:
+def table(rows: list[SessionSummary], width: int) -> str:
     """The sessions as a fixed-width table no wider than `width` (the NAME column gives way,
     long names end in "…"; a wide terminal shows them whole)."""
     fixed = sum(w + 2 for field, _, w in COLUMNS if field != "name")
-    longest = max((len(str(row.get("name", ""))) for row in rows), default=4)
+    longest = max((len(row.name) for row in rows), default=4)
     name_width = max(8, min(longest, width - fixed - 2))
     widths = {field: (name_width if field == "name" else w) for field, _, w in COLUMNS}
 
@@ -117,14 +118,14 @@ def table(rows: list[dict], width: int) -> str:
         return text.rjust(w) if isinstance(value, int) else text.ljust(w)
 
     lines = ["  ".join(heading.ljust(widths[f]) for f, heading, _ in COLUMNS).rstrip()]
-    lines += ["  ".join(cell(row.get(f, ""), f) for f, _, _ in COLUMNS).rstrip() for row in rows]
+    lines += ["  ".join(cell(getattr(row, f), f) for f, _, _ in COLUMNS).rstrip() for row in rows]
     return "\n".join(lines)
 
 
 def run_list(args: argparse.Namespace) -> int:
     rows = _call(list_sessions(args.server, api_key=args.api_key))
     if args.json:
-        print(json.dumps(rows, indent=2))
+        print(json.dumps([row.to_json() for row in rows], indent=2))
     elif not rows:
         print("no sessions")
     else:
@@ -186,16 +187,17 @@ async def recent_changes(args: argparse.Namespace) -> dict | None:
 
 
 def run_show(args: argparse.Namespace) -> int:
-    async def fetch() -> tuple[dict, dict | None]:
+    async def fetch() -> tuple[SessionStats, dict | None]:
         async with SessionApi(args.server, args.sid, args.api_key) as api:
             stats = await api.fetch()
         return stats, await recent_changes(args)
 
     stats, changes = _call(fetch())
+    shown = stats.to_json()
     if args.json:
-        print(json.dumps({**stats, "recent_changes": changes} if changes else stats, indent=2))
+        print(json.dumps({**shown, "recent_changes": changes} if changes else shown, indent=2))
         return 0
-    for key, value in stats.items():
+    for key, value in shown.items():
         if key == "knobs":
             continue  # `--json` shows them; they would fill the screen
         if isinstance(value, dict):

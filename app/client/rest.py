@@ -11,7 +11,8 @@ import httpx
 
 from app.client.connection import auth_headers, http_base_url
 from app.errors import InputError
-from app.protocol import parse_query_result
+from app.protocol import SessionStats, SessionSummary, parse_query_result, parse_record
+from app.protocol.rest import R
 
 REST_TIMEOUT_S = 10.0
 """Longest wait for one REST call, whole (connect, send, answer)."""
@@ -84,11 +85,14 @@ EXPORT_TIMEOUT_S = 300.0
 """Longest wait for an export or import, whole (a map may be tens of megabytes)."""
 
 
-async def list_sessions(server_url: str, *, api_key: str | None = None) -> list[dict]:
-    """GET /v1/sessions: every session's summary (SessionSummary records)."""
+async def list_sessions(server_url: str, *, api_key: str | None = None) -> list[SessionSummary]:
+    """GET /v1/sessions: every session's summary, parsed by the protocol."""
     url = f"{http_base_url(server_url)}/v1/sessions"
     async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(api_key)) as http:
-        return await request(http, "GET", url)
+        answer = await request(http, "GET", url)
+    if not isinstance(answer, list):
+        raise ApiError(f"GET {url}: a malformed answer: expected a list of sessions")
+    return [parsed_answer(SessionSummary, entry, f"GET {url}") for entry in answer]
 
 
 async def delete_session(server_url: str, session_id: str, *, token: str | None = None) -> None:
@@ -195,9 +199,11 @@ class SessionApi:
             self._client(), method, url, expect=expect, timeout_s=self.timeout_s, **kwargs
         )
 
-    async def fetch(self) -> dict:
-        """GET /v1/sessions/{sid}: stats, knobs in force, embedding model and dimension."""
-        return await self._call("GET", self.session_url)
+    async def fetch(self) -> SessionStats:
+        """GET /v1/sessions/{sid}, parsed by the protocol: stats, knobs in force, embedding
+        model and dimension."""
+        answer = await self._call("GET", self.session_url)
+        return parsed_answer(SessionStats, answer, f"GET {self.session_url}")
 
     async def patch_knobs(self, changes: dict) -> dict:
         """PATCH /v1/sessions/{sid}/knobs -> the knobs now in force."""
@@ -272,6 +278,15 @@ class SessionApi:
 
     async def __aexit__(self, *exc_info: object) -> None:
         await self.aclose()
+
+
+def parsed_answer(model: type[R], answer: Any, call: str) -> R:
+    """An answer parsed by its protocol model (`app.protocol.parse_record`); ApiError naming
+    the call and the wrong field if it does not fit."""
+    try:
+        return parse_record(model, answer)
+    except InputError as exc:
+        raise ApiError(f"{call}: a malformed answer: {exc}") from exc
 
 
 def _query_params(text: str, k: int, include: str | None = None) -> dict[str, Any]:

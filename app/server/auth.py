@@ -14,7 +14,7 @@ from fastapi import HTTPException, Request
 
 from app.server.residency import ResidentSessionsBusy
 from app.server.sessions import STORAGE_RETRY_AFTER_S, Session, SessionManager, token_matches
-from app.store import StoreUnavailableError
+from app.store import SessionHeld, StoreUnavailableError
 
 
 def bearer(request_headers, query_params=None) -> str | None:
@@ -74,13 +74,22 @@ def authorize_session(manager: SessionManager, sid: str, token: str | None) -> S
     except KeyError:  # deleted since the check: as if it never was
         check_session_access(manager, sid, token)
         raise
-    except (ResidentSessionsBusy, StoreUnavailableError) as exc:
+    except (ResidentSessionsBusy, StoreUnavailableError, SessionHeld) as exc:
         raise retry_later(exc) from None
 
 
-def retry_later(exc: ResidentSessionsBusy | StoreUnavailableError) -> HTTPException:
+def retry_later(exc: ResidentSessionsBusy | StoreUnavailableError | SessionHeld) -> HTTPException:
     """503 with Retry-After for a session that cannot be loaded or created now: every
-    resident session is busy, or the store cannot save the one that would make room."""
+    resident session is busy, the store cannot save the one that would make room, or (on a
+    map shard) another live shard holds it (`X-SemanticXR-Owner` names that shard: a gateway
+    routes there)."""
+    if isinstance(exc, SessionHeld):
+        return HTTPException(
+            503,
+            f"map shard {exc.owner} holds this session; ask that shard (a gateway routes "
+            f"there by itself)",
+            headers={"Retry-After": "1", "X-SemanticXR-Owner": exc.owner},
+        )
     if isinstance(exc, ResidentSessionsBusy):
         return HTTPException(503, str(exc), headers={"Retry-After": str(exc.retry_after_s)})
     return HTTPException(

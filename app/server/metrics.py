@@ -129,6 +129,12 @@ class Metrics:
             "Sessions deleted by retention (unused for over --session-retention-days)",
             registry=registry,
         )
+        self.sessions_taken_over = Counter(
+            "semanticxr_sessions_taken_over",
+            "Sessions this map shard dropped because another shard claimed them (its lease ran "
+            "out while it hung or lost the store); their late writes were refused",
+            registry=registry,
+        )
         self.subscribers = Gauge(
             "semanticxr_subscribers", "Update subscribers connected", registry=registry
         )

@@ -12,8 +12,9 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import httpx
 import uvicorn
@@ -50,11 +51,18 @@ class ServerThread:
     Port 0 picks a free port. A stopped ServerThread does not start again: make a new one
     (on the same port and data dir to "restart" the server)."""
 
-    def __init__(self, settings: ServerSettings, encoder: TextEncoder | None = None):
+    def __init__(
+        self,
+        settings: ServerSettings,
+        encoder: TextEncoder | None = None,
+        app_factory: Callable[[ServerSettings], Any] | None = None,
+    ):
+        """app_factory: makes another ASGI app to serve with the service's configuration (a
+        cluster's gateway) instead of the server."""
         if settings.port == 0:
             settings.port = free_port(settings.host)
         self.settings = settings
-        self.app = create_app(settings, encoder=encoder)
+        self.app = app_factory(settings) if app_factory else create_app(settings, encoder=encoder)
         self.server = uvicorn.Server(uvicorn_config(self.app, settings, log_level="warning"))
         self.thread = threading.Thread(
             target=self.server.run, name="semanticxr-server", daemon=True

@@ -73,6 +73,21 @@ class ServerSettings:
     allow_origin: str = ""
     """Comma-separated browser origins (scheme://host:port) besides the server's own that may
     open its WebSockets."""
+    cluster: str | None = None
+    """Run as the gateway of a cluster of map shards on Ray: 'auto' starts a local Ray (or
+    joins the one `ray start --head` runs here), 'ray://HOST:10001' joins that cluster. Needs a
+    postgresql:// --store, which every shard and gateway shares. Unset: one process, as usual."""
+    shards: int = 2
+    """With --cluster: how many map shards (named detached Ray actors mapshard-0..N-1) to run."""
+    shard_name: str | None = None
+    """This server is the map shard of that name (set by --cluster for each shard): it claims
+    the sessions it loads in the store, renews their leases and registers its address for the
+    gateways. Unset: a standalone server, which claims nothing."""
+    shard_url: str | None = None
+    """The address gateways reach this shard at (default: http://HOST:PORT of its own bind)."""
+    shard_lease_s: float = 5.0
+    """How long a shard's claim on a session lasts without renewal (it renews every second):
+    after a shard dies or hangs, its sessions move to another shard after at most this long."""
 
     def allowed_host_list(self) -> list[str] | None:
         """The Host names served (None: any), from allowed_hosts or the bind address."""
@@ -90,6 +105,16 @@ class ServerSettings:
         for name in _POSITIVE:
             if getattr(self, name) < 1:
                 raise SettingsError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if not self.shard_lease_s > 1.5:
+            raise SettingsError(
+                f"shard_lease_s must be over 1.5 seconds (leases are renewed every second), "
+                f"got {self.shard_lease_s}"
+            )
+        if self.cluster is not None and not self.store_url.startswith(("postgresql:", "postgres:")):
+            raise SettingsError(
+                "cluster: the shards and gateways of a cluster share one PostgreSQL store; give "
+                "--store postgresql://USER:PASSWORD@HOST:5432/DB"
+            )
         if not self.idle_unload_s > 0:
             raise SettingsError(f"idle_unload_s must be over 0 seconds, got {self.idle_unload_s}")
         if self.session_retention_days is not None and not self.session_retention_days > 0:
@@ -119,6 +144,11 @@ class ServerSettings:
     def perception_backends(self) -> list[str]:
         """The backends `perception` names, in order (the first is the sessions' default)."""
         return list(dict.fromkeys(n.strip() for n in self.perception.split(",") if n.strip()))
+
+    @property
+    def shard_address(self) -> str:
+        """Where gateways reach this server as a map shard."""
+        return self.shard_url or f"http://{self.host}:{self.port}"
 
     @property
     def store_url(self) -> str:
@@ -170,4 +200,5 @@ _POSITIVE = (
     "max_bad_frames",
     "max_query_k",
     "max_tombstones",
+    "shards",
 )

@@ -40,6 +40,14 @@ SUBSCRIBER_STALL_S = 10.0
 """Longest one update may wait to go out to a subscriber before it is closed as too slow: well
 before the ping timeout (20 s + 20 s) would close it silently."""
 CLOSE_POLICY, CLOSE_TOO_BIG, CLOSE_TRY_LATER, CLOSE_GOING_AWAY = 1008, 1009, 1013, 1001
+CLOSE_SERVICE_RESTART = 1012
+"""The session moved to another map shard: reconnect (through a gateway) and resume."""
+STREAM_HEADER = "x-semanticxr-stream"
+"""A stream id the client (a gateway) keeps across reconnections: a keyframe resent under
+the same (stream, seq) is answered from the store, not mapped twice. Without it, every
+socket is a stream of its own."""
+STREAM_ID_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_")
+MAX_STREAM_ID = 64
 
 
 async def _authorize(ws: WebSocket, sid: str) -> Session | None:
@@ -177,9 +185,25 @@ async def stream(ws: WebSocket, sid: str) -> None:
         ws.app.state.manager.release(session)
 
 
+def _stream_id(ws: WebSocket) -> str | None:
+    """The socket's stream id: the client's `x-semanticxr-stream` header, or None (a socket
+    of its own); InputError naming the header when it is not 1-64 of [A-Za-z0-9_-]."""
+    given = ws.headers.get(STREAM_HEADER)
+    if given is None:
+        return None
+    if not 0 < len(given) <= MAX_STREAM_ID or not set(given) <= STREAM_ID_CHARS:
+        raise InputError(STREAM_HEADER, f"1-{MAX_STREAM_ID} characters of [A-Za-z0-9_-]")
+    return given
+
+
 async def _stream_frames(ws: WebSocket, session: Session) -> None:
     manager: SessionManager = ws.app.state.manager
     settings = manager.settings
+    try:
+        stream_id = _stream_id(ws)
+    except InputError as exc:
+        await ws.close(code=CLOSE_POLICY, reason=str(exc)[:120])
+        return
     sightings = SIGHTINGS_SUBPROTOCOL in ws.scope.get("subprotocols", [])
     await ws.accept(subprotocol=SIGHTINGS_SUBPROTOCOL if sightings else None)
     send_lock = asyncio.Lock()
@@ -237,7 +261,7 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
                     frame = decoded.frame
                     if keyframe:
                         await manager.submit_keyframe(
-                            session, frame, reply, decoded.sent, decoded.decode_ms
+                            session, frame, reply, decoded.sent, decoded.decode_ms, stream_id
                         )
                     else:
                         # Acked first: a sighting changes nothing the device waits for, and
@@ -252,7 +276,15 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
     finally:
         session.flush()  # the device stopped: its last changes go out now
         manager.save_counters_soon(session)  # and its frame count is saved
-    if session.closed:
+    await _close_if_gone(ws, session)
+
+
+async def _close_if_gone(ws: WebSocket, session: Session) -> None:
+    """Close the socket of a session deleted (1001) or moved to another map shard (1012)."""
+    if session.moved:
+        with contextlib.suppress(Exception):
+            await ws.close(code=CLOSE_SERVICE_RESTART, reason="session moved to another shard")
+    elif session.closed:
         with contextlib.suppress(Exception):
             await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")
 
@@ -360,6 +392,5 @@ async def _follow_updates(ws: WebSocket, session: Session) -> None:
         # dies); waiting for that costs this coroutine only.
         with contextlib.suppress(Exception):
             await ws.close(code=CLOSE_TRY_LATER, reason=f"too slow: {too_slow}; resume with since")
-    elif session.closed:
-        with contextlib.suppress(Exception):
-            await ws.close(code=CLOSE_GOING_AWAY, reason="session deleted")
+    else:
+        await _close_if_gone(ws, session)

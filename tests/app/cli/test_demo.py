@@ -52,7 +52,7 @@ def test_a_stream_started_where_the_last_one_stopped_continues_the_walk(live_ser
     with NetemProxy("127.0.0.1", port) as proxy:
         r = asyncio.run(scenario(proxy))
     assert walk.read == list(range(10))
-    assert r["sent"] == r["session"]["frames"] == 10
+    assert r["sent"] == r["session"].frames == 10
 
 
 def test_a_stream_refuses_a_negative_start():

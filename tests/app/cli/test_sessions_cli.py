@@ -17,6 +17,7 @@ from devices import frame_message, stream_in_step
 
 from app.cli import main
 from app.cli.sessions import change_words, table
+from app.protocol import SessionSummary
 
 API_KEY = "cli-test-key"
 KNOBS = {"keyframe_interval": 1, "min_observations": 2, "local_map_update_frequency": 1}
@@ -75,7 +76,18 @@ def test_sessions_list_json_is_the_servers_answer(server, capsys):
 
 
 def test_a_table_stays_within_narrow_and_wide_terminals():
-    rows = [{"session_id": "0" * 16, "name": LONG_NAME, "mode": "semanticxr", "objects": 3}]
+    rows = [
+        SessionSummary(
+            session_id="0" * 16,
+            name=LONG_NAME,
+            mode="semanticxr",
+            objects=3,
+            frames=10,
+            keyframes=2,
+            fps=0.0,
+            update_seq=4,
+        )
+    ]
     for width in (70, 80, 200):
         assert all(len(line) <= width for line in table(rows, width).splitlines())
     assert LONG_NAME in table(rows, 200)
