@@ -413,6 +413,8 @@
       this.setText(".session-age", formatAge(stats.created_at));
       this.setText(".stat-objects", String(stats.objects));
       this.setText(".stat-frames", `${stats.frames} · ${stats.keyframes}`, `${stats.dropped_frames} keyframes superseded before mapping`);
+      // The frames walked, apart: received whole, and as sightings (a server before it: "–").
+      this.setText(".stat-apart", stats.sightings == null ? "–" : `${stats.frames_whole} · ${stats.sightings}`, "frames received whole · as sightings (between keyframes, with the sightings extension)");
       this.setText(".stat-fps", stats.fps.toFixed(1));
       const latency = stats.mapping_latency_ms || {};
       this.setText(".stat-latency", formatMs(latency.p50));

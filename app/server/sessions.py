@@ -67,7 +67,13 @@ from app.mapping.relevance import Rating, rate_hits
 from app.perception import DEFAULT_BACKEND, BackendOptions, UnknownBackendError, make_backend
 from app.perception.base import FrameDetections, PerceptionBackend
 from app.protocol import Ack, ErrorReply, FrameBudget, FrameInput
-from app.protocol.rest import MapExport
+from app.protocol.rest import (
+    EmbeddingInfo,
+    LatencySummary,
+    MapExport,
+    SessionStats,
+    SessionSummary,
+)
 from app.semantics import TextEncoder
 from app.server.metrics import Metrics
 from app.server.residency import Residency
@@ -257,7 +263,7 @@ class Session:
         return token_matches(self.record, token)
 
     # ------------------------------------------------------------------ reading
-    def stats(self) -> dict:
+    def stats(self) -> SessionStats:
         """The session's figures. mapping_latency_ms: p50/p95 of the server time per mapped
         keyframe (DESIGN.md "Mapping latency"): decode + perception + mapping + delta (its
         commit to the delta log and the store), without the time it queued for a worker."""
@@ -271,30 +277,33 @@ class Session:
             if len(window) > 1 and window[-1] > window[0]
             else 0.0
         )
-        return {
-            "session_id": self.id,
-            "name": self.record.name,
-            "mode": self.engine.mode,
-            "perception": self.record.perception,
-            "created_at": self.record.created_at,
-            "last_used_at": self.record.last_used_at,
-            "frames": self.record.frames,
-            "keyframes": self.engine.keyframes,
-            "dropped_frames": self.dropped,
-            "objects": confirmed,
-            "fps": fps,
-            "bytes_in": dict(self.bytes_in, total=sum(self.bytes_in.values())),
-            "bytes_out": dict(self.bytes_out, total=sum(self.bytes_out.values())),
-            "mapping_latency_ms": {
-                "p50": float(np.percentile(lat, 50)) if lat is not None else None,
-                "p95": float(np.percentile(lat, 95)) if lat is not None else None,
-            },
-            "update_seq": seq,
-            "subscribers": self.subscribers,
-            "embedding": {"model": self.engine.encoder.model_id, "dim": self.engine.encoder.dim},
-            "knobs": knobs_to_dict(self.knobs),
-            "warnings": list(self.warnings),
-        }
+        return SessionStats(
+            session_id=self.id,
+            name=self.record.name,
+            mode=self.engine.mode,
+            perception=self.record.perception,
+            created_at=self.record.created_at,
+            frames=self.record.frames,
+            frames_whole=self.record.frames - self.record.sightings,
+            sightings=self.record.sightings,
+            keyframes=self.engine.keyframes,
+            dropped_frames=self.dropped,
+            objects=confirmed,
+            fps=fps,
+            bytes_in=dict(self.bytes_in, total=sum(self.bytes_in.values())),
+            bytes_out=dict(self.bytes_out, total=sum(self.bytes_out.values())),
+            mapping_latency_ms=LatencySummary(
+                p50=float(np.percentile(lat, 50)) if lat is not None else None,
+                p95=float(np.percentile(lat, 95)) if lat is not None else None,
+            ),
+            update_seq=seq,
+            subscribers=self.subscribers,
+            embedding=EmbeddingInfo(
+                model=self.engine.encoder.model_id, dim=self.engine.encoder.dim
+            ),
+            knobs=knobs_to_dict(self.knobs),
+            warnings=list(self.warnings),
+        )
 
     def warn_once(self, warning: str) -> None:
         """Say `warning` in the server log and the session's stats, unless already said."""
@@ -594,7 +603,7 @@ class SessionManager:
         keyframe in flight); their ids."""
         return self.resident.unload_idle(self.settings.idle_unload_s)
 
-    def list_sessions(self) -> list[dict]:
+    def list_sessions(self) -> list[SessionSummary]:
         """Every stored session, oldest first, as `GET /v1/sessions` lists it: a resident one
         with its live figures, the others from their stored rows (no map is loaded);
         `resident` says which."""
@@ -603,21 +612,39 @@ class SessionManager:
             rec = entry.record
             session = self.resident.get(rec.session_id)
             if session is not None:
-                listed.append({**session.stats(), "resident": True})
+                stats = session.stats()
+                listed.append(
+                    SessionSummary(
+                        session_id=stats.session_id,
+                        name=stats.name,
+                        mode=stats.mode,
+                        objects=stats.objects,
+                        frames=stats.frames,
+                        frames_whole=stats.frames_whole,
+                        sightings=stats.sightings,
+                        keyframes=stats.keyframes,
+                        fps=stats.fps,
+                        update_seq=stats.update_seq,
+                        last_used_at=session.record.last_used_at,
+                        resident=True,
+                    )
+                )
                 continue
             listed.append(
-                {
-                    "session_id": rec.session_id,
-                    "name": rec.name,
-                    "mode": rec.mode,
-                    "objects": entry.objects,
-                    "frames": rec.frames,
-                    "keyframes": rec.keyframes,
-                    "fps": 0.0,
-                    "update_seq": entry.seq,
-                    "last_used_at": rec.last_used_at,
-                    "resident": False,
-                }
+                SessionSummary(
+                    session_id=rec.session_id,
+                    name=rec.name,
+                    mode=rec.mode,
+                    objects=entry.objects,
+                    frames=rec.frames,
+                    frames_whole=rec.frames - rec.sightings,
+                    sightings=rec.sightings,
+                    keyframes=rec.keyframes,
+                    fps=0.0,
+                    update_seq=entry.seq,
+                    last_used_at=rec.last_used_at,
+                    resident=False,
+                )
             )
         return listed
 
@@ -911,9 +938,12 @@ class SessionManager:
         picked (`keyframe`, with the sightings extension), else the shared selector's pick
         among the frames received (`app.keyframes.is_keyframe`). The counters reach the
         store with each keyframe, or in a counters-only write when they were last saved more
-        than COUNTERS_SAVE_INTERVAL_S ago."""
+        than COUNTERS_SAVE_INTERVAL_S ago. A frame the device did not pick (`keyframe`
+        False) is a sighting: counted in `frames` and apart in `record.sightings`."""
         rec = session.record
         rec.frames += 1
+        if keyframe is False:
+            rec.sightings += 1
         session.touch()
         if "detections" not in frame_bytes and session.engine.backend.name == DEFAULT_BACKEND:
             session.warn_once(NO_DETECTIONS_WARNING)
@@ -983,6 +1013,7 @@ class SessionManager:
         rec = session.record
         counters = {
             "frames": rec.frames,
+            "sightings": rec.sightings,
             "bytes_in": sum(session.bytes_in.values()),
             "bytes_out": sum(session.bytes_out.values()),
         }

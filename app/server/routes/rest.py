@@ -195,7 +195,7 @@ def create_session(body: protocol.CreateSession, request: Request) -> protocol.S
     summary="List stored sessions, in memory or not (no map is loaded)",
 )
 def list_sessions(request: Request) -> list[protocol.SessionSummary]:
-    return [protocol.SessionSummary.model_validate(s) for s in manager(request).list_sessions()]
+    return manager(request).list_sessions()
 
 
 @router.get(
@@ -206,7 +206,7 @@ def list_sessions(request: Request) -> list[protocol.SessionSummary]:
 )
 def get_session(sid: str, request: Request) -> protocol.SessionStats:
     with session_in_use(request, sid) as session:
-        return protocol.SessionStats.model_validate(session.stats())
+        return session.stats()
 
 
 @router.get(

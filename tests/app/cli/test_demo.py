@@ -78,10 +78,13 @@ def test_the_demo_continues_its_walk_after_the_outage_and_logs_one_line_per_upda
     progress = re.findall(rf"^  frames (\d+)/{frames}\b", out, re.M)
     assert progress and all(int(n) <= frames for n in progress)
     assert "the device resumes its updates from its last one and continues its walk" in out
-    assert (
-        f"walk continued: yes — the server counted {frames} frames of the {frames}-frame walk"
-        in out
+    walked = re.search(
+        rf"^walk continued: yes — the server counted {frames} frames \((\d+) whole, (\d+) "
+        rf"sightings\) of the {frames}-frame walk$",
+        out,
+        re.M,
     )
+    assert walked and int(walked[1]) + int(walked[2]) == frames, out
     assert "caught up: yes" in out
 
     # the living-map step: the same path again, the moved thing asked after twice

@@ -157,6 +157,7 @@ def test_the_dashboard_lists_a_session_and_answers_a_query(live_server, page):
     expect(card.locator(".session-name")).to_have_text("kitchen")
     expect(card.locator(".stat-objects")).to_have_text("2")
     expect(card.locator(".stat-frames")).to_have_text("3 · 3")
+    expect(card.locator(".stat-apart")).to_have_text("3 · 0")  # whole frames, no sightings
     expect(page.locator("#status")).to_have_attribute("data-state", "live")
     expect(page.locator("#viewer-link")).to_have_attribute("href", "http://127.0.0.1:9999/")
     screenshot(page, "dashboard_session.png")
