@@ -142,17 +142,20 @@ def create_gateway_app(settings: ServerSettings, store: Store | None = None) -> 
 
     @app.get("/healthz", include_in_schema=False)
     async def healthz(request: Request) -> JSONResponse:
-        """200 while at least one map shard beats; 503 with Retry-After otherwise."""
-        try:
-            live = await request.app.state.directory.live(fresh=True)
-        except Exception as exc:  # the store itself is down
-            log.warning("healthz: cannot read the shards from the store: %s", exc)
-            live = {}
-        if not live:
+        """200 while the store answers and at least one map shard beats; 503 with
+        Retry-After otherwise (the reason says which)."""
+        directory: ShardDirectory = request.app.state.directory
+        live = await directory.live(fresh=True)
+        reason = (
+            "storage unavailable: the cluster's store cannot be read (database down?)"
+            if not directory.store_ok
+            else None
+            if live
+            else "no map shard is alive: they may be starting or restarting"
+        )
+        if reason is not None:
             return JSONResponse(
-                {"status": "unavailable", "reason": "no map shard is alive (or the store is down)"},
-                503,
-                headers={"Retry-After": "2"},
+                {"status": "unavailable", "reason": reason}, 503, headers={"Retry-After": "2"}
             )
         return JSONResponse({"status": "ok", "shards": sorted(live)})
 

@@ -11,12 +11,15 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import itertools
+import logging
 import time
 
-from app.store import SessionRecord, ShardRecord, Store
+from app.store import SessionRecord, ShardRecord, Store, StoreUnavailableError
 
 DIRECTORY_TTL_S = 0.5
 """How long a gateway trusts its list of live shards before reading it again."""
+
+log = logging.getLogger("semanticxr.gateway")
 
 
 class NoLiveShard(RuntimeError):
@@ -49,7 +52,9 @@ def owner_if_live(record: SessionRecord | None, live: dict[str, str], now: float
 
 class ShardDirectory:
     """The live shards, as the store lists them, read at most every DIRECTORY_TTL_S (from a
-    thread: the store's calls block)."""
+    thread: the store's calls block). While the store cannot be read, the last list read
+    stands (the shards keep serving what they hold; they cannot commit either), and
+    sessions go where rendezvous puts them."""
 
     def __init__(self, store: Store, max_age_s: float):
         self.store = store
@@ -58,16 +63,25 @@ class ShardDirectory:
         self._read_at = -float("inf")
         self._lock = asyncio.Lock()
         self._turn = itertools.count()
+        self.store_ok = True
+        """False while the store cannot be read (its last read failed)."""
 
     async def live(self, fresh: bool = False) -> dict[str, str]:
         """Live shards' addresses by name (read again when older than DIRECTORY_TTL_S, or
         `fresh`)."""
         async with self._lock:
             if fresh or time.monotonic() - self._read_at > DIRECTORY_TTL_S:
-                shards: list[ShardRecord] = await asyncio.to_thread(
-                    self.store.live_shards, self.max_age_s
-                )
-                self._live = {s.name: s.url for s in shards}
+                try:
+                    shards: list[ShardRecord] = await asyncio.to_thread(
+                        self.store.live_shards, self.max_age_s
+                    )
+                except StoreUnavailableError as exc:
+                    if self.store_ok:
+                        log.warning("cannot read the live shards (%s); using the last list", exc)
+                    self.store_ok = False
+                else:
+                    self._live = {s.name: s.url for s in shards}
+                    self.store_ok = True
                 self._read_at = time.monotonic()
             return dict(self._live)
 
@@ -79,7 +93,7 @@ class ShardDirectory:
             raise NoLiveShard(self.max_age_s)
         try:
             record = await asyncio.to_thread(self.store.load_session, session_id)
-        except KeyError:
+        except (KeyError, StoreUnavailableError):
             record = None
         name = owner_if_live(record, live, time.time()) or rendezvous(session_id, sorted(live))
         return name, live[name]

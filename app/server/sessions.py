@@ -44,8 +44,9 @@ from collections import deque
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
+import msgpack
 import numpy as np
 
 from app.config import Knobs, knobs_to_dict, updated_knobs
@@ -55,7 +56,6 @@ from app.mapping.deltas import DeltaLog
 from app.mapping.engine import (
     MAX_WORLD_M,
     RECENT_CHANGES,
-    IntegrationStats,
     MappingEngine,
     QueryHit,
     limit_numpy_threads,
@@ -79,7 +79,13 @@ from app.server.metrics import Metrics
 from app.server.residency import Residency
 from app.server.scheduler import RoundRobinScheduler
 from app.server.settings import ServerSettings
-from app.store import SessionRecord, Store, StoreUnavailableError
+from app.store import (
+    SessionFenced,
+    SessionRecord,
+    Store,
+    StoredSessionsLimit,
+    StoreUnavailableError,
+)
 
 Reply = Callable[[dict], Awaitable[None]]
 
@@ -136,6 +142,17 @@ class StoredSessionsFull(RuntimeError):
 
 class StorageUnavailable(RuntimeError):
     """A keyframe refused unmapped because the store cannot save now (`storage_unavailable`)."""
+
+
+class SessionMoved(RuntimeError):
+    """This map shard lost its claim on a session (another shard claimed it: this one hung or
+    was cut off for longer than its lease). The session is dropped here, unsaved changes
+    included; the gateway sends its frames to the new owner."""
+
+    MESSAGE = (
+        "this map shard no longer holds the session (another shard took it over); the "
+        "keyframe was not mapped here: reconnect (a gateway does so by itself) and resend it"
+    )
 
 
 class PersistFailed(RuntimeError):
@@ -204,6 +221,17 @@ class _Pending:
     received_t: float
     decode_ms: float
     """Time the frame took to decode and validate (part of its mapping latency)."""
+    stream: str | None = None
+    """The socket's stream id: a keyframe committed under (session, stream, seq) is acked
+    from the store, not mapped again, when it is sent again (a gateway resending after a
+    shard failure)."""
+
+
+class _Mapped(NamedTuple):
+    ack: Ack
+    keyframe: int | None
+    """The session's keyframe count after it (None: answered from the store, not mapped)."""
+    latency_ms: float
 
 
 @dataclass
@@ -235,6 +263,11 @@ class Session:
     """time.monotonic() of the last use (frame, request, socket): idleness, LRU order."""
     _sightings_waiting: deque = field(default_factory=lambda: deque(maxlen=SIGHTINGS_WAITING))
     """(frame, sent) of validated non-keyframes not yet counted as sightings (`sight`)."""
+    moved: bool = False
+    """Closed because another map shard took the session over (not deleted)."""
+    epoch: int | None = None
+    """On a map shard: the epoch of this shard's claim; every write is conditional on it.
+    None on a standalone server (it claims nothing)."""
 
     @property
     def busy(self) -> bool:
@@ -431,8 +464,6 @@ class SessionManager:
             settings.max_resident_sessions, self._load, self._unload, BUSY_RETRY_AFTER_S
         )
         """The sessions whose maps are in memory; every session is in the store."""
-        self._lock = threading.Lock()
-        """Held while a creation checks max_sessions and stores the session."""
         self._retention_due = -math.inf
         """time.monotonic() at which retention is next checked."""
         self.storage = StorageHealth()
@@ -444,6 +475,9 @@ class SessionManager:
         )
         """Sockets' access checks and session loads (REST runs them in its own threads)."""
         self._counters_saved_at: dict[str, float] = {}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        """The server's event loop (set when housekeeping starts): sessions another shard
+        took over are closed on it."""
         self.backends: dict[str, PerceptionBackend] = {}
         """Perception backends loaded (at start), by name: what sessions may choose."""
         for name in [*settings.perception_backends, DEFAULT_BACKEND]:
@@ -476,6 +510,14 @@ class SessionManager:
         self.apply_retention()
         stored = self.store.count_sessions()
         self.metrics.sessions_stored.set(stored)
+        if self.settings.shard_name is not None:
+            self.keep_claims()  # gateways may route to this shard from now on
+            log.info(
+                "map shard %s at %s (leases of %g s)",
+                self.settings.shard_name,
+                self.settings.shard_address,
+                self.settings.shard_lease_s,
+            )
         log.info(
             "%d sessions stored; maps load on first use (at most %d in memory, unloaded after "
             "%g s unused)",
@@ -498,6 +540,10 @@ class SessionManager:
         self._store_io.shutdown(wait=True, cancel_futures=True)
         for session in resident:
             self._save_counters(session, even_if_failing=True)
+            self._release_claim(session)
+        if self.settings.shard_name is not None:
+            with contextlib.suppress(StoreUnavailableError):  # else its heartbeat goes stale
+                self.store.forget_shard(self.settings.shard_name)
 
     # ------------------------------------------------------------------ resident or stored
     def record(self, sid: str) -> SessionRecord | None:
@@ -561,12 +607,14 @@ class SessionManager:
     def _load(self, sid: str) -> Session:
         """`Residency`'s loader (in the caller's thread): the stored session; KeyError if none."""
         t0 = time.perf_counter()
+        epoch = self._claim(sid)  # first: what loads next is final (older owners are fenced)
         session = self._restored(self.store.load_session(sid))
+        session.epoch = epoch
         session.touch()
         # Retention counts from this use, even if the server is killed before the next save
         # (and while the store refuses writes, from the last use it holds).
         with contextlib.suppress(StoreUnavailableError):
-            self.store.update_session(sid, last_used_at=session.record.last_used_at)
+            self.store.update_session(sid, last_used_at=session.record.last_used_at, epoch=epoch)
             self._counters_saved_at[sid] = time.monotonic()
         self.metrics.session_loads.inc()
         self.metrics.session_load_latency.observe(time.perf_counter() - t0)
@@ -582,14 +630,16 @@ class SessionManager:
                     session.id,
                     counters=self._counters(session, False),
                     last_used_at=session.record.last_used_at,
+                    epoch=session.epoch,
                 )
-            except KeyError:
-                pass  # deleted meanwhile: nothing left to save
+            except (KeyError, SessionFenced):
+                pass  # deleted or taken over meanwhile: nothing left to save here
             except StoreUnavailableError as exc:
                 self._store_failed(f"saving session {session.id} to unload it", exc)
                 raise
             else:
                 self._store_succeeded()
+        self._release_claim(session)
         self._counters_saved_at.pop(session.id, None)
         self.metrics.session_unloads.labels(reason=reason).inc()
         log.info(
@@ -597,6 +647,50 @@ class SessionManager:
             session.id,
             "unused for --idle-unload-s" if reason == "idle" else "room for another",
         )
+
+    # ------------------------------------------------------------------ claims (map shards)
+    def _claim(self, sid: str) -> int | None:
+        """On a map shard: claim session `sid` in the store (its epoch), fencing any earlier
+        owner's writes; SessionHeld when a live shard holds it. None on a standalone server."""
+        name = self.settings.shard_name
+        if name is None:
+            return None
+        return self.store.claim_session(sid, name, self.settings.shard_lease_s)
+
+    def _release_claim(self, session: Session) -> None:
+        """Let another shard take `session` at once (it was saved and unloaded here)."""
+        if session.epoch is not None:
+            with contextlib.suppress(StoreUnavailableError):  # then its lease runs out
+                self.store.release_session(session.id, self.settings.shard_name, session.epoch)
+
+    def _drop_taken_over(self, session: Session) -> None:
+        """Forget a session another shard claimed (this one hung or lost the store for longer
+        than its lease): nothing of it is written from here again, and its sockets close."""
+        if self.resident.get(session.id) is session:
+            self.resident.forget(session)
+        session.moved = True
+        self.metrics.sessions_taken_over.inc()
+        log.warning(
+            "session %s: another map shard claimed it (this shard's lease ran out); dropped "
+            "here, its sockets close and reconnect to the new owner",
+            session.id,
+        )
+        if self._loop is not None and not self._loop.is_closed():
+            self._loop.call_soon_threadsafe(session.close)
+        else:
+            session._closed = True
+
+    def keep_claims(self) -> None:
+        """On a map shard, every second: say it is alive (with the address gateways reach it
+        at) and renew the leases of its resident sessions; drop those another shard took."""
+        name = self.settings.shard_name
+        if name is None:
+            return
+        resident = self.sessions
+        self.store.heartbeat_shard(name, self.settings.shard_address)
+        epochs = {sid: s.epoch for sid, s in resident.items() if s.epoch is not None}
+        for sid in self.store.renew_leases(name, epochs, self.settings.shard_lease_s):
+            self._drop_taken_over(resident[sid])
 
     def unload_idle(self) -> list[str]:
         """Unload the sessions unused for idle_unload_s (no frames, requests or sockets, no
@@ -737,18 +831,21 @@ class SessionManager:
         )
 
         def make() -> Session:
-            with self._lock:  # two creations never both take the last place
-                self._check_room_to_store()
-                self.store.create_session(rec)
+            try:  # the count and the insert in one transaction: never two in the last place
+                self.store.create_session(rec, max_sessions=self.settings.max_sessions)
+            except StoredSessionsLimit:
+                self._check_room_to_store()  # raises StoredSessionsFull with the fix
+                raise
             engine = self._engine(rec, knobs)
             engine.restore([], DeltaLog(max_tombstones=self.settings.max_tombstones), 0, 1)
-            return Session(rec, engine)
+            return Session(rec, engine, epoch=self._claim(sid))
 
         session = self.resident.admit(sid, make, users=1)
         self.metrics.sessions_stored.inc()
         return session, token
 
     def _check_room_to_store(self) -> None:
+        """Raise StoredSessionsFull, with the fix, when the store holds max_sessions."""
         limit = self.settings.max_sessions
         if self.store.count_sessions() >= limit:
             raise StoredSessionsFull(
@@ -834,7 +931,7 @@ class SessionManager:
                     if change_seq < seq:  # the newest seq's changes go with the objects
                         self.store.commit_keyframe(
                             session.id, change_seq, [], [], counters, next_object_id,
-                            changes=list(group),
+                            changes=list(group), epoch=session.epoch,
                         )  # fmt: skip
                 self.store.commit_keyframe(
                     session.id,
@@ -845,6 +942,7 @@ class SessionManager:
                     next_object_id=next_object_id,
                     retired=removed,
                     changes=[c for c in changes if c.seq == seq],
+                    epoch=session.epoch,
                 )
                 log = DeltaLog.from_state(
                     {
@@ -897,7 +995,7 @@ class SessionManager:
     def set_knobs(self, session: Session, changes: dict) -> Knobs:
         with session._map_lock:
             knobs = updated_knobs(session.knobs, changes)
-            self.store.update_session(session.id, knobs=knobs_to_dict(knobs))
+            self.store.update_session(session.id, knobs=knobs_to_dict(knobs), epoch=session.epoch)
             session.engine.knobs = knobs
             session.record.knobs = knobs_to_dict(knobs)
         return knobs
@@ -998,9 +1096,13 @@ class SessionManager:
                     session.id,
                     counters=self._counters(session, False),
                     last_used_at=session.record.last_used_at,
+                    epoch=session.epoch,
                 )
             except KeyError:
                 return  # deleted meanwhile
+            except SessionFenced:
+                self._drop_taken_over(session)
+                return
             except StoreUnavailableError as exc:
                 self._store_failed("saving a session's counters", exc)
                 return
@@ -1060,7 +1162,7 @@ class SessionManager:
         """Until cancelled, every STORAGE_PROBE_INTERVAL_S, in the store thread: the server's
         housekeeping (`housekeeping`). (Its name is older than the housekeeping it runs:
         the app starts it at start-up and cancels it at shutdown.)"""
-        loop = asyncio.get_running_loop()
+        loop = self._loop = asyncio.get_running_loop()
         while True:
             await asyncio.sleep(STORAGE_PROBE_INTERVAL_S)  # a timer, not synchronisation
             try:
@@ -1074,6 +1176,10 @@ class SessionManager:
         """While the store refuses writes: probe it, so /healthz turns 200 again when the
         disk has room even if no keyframe comes. Otherwise: unload the sessions idle for
         idle_unload_s, and apply retention when its check is due."""
+        try:
+            self.keep_claims()
+        except StoreUnavailableError as exc:
+            self._store_failed("renewing this shard's claims on its sessions", exc)
         if self.storage.failing:
             self.probe_storage()
             return
@@ -1129,13 +1235,15 @@ class SessionManager:
         reply: Reply,
         sent: FrameDetections | None = None,
         decode_ms: float = 0.0,
+        stream: str | None = None,
     ) -> None:
         """Wait for the session's turn of a mapping worker as its newest keyframe (an older
         one still waiting is acknowledged as dropped); see `RoundRobinScheduler`.
 
         frame: validated (`MappingEngine.validate_frame`), which returned `sent`;
-        decode_ms: what decoding and validating it took."""
-        pending = _Pending(frame, sent, reply, time.perf_counter(), decode_ms)
+        decode_ms: what decoding and validating it took; stream: the socket's stream id (a
+        keyframe already committed under it is acked from the store, not mapped again)."""
+        pending = _Pending(frame, sent, reply, time.perf_counter(), decode_ms, stream)
         if session._mapping:
             older, session._pending = session._pending, pending
             if older is not None:
@@ -1168,7 +1276,12 @@ class SessionManager:
                         mapped = turn.run(self._map_and_persist, session, pending)
                         if stale is not None:  # answered while the worker maps, not before
                             await self._drop(session, stale)
-                        stats, latency_ms = await mapped
+                        mapped = await mapped
+                except SessionMoved:
+                    await pending.reply(
+                        ErrorReply(pending.frame.seq, "session_moved", SessionMoved.MESSAGE).pack()
+                    )
+                    session.close()
                 except StorageUnavailable:
                     await pending.reply(
                         ErrorReply(
@@ -1194,42 +1307,40 @@ class SessionManager:
                     if session.closed:  # its saved map could not be reloaded
                         session.close()
                 else:
-                    map_ms = (time.perf_counter() - pending.received_t) * 1e3
-                    session.latencies_ms.append(latency_ms)
-                    self.metrics.mapping_latency.observe(latency_ms / 1e3)
-                    await pending.reply(
-                        Ack(
-                            pending.frame.seq,
-                            keyframe=True,
-                            map_ms=map_ms,
-                            update_seq=stats.seq,
-                            objects=stats.confirmed,
-                        ).pack()
-                    )
-                    session.after_keyframe(stats.keyframe)
+                    mapped.ack.map_ms = (time.perf_counter() - pending.received_t) * 1e3
+                    await pending.reply(mapped.ack.pack())
+                    if mapped.keyframe is not None:
+                        session.latencies_ms.append(mapped.latency_ms)
+                        self.metrics.mapping_latency.observe(mapped.latency_ms / 1e3)
+                        session.after_keyframe(mapped.keyframe)
                 pending, session._pending = session._pending, None
         finally:
             session._mapping = False
 
-    def _map_and_persist(
-        self, session: Session, pending: _Pending
-    ) -> tuple[IntegrationStats, float]:
+    def _map_and_persist(self, session: Session, pending: _Pending) -> _Mapped:
         """In a worker thread: perceive and map the keyframe, then make the change durable
-        before the ack, all in one hold of the map lock. Returns the stats and the keyframe's
+        before the ack, all in one hold of the map lock. Returns the ack and the keyframe's
         mapping latency in ms (the one place it is measured: decode + perception + mapping +
-        delta, see `Session.stats`).
+        delta, see `Session.stats`). A keyframe the store says was committed under the same
+        (stream, seq) gets its stored ack instead, unmapped (a resend after a shard failure).
 
         Raises StorageUnavailable, unmapped, while the store refuses writes (a probe first,
         at most every STORAGE_PROBE_INTERVAL_S, rather than mapping and rolling back). If
         mapping or the commit fails, the engine goes back to the store's durable state
         (`_back_to_durable`) before the lock is released: StorageUnavailable when the disk
         refused the commit, PersistFailed for another commit failure, the mapping's own
-        exception otherwise."""
+        exception otherwise; SessionMoved (unmapped, the session dropped here) when another
+        map shard has claimed the session."""
         with session._map_lock:
+            if session.moved:
+                raise SessionMoved(SessionMoved.MESSAGE)
             if session.closed:
                 raise InputError("session", "the session was deleted")
             if not self.probe_storage():
                 raise StorageUnavailable(StorageHealth.REASON)
+            done = self._done_ack(session, pending)
+            if done is not None:
+                return _Mapped(done, None, 0.0)
             session.sight_waiting()  # the frames since the last keyframe count first
             t_locked = time.perf_counter()  # waiting for a reader of the map is not mapping
             engine, frame = session.engine, pending.frame
@@ -1241,6 +1352,7 @@ class SessionManager:
                 rec.keyframes = engine.keyframes
                 rec.next_object_id = engine.next_object_id
                 committing = True
+                ack = Ack(frame.seq, keyframe=True, update_seq=stats.seq, objects=stats.confirmed)
                 self.store.commit_keyframe(
                     session.id,
                     stats.seq,
@@ -1255,7 +1367,14 @@ class SessionManager:
                     retracted_removed=stats.retracted_removed,
                     last_t=engine.last_t,
                     last_pose=engine.last_pose,
+                    epoch=session.epoch,
+                    done=None
+                    if pending.stream is None
+                    else (pending.stream, frame.seq, _ack_record(ack)),
                 )
+            except SessionFenced:
+                self._drop_taken_over(session)  # its engine holds changes no store has
+                raise SessionMoved(SessionMoved.MESSAGE) from None
             except BaseException as exc:
                 self._back_to_durable(session, pose_before)
                 if not committing:
@@ -1277,12 +1396,34 @@ class SessionManager:
                 # The log forgot its oldest removals: no subscriber can be sent them any
                 # more (it gets a full snapshot), so the store forgets them too.
                 try:
-                    self.store.trim_tombstones(session.id, engine.log.floor)
+                    self.store.trim_tombstones(session.id, engine.log.floor, epoch=session.epoch)
                     session._stored_floor = engine.log.floor
+                except SessionFenced:
+                    self._drop_taken_over(session)  # the keyframe is saved: its ack stands
                 except StoreUnavailableError as exc:  # the keyframe is saved: retried next time
                     self._store_failed(f"trimming the tombstones of session {session.id}", exc)
             latency_ms = pending.decode_ms + (time.perf_counter() - t_locked) * 1e3
-            return stats, latency_ms
+            return _Mapped(ack, stats.keyframe, latency_ms)
+
+    def _done_ack(self, session: Session, pending: _Pending) -> Ack | None:
+        """The ack of a keyframe committed before under the same (stream, seq), if the store
+        remembers one (`DONE_WINDOW` per session); raises StorageUnavailable if it cannot say."""
+        if pending.stream is None:
+            return None
+        try:
+            record = self.store.done_ack(session.id, pending.stream, pending.frame.seq)
+        except StoreUnavailableError as exc:
+            self._store_failed(f"reading the acks of session {session.id}", exc)
+            raise StorageUnavailable(StorageHealth.REASON) from exc
+        if record is None:
+            return None
+        fields = msgpack.unpackb(record)
+        return Ack(pending.frame.seq, keyframe=True, **fields)
+
+
+def _ack_record(ack: Ack) -> bytes:
+    """What the store keeps of a committed keyframe's ack, to answer a resend of it."""
+    return msgpack.packb({"update_seq": ack.update_seq, "objects": ack.objects})
 
 
 # ---------------------------------------------------------------------- import checks

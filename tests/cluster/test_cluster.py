@@ -206,3 +206,41 @@ def test_bad_cluster_flags_exit_2_naming_the_flag(tmp_path):
         timeout=120,
     )
     assert gateway.returncode == 2 and "--store" in gateway.stderr
+
+
+def test_the_database_restarting_under_a_stream_loses_nothing_acknowledged(cluster, pg_cluster):
+    """PostgreSQL goes down mid-stream: keyframes get storage_unavailable (every frame still
+    one reply), the gateway's /healthz says 503 with Retry-After, queries answer from the
+    shards' memory; once it is back, the same socket maps again, with nothing acked lost
+    and no process restarted."""
+    cluster.wait_for_shards()
+    a, b = cluster.gateways
+    sid = create(a.url, "database restart")
+
+    async def scenario() -> tuple[dict[int, str], list[dict]]:
+        async with websockets.connect(f"{a.ws_url}/v1/sessions/{sid}/stream", max_size=None) as ws:
+            for i in range(4):
+                assert (await send(ws, frame_message(SCENE, i)))["type"] == "ack"
+            acked = await asyncio.to_thread(objects, b.url, sid)
+            await asyncio.to_thread(pg_cluster.stop)
+            try:
+                down = await send(ws, frame_message([*SCENE, LAMP], 4))
+                health = await asyncio.to_thread(httpx.get, f"{b.url}/healthz")
+                assert health.status_code == 503 and "Retry-After" in health.headers
+                assert await asyncio.to_thread(objects, a.url, sid) == acked
+            finally:
+                await asyncio.to_thread(pg_cluster.start)
+            replies, seq = [down], 5
+            while replies[-1]["type"] != "ack" or not replies[-1]["keyframe"]:
+                assert seq < 200, replies[-3:]
+                replies.append(await send(ws, frame_message([*SCENE, LAMP], seq)))
+                seq += 1
+                await asyncio.sleep(0.1)
+            return acked, replies
+
+    acked, replies = asyncio.run(scenario())
+    assert replies[0]["type"] == "error" and replies[0]["code"] == "storage_unavailable"
+    after = objects(a.url, sid)
+    assert acked.items() <= after.items()
+    poll(lambda: httpx.get(f"{b.url}/healthz").status_code == 200, 30, "the gateway healthy again")
+    cluster.wait_for_shards()
