@@ -395,13 +395,14 @@ def latency_summary(values_ms: list[float]) -> dict:
     }
 
 
-async def measure_window(pid: int, start_t: float, end_t: float) -> dict:
-    """CPU of the server and of this process between `start_t` and `end_t` (perf_counter
-    clock), sampled as close to them as the loop allows (the actual instants are returned)."""
+async def measure_window(pids: list[int], start_t: float, end_t: float) -> dict:
+    """CPU of the server's processes (summed) and of this process between `start_t` and
+    `end_t` (perf_counter clock), sampled as close to them as the loop allows (the actual
+    instants are returned)."""
     await asyncio.sleep(max(0.0, start_t - time.perf_counter()))
-    t0, server0, client0 = time.perf_counter(), cpu_s(pid), time.process_time()
+    t0, server0, client0 = time.perf_counter(), sum(map(cpu_s, pids)), time.process_time()
     await asyncio.sleep(max(0.0, end_t - time.perf_counter()))
-    t1, server1, client1 = time.perf_counter(), cpu_s(pid), time.process_time()
+    t1, server1, client1 = time.perf_counter(), sum(map(cpu_s, pids)), time.process_time()
     return {
         "t0": t0,
         "t1": t1,
@@ -437,7 +438,9 @@ async def load_run(
     seed: int = 0,
 ) -> dict:
     """`devices` devices, each in its own session on its own socket, for `seconds`; their
-    sessions are deleted afterwards. The run's section of the JSON (without `server`)."""
+    sessions are deleted afterwards. The run's section of the JSON (without `server`).
+    A server with `pids` (a cluster: its gateway and shards) is measured over all of them."""
+    pids = list(getattr(server, "pids", None) or [server.pid])
     sessions = [
         await create_session(server.url, name=f"load-{i}", api_key=api_key) for i in range(devices)
     ]
@@ -456,7 +459,7 @@ async def load_run(
                 for sid, token, _ in sessions
             ]
             t0 = time.perf_counter() + 0.3  # every socket is open before any clock starts
-            meter = asyncio.create_task(measure_window(server.pid, t0, t0 + seconds))
+            meter = asyncio.create_task(measure_window(pids, t0, t0 + seconds))
             runs = await asyncio.gather(
                 *(
                     run_device(
@@ -473,8 +476,8 @@ async def load_run(
             )
             window = await meter
             elapsed_s = time.perf_counter() - t0
-            rss, rss_peak = rss_mb(server.pid), peak_rss_mb(server.pid)
-            server_cwd = os.readlink(f"/proc/{server.pid}/cwd")
+            rss, rss_peak = sum(map(rss_mb, pids)), sum(map(peak_rss_mb, pids))
+            server_cwd = os.readlink(f"/proc/{pids[0]}/cwd")
     finally:
         for sid, token, _ in sessions:
             with contextlib.suppress(ApiError):

@@ -1,0 +1,237 @@
+"""Scale bench (issue 25): the same paced devices through a gateway in front of 1, 2 and 4 map
+shards on a local Ray, over PostgreSQL; and the shard hop on its own.
+
+    python -m bench.scale --store postgresql://USER:PASSWORD@HOST/DB [--shards 1,2,4]
+                          [--devices 16] [--seconds 20] [--out out/]
+
+For each shard count: the shards start as detached Ray actors (`app.cluster.shards`, each a
+SemanticXR server with `shard_name`), one gateway runs as `semanticxr gateway` in a child
+process, and `bench.load`'s devices (the same pre-encoded apartment walk, whole frames, one
+session each, paced at --fps) stream through the gateway for --seconds. CPU per acked frame
+and RSS are summed over the gateway and every shard (/proc). With one shard, the same
+devices also stream straight to the shard, and the difference of keyframe ack p50 is the
+shard hop (the gateway's relay: one more loopback socket each way).
+
+Per-session cost: the shards' RSS over the resident sessions (each device's session is
+resident while it streams) beside the RSS of the idle shards; CPU ms per frame. The
+estimate for M machines divides a machine's cores by the CPU a device costs (5 fps × ms per
+frame), less what one gateway costs; it assumes the store keeps up.
+
+On this machine (2 cores) every shard, the gateway, Ray and the devices share the same two
+cores: more shards add parallel Python (each process has its own GIL) but no cores, so
+frames/s stays capped by the machine, and what the runs show is that the design spreads the
+work and what each hop costs, not a speed-up. The JSON says so beside the figures.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import secrets
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+
+import httpx
+
+from app.server.runner import free_port
+from app.server.settings import ServerSettings
+from bench.common import bench_parser, machine, save_plot, write_outputs
+from bench.load import cpu_s, encode_walk, load_run, warm_up
+from bench.server import rss_mb
+
+LEASE_S = 5.0
+
+
+@dataclass
+class Endpoint:
+    """What `bench.load.load_run` streams to: a URL and the processes to measure."""
+
+    url: str
+    pids: list[int] = field(default_factory=list)
+
+    @property
+    def ws_url(self) -> str:
+        return "ws" + self.url.removeprefix("http")
+
+    @property
+    def pid(self) -> int:
+        return self.pids[0]
+
+
+def start_gateway(store: str, api_key: str) -> tuple[subprocess.Popen, Endpoint]:
+    port = free_port()
+    child = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "gateway", "--store", store, "--port", str(port),
+         "--api-key", api_key, "--log-level", "warning", "--shard-lease-s", str(LEASE_S)],
+        stdout=subprocess.DEVNULL,
+    )  # fmt: skip
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 120
+    while True:
+        try:
+            if httpx.get(f"{url}/healthz", timeout=2).status_code == 200:
+                return child, Endpoint(url, [child.pid])
+        except httpx.HTTPError:
+            pass
+        if child.poll() is not None or time.monotonic() > deadline:
+            raise RuntimeError(f"the gateway did not start (exit {child.poll()})")
+        time.sleep(0.2)
+
+
+def shard_processes(n: int) -> tuple[list[int], list[str]]:
+    """The pids and addresses of mapshard-0..n-1."""
+    import ray
+
+    from app.cluster.shards import NAMESPACE, shard_names
+
+    actors = [ray.get_actor(name, namespace=NAMESPACE) for name in shard_names(n)]
+    pids = ray.get([a.pid.remote() for a in actors])
+    addresses = ray.get([a.address.remote() for a in actors])
+    return pids, addresses
+
+
+def run_shards(n: int, args, walk, api_key: str) -> list[dict]:
+    from app.cluster.shards import start_shards, stop_shards
+
+    settings = ServerSettings(
+        host="127.0.0.1", port=0, store=args.store, shards=n, api_key=api_key,
+        log_level="warning", shard_lease_s=LEASE_S,
+    )  # fmt: skip
+    print(f"{n} shards: starting", file=sys.stderr)
+    start_shards(settings)
+    gateway, endpoint = start_gateway(args.store, api_key)
+    runs = []
+    try:
+        pids, addresses = shard_processes(n)
+        endpoint.pids += pids
+        idle_rss = sum(map(rss_mb, pids))
+        targets = [("gateway", endpoint)]
+        if n == 1:
+            targets.append(("direct", Endpoint(addresses[0], list(pids))))
+        for route, target in targets:
+            asyncio.run(warm_up(target, walk, api_key))
+            cpu0 = sum(map(cpu_s, target.pids))
+            run = asyncio.run(
+                load_run(
+                    target, walk, args.devices, api_key=api_key, seconds=args.seconds,
+                    fps=args.fps, saturate=False, sightings=False, seed=n,
+                )
+            )  # fmt: skip
+            shard_rss = sum(map(rss_mb, pids))
+            runs.append(
+                {
+                    "shards": n,
+                    "route": route,
+                    **{k: v for k, v in run.items() if k != "per_device"},
+                    "shards_idle_rss_mb": idle_rss,
+                    "mb_per_resident_session": (shard_rss - idle_rss) / args.devices,
+                    "cpu_s_whole_run": sum(map(cpu_s, target.pids)) - cpu0,
+                }
+            )
+            print(
+                f"  {n} shards, {route}: {run['acked_per_s']:.1f} frames/s acked, keyframe ack "
+                f"p50/p95 {run['keyframe_ack_ms']['p50']:.0f}/{run['keyframe_ack_ms']['p95']:.0f}"
+                f" ms, {run['server_cpu_ms_per_acked_frame']:.1f} ms CPU a frame",
+                file=sys.stderr,
+            )
+    finally:
+        gateway.terminate()
+        gateway.wait(30)
+        stop_shards(n)
+    return runs
+
+
+def estimate(runs: list[dict], fps: float) -> dict:
+    """Devices a machine of C cores holds, from the measured CPU per frame at the most shards."""
+    widest = max((r for r in runs if r["route"] == "gateway"), key=lambda r: r["shards"])
+    ms = widest["server_cpu_ms_per_acked_frame"]
+    device_cores = fps * ms / 1e3
+    return {
+        "cpu_ms_per_frame": ms,
+        "cores_per_device": device_cores,
+        "devices_per_core": 1 / device_cores,
+        "devices_on_m_machines_of_c_cores": "M × C / cores_per_device (the store keeping up)",
+        "example_4_machines_of_8_cores": math.floor(4 * 8 / device_cores),
+    }
+
+
+def plot(runs: list[dict], out_dir: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    through = [r for r in runs if r["route"] == "gateway"]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8))
+    shards = [r["shards"] for r in through]
+    left.plot(shards, [r["acked_per_s"] for r in through], "o-")
+    left.set(xlabel="map shards", ylabel="frames acked / s", title="throughput (2 cores)")
+    for key, label in (("p50", "keyframe ack p50"), ("p95", "keyframe ack p95")):
+        right.plot(shards, [r["keyframe_ack_ms"][key] for r in through], "o-", label=label)
+    right.set(xlabel="map shards", ylabel="ms", title="latency through the gateway")
+    right.legend()
+    save_plot(fig, out_dir, "scale")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = bench_parser(__doc__)
+    parser.add_argument("--store", default=os.environ.get("SEMANTICXR_STORE"),
+                        help="the cluster's postgresql:// store (or SEMANTICXR_STORE)")  # fmt: skip
+    parser.add_argument("--shards", default="1,2,4", metavar="N,N,...", help="shard counts")
+    parser.add_argument("--devices", type=int, default=16, help="paced devices in every run")
+    parser.add_argument("--seconds", type=float, default=20.0, help="measured window of a run")
+    parser.add_argument("--fps", type=float, default=5.0, help="frames per second per device")
+    parser.add_argument("--out", default="out", help="folder for scale.json and scale.png")
+    args = parser.parse_args(argv)
+    if not args.store or not args.store.startswith(("postgresql:", "postgres:")):
+        parser.error("--store: give the cluster's postgresql:// URL (or SEMANTICXR_STORE)")
+    try:
+        counts = [int(n) for n in args.shards.split(",") if n.strip()]
+    except ValueError:
+        parser.error(f"--shards N,N,...: got {args.shards!r}")
+    if not counts or min(counts) < 1 or not 1 <= args.devices <= 64:
+        parser.error("--shards counts must be at least 1; --devices within 1..64")
+
+    from app.cluster.shards import connect
+
+    connect("auto")
+    api_key = secrets.token_urlsafe(16)
+    n_frames = math.ceil(args.seconds * args.fps - 1e-9)
+    print(f"encoding {n_frames} frames...", file=sys.stderr)
+    walk = encode_walk(n_frames, args.fps, sightings=False)
+    runs = [run for n in counts for run in run_shards(n, args, walk, api_key)]
+    hop = None
+    one = {r["route"]: r for r in runs if r["shards"] == 1}
+    if {"gateway", "direct"} <= one.keys():
+        hop = one["gateway"]["keyframe_ack_ms"]["p50"] - one["direct"]["keyframe_ack_ms"]["p50"]
+    document = {
+        "machine": machine(),
+        "devices": args.devices,
+        "fps": args.fps,
+        "seconds": args.seconds,
+        "runs": runs,
+        "shard_hop_keyframe_p50_ms": hop,
+        "estimate": estimate(runs, args.fps),
+        "caveat": (
+            f"{os.cpu_count()} cores shared by every shard, the gateway, Ray and the devices: "
+            "shards add processes, not cores"
+        ),
+    }
+    write_outputs(args.out, "scale", document)
+    plot(runs, args.out)
+    print(f"shard hop (keyframe ack p50, gateway - direct, 1 shard): {hop} ms")
+    for r in runs:
+        print(
+            f"{r['shards']} shards {r['route']:>7}: {r['acked_per_s']:6.1f} frames/s, keyframe "
+            f"p50/p95 {r['keyframe_ack_ms']['p50']:.0f}/{r['keyframe_ack_ms']['p95']:.0f} ms, "
+            f"{r['server_cpu_ms_per_acked_frame']:.1f} ms CPU/frame, "
+            f"{r['mb_per_resident_session']:.1f} MB/session, {r['stalled_sockets']} stalled"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
