@@ -183,7 +183,7 @@ def test_a_shard_failure_mid_stream_loses_nothing_acknowledged(cluster, fault):
     cluster.wait_for_shards()
 
 
-def test_bad_cluster_flags_exit_2_naming_the_flag(tmp_path):
+def test_bad_cluster_flags_exit_2_naming_the_flag(tmp_path, pg_url):
     import subprocess
     import sys
 
@@ -193,12 +193,23 @@ def test_bad_cluster_flags_exit_2_naming_the_flag(tmp_path):
             capture_output=True,
             text=True,
             timeout=120,
+            # Ray Client gives up on an unreachable head after seconds, not its default 30
+            env={
+                **os.environ,
+                "RAY_CLIENT_INITIAL_CONNECTION_TIMEOUT_S": "1",
+                "RAY_CLIENT_MAX_CONNECTION_TIMEOUT_S": "2",
+            },
         )
 
     sqlite = serve("--cluster", "auto", "--data-dir", str(tmp_path))
     assert sqlite.returncode == 2 and "--store postgresql://" in sqlite.stderr
-    zero = serve("--cluster", "auto", "--shards", "0", "--store", "postgresql://x@127.0.0.1:1/db")
+    zero = serve("--cluster", "auto", "--shards", "0", "--store", pg_url)
     assert zero.returncode == 2 and "shards" in zero.stderr
+    wrong_store = serve("--cluster", "auto", "--store", "postgresql://x:secret@127.0.0.1:1/db")
+    assert wrong_store.returncode == 2 and "--store" in wrong_store.stderr
+    assert "secret" not in wrong_store.stderr  # the password is not shown
+    unreachable = serve("--cluster", "ray://127.0.0.1:1", "--store", pg_url)
+    assert unreachable.returncode == 2 and "--cluster ray://127.0.0.1:1" in unreachable.stderr
     gateway = subprocess.run(
         [sys.executable, "-m", "app.cli", "gateway", "--data-dir", str(tmp_path)],
         capture_output=True,
