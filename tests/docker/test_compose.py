@@ -69,3 +69,26 @@ def test_without_a_key_nothing_is_passed_and_the_server_runs_open():
     assert "SEMANTICXR_API_KEY" not in service_env("server", {})
     assert "SEMANTICXR_API_KEY" not in service_env("device", {})
     assert service_env("viewer", {})["SEMANTICXR_TOKEN"] == ""  # empty: no token
+
+
+def test_the_cluster_profile_runs_our_commands_behind_one_port():
+    """The cluster's services run `serve --cluster` and `gateway` with flags our CLI takes,
+    on a PostgreSQL store, and nginx sends port 8000 to both gateways."""
+    from app.cli import build_parser
+    from app.cli.serve import settings_from_args
+
+    services = yaml.safe_load(COMPOSE.read_text())["services"]
+    cluster = {name for name, s in services.items() if "cluster" in s.get("profiles", [])}
+    assert cluster == {"postgres", "ray-head", "gateway2", "gateways"}
+    env = {"SEMANTICXR_STORE": "postgresql://semanticxr:pw@postgres:5432/semanticxr"}
+    for name in ("ray-head", "gateway2"):
+        script = services[name]["command"][-1]
+        line = script.split("exec ", 1)[1].replace("$$SEMANTICXR_STORE", env["SEMANTICXR_STORE"])
+        argv = [part.strip("'\"") for part in line.split()][1:]  # after "semanticxr"
+        settings = settings_from_args(build_parser().parse_args(argv))
+        assert settings.store_url == env["SEMANTICXR_STORE"] and settings.port == 8000
+        assert argv[0] == ("serve" if name == "ray-head" else "gateway")
+    assert services["gateways"]["ports"] == ["127.0.0.1:8000:8000"]
+    nginx = (COMPOSE.parent / "nginx-cluster.conf").read_text()
+    assert "server ray-head:8000;" in nginx and "server gateway2:8000;" in nginx
+    assert "proxy_set_header Upgrade" in nginx  # WebSockets pass
