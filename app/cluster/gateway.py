@@ -121,10 +121,14 @@ def create_gateway_app(settings: ServerSettings, store: Store | None = None) -> 
         opened = open_store(settings.store_url) if own_store else store
         app.state.directory = ShardDirectory(opened, max_age_s=settings.shard_lease_s)
         app.state.http = httpx.AsyncClient(timeout=REQUEST_TIMEOUT_S)
+        directory = asyncio.create_task(app.state.directory.run())
         log.info("gateway on store %s", redact_url(settings.store_url))
         try:
             yield
         finally:
+            directory.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await directory
             await app.state.http.aclose()
             if own_store:
                 opened.close()
@@ -446,7 +450,7 @@ class _StreamRelay(_SocketRelay):
             message = _unpack(reply)
             seq = message.get("seq")
             if message.get("code") == "session_moved":
-                continue  # not an answer: the frame is resent to the new owner
+                return  # not an answer: move now, and resend the frame to the new owner
             if isinstance(seq, int):
                 self.unacked.pop(seq, None)
             await self.ws.send_bytes(reply if isinstance(reply, bytes) else reply.encode())

@@ -13,11 +13,16 @@ import hashlib
 import itertools
 import logging
 import time
+from collections import OrderedDict
 
 from app.store import SessionRecord, ShardRecord, Store, StoreUnavailableError
 
 DIRECTORY_TTL_S = 0.5
 """How long a gateway trusts its list of live shards before reading it again."""
+OWNERS_KEPT = 100_000
+"""Sessions whose last route a gateway remembers (for when the store cannot be read)."""
+READ_POLL_S = 0.02
+"""How often a caller that wants a fresh list checks whether the next read is done."""
 
 log = logging.getLogger("semanticxr.gateway")
 
@@ -51,39 +56,69 @@ def owner_if_live(record: SessionRecord | None, live: dict[str, str], now: float
 
 
 class ShardDirectory:
-    """The live shards, as the store lists them, read at most every DIRECTORY_TTL_S (from a
-    thread: the store's calls block). While the store cannot be read, the last list read
-    stands (the shards keep serving what they hold; they cannot commit either), and
-    sessions go where rendezvous puts them."""
+    """The live shards, as the store lists them. A gateway runs `run` in the background, which
+    reads them every DIRECTORY_TTL_S (in a thread: the store's calls block, for up to its
+    connect timeout while the database is down), so no relay waits on the store to learn
+    where shards are; without it, `live` reads when its list is older than DIRECTORY_TTL_S.
+    While the store cannot be read, the last list read stands (the shards keep serving what
+    they hold; they cannot commit either), and sessions go where rendezvous puts them."""
 
     def __init__(self, store: Store, max_age_s: float):
         self.store = store
         self.max_age_s = max_age_s
         self._live: dict[str, str] = {}
+        self._reads = 0
+        """Reads finished (successful or not)."""
         self._read_at = -float("inf")
-        self._lock = asyncio.Lock()
+        self._running = False
         self._turn = itertools.count()
+        self._owners: OrderedDict[str, str] = OrderedDict()
+        """The shard each recently routed session went to, newest last: where it goes while
+        the store cannot be read."""
         self.store_ok = True
         """False while the store cannot be read (its last read failed)."""
 
-    async def live(self, fresh: bool = False) -> dict[str, str]:
-        """Live shards' addresses by name (read again when older than DIRECTORY_TTL_S, or
-        `fresh`)."""
-        async with self._lock:
-            if fresh or time.monotonic() - self._read_at > DIRECTORY_TTL_S:
+    async def refresh(self) -> None:
+        """Read the live shards once (in a thread)."""
+        try:
+            shards: list[ShardRecord] = await asyncio.to_thread(
+                self.store.live_shards, self.max_age_s
+            )
+        except StoreUnavailableError as exc:
+            if self.store_ok:
+                log.warning("cannot read the live shards (%s); using the last list", exc)
+            self.store_ok = False
+        else:
+            self._live = {s.name: s.url for s in shards}
+            self.store_ok = True
+        finally:
+            self._reads += 1
+            self._read_at = time.monotonic()
+
+    async def run(self) -> None:
+        """Refresh every DIRECTORY_TTL_S until cancelled."""
+        self._running = True
+        try:
+            while True:
                 try:
-                    shards: list[ShardRecord] = await asyncio.to_thread(
-                        self.store.live_shards, self.max_age_s
-                    )
-                except StoreUnavailableError as exc:
-                    if self.store_ok:
-                        log.warning("cannot read the live shards (%s); using the last list", exc)
-                    self.store_ok = False
-                else:
-                    self._live = {s.name: s.url for s in shards}
-                    self.store_ok = True
-                self._read_at = time.monotonic()
-            return dict(self._live)
+                    await self.refresh()
+                except Exception:  # a bug in one read must not stop the next
+                    log.exception("reading the live shards failed")
+                await asyncio.sleep(DIRECTORY_TTL_S)  # a timer, not synchronisation
+        finally:
+            self._running = False
+
+    async def live(self, fresh: bool = False) -> dict[str, str]:
+        """Live shards' addresses by name, as last read; `fresh`: after the next read (with
+        `run` going, waiting at most DIRECTORY_TTL_S + 1 s for it)."""
+        if not self._running:
+            if fresh or time.monotonic() - self._read_at > DIRECTORY_TTL_S:
+                await self.refresh()
+        elif fresh:
+            wanted, give_up = self._reads + 1, time.monotonic() + DIRECTORY_TTL_S + 1.0
+            while self._reads < wanted and time.monotonic() < give_up:
+                await asyncio.sleep(READ_POLL_S)
+        return dict(self._live)
 
     async def route(self, session_id: str, fresh: bool = False) -> tuple[str, str]:
         """(name, address) of the shard that serves `session_id`; NoLiveShard if none.
@@ -93,9 +128,17 @@ class ShardDirectory:
             raise NoLiveShard(self.max_age_s)
         try:
             record = await asyncio.to_thread(self.store.load_session, session_id)
-        except (KeyError, StoreUnavailableError):
+        except KeyError:
             record = None
+        except StoreUnavailableError:  # the owner it had when the store last answered
+            owner = self._owners.get(session_id)
+            name = owner if owner in live else rendezvous(session_id, sorted(live))
+            return name, live[name]
         name = owner_if_live(record, live, time.time()) or rendezvous(session_id, sorted(live))
+        self._owners[session_id] = name
+        self._owners.move_to_end(session_id)
+        if len(self._owners) > OWNERS_KEPT:
+            self._owners.popitem(last=False)
         return name, live[name]
 
     async def any(self) -> tuple[str, str]:

@@ -44,9 +44,12 @@ def require_api_key(request: Request) -> None:
 
 def check_session_access(manager: SessionManager, sid: str, token: str | None) -> None:
     """Raise HTTPException unless the caller may use session `sid` (its record is read, not
-    its map)."""
+    its map): 503 with Retry-After when it is not resident and the store cannot be read."""
     key = manager.settings.api_key
-    record = manager.record(sid)
+    try:
+        record = manager.record(sid)
+    except StoreUnavailableError as exc:  # not resident, and the store cannot say
+        raise retry_later(exc) from None
     if key is None:
         if record is None:
             raise HTTPException(404, f"no session {sid!r}")

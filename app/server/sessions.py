@@ -265,6 +265,9 @@ class Session:
     """(frame, sent) of validated non-keyframes not yet counted as sightings (`sight`)."""
     moved: bool = False
     """Closed because another map shard took the session over (not deleted)."""
+    on_close: set[Callable[[], None]] = field(default_factory=set)
+    """Called on the event loop when the session closes (a stream socket waiting for its
+    device's next frame closes at once)."""
     epoch: int | None = None
     """On a map shard: the epoch of this shard's claim; every write is conditional on it.
     None on a standalone server (it claims nothing)."""
@@ -428,8 +431,13 @@ class Session:
             self._publish()
 
     def close(self) -> None:
+        """On the event loop: mark the session closed (deleted or moved), wake its update
+        subscribers and run `on_close` (stream sockets close themselves)."""
         self._closed = True
         self._publish()
+        for callback in self.on_close:
+            with contextlib.suppress(Exception):
+                callback()
 
 
 class SessionManager:
@@ -663,9 +671,10 @@ class SessionManager:
             with contextlib.suppress(StoreUnavailableError):  # then its lease runs out
                 self.store.release_session(session.id, self.settings.shard_name, session.epoch)
 
-    def _drop_taken_over(self, session: Session) -> None:
+    def _drop_taken_over(self, session: Session, close: bool = True) -> None:
         """Forget a session another shard claimed (this one hung or lost the store for longer
-        than its lease): nothing of it is written from here again, and its sockets close."""
+        than its lease): nothing of it is written from here again, and its sockets close
+        (`close`; else the keyframe pipeline closes it once its reply has gone out)."""
         if self.resident.get(session.id) is session:
             self.resident.forget(session)
         session.moved = True
@@ -675,6 +684,8 @@ class SessionManager:
             "here, its sockets close and reconnect to the new owner",
             session.id,
         )
+        if not close:
+            return
         if self._loop is not None and not self._loop.is_closed():
             self._loop.call_soon_threadsafe(session.close)
         else:
@@ -1281,7 +1292,6 @@ class SessionManager:
                     await pending.reply(
                         ErrorReply(pending.frame.seq, "session_moved", SessionMoved.MESSAGE).pack()
                     )
-                    session.close()
                 except StorageUnavailable:
                     await pending.reply(
                         ErrorReply(
@@ -1313,6 +1323,8 @@ class SessionManager:
                         session.latencies_ms.append(mapped.latency_ms)
                         self.metrics.mapping_latency.observe(mapped.latency_ms / 1e3)
                         session.after_keyframe(mapped.keyframe)
+                if session.moved and not session.closed:  # after the reply went out
+                    session.close()
                 pending, session._pending = session._pending, None
         finally:
             session._mapping = False
@@ -1373,7 +1385,7 @@ class SessionManager:
                     else (pending.stream, frame.seq, _ack_record(ack)),
                 )
             except SessionFenced:
-                self._drop_taken_over(session)  # its engine holds changes no store has
+                self._drop_taken_over(session, close=False)  # its engine holds unsaved changes
                 raise SessionMoved(SessionMoved.MESSAGE) from None
             except BaseException as exc:
                 self._back_to_durable(session, pose_before)
@@ -1399,7 +1411,7 @@ class SessionManager:
                     self.store.trim_tombstones(session.id, engine.log.floor, epoch=session.epoch)
                     session._stored_floor = engine.log.floor
                 except SessionFenced:
-                    self._drop_taken_over(session)  # the keyframe is saved: its ack stands
+                    self._drop_taken_over(session, close=False)  # saved: its ack stands
                 except StoreUnavailableError as exc:  # the keyframe is saved: retried next time
                     self._store_failed(f"trimming the tombstones of session {session.id}", exc)
             latency_ms = pending.decode_ms + (time.perf_counter() - t_locked) * 1e3

@@ -213,6 +213,11 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
             with contextlib.suppress(Exception):  # the client may be gone; the map is not affected
                 await asyncio.wait_for(ws.send_bytes(msgpack.packb(message)), SEND_TIMEOUT_S)
 
+    def close_now() -> None:  # the session closed while the loop waits for a frame
+        closing.append(asyncio.ensure_future(_close_if_gone(ws, session)))
+
+    closing: list[asyncio.Future] = []
+    session.on_close.add(close_now)
     bad_in_a_row = 0
     try:
         while not session.closed:
@@ -274,9 +279,11 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
     except WebSocketDisconnect:
         return
     finally:
+        session.on_close.discard(close_now)
         session.flush()  # the device stopped: its last changes go out now
         manager.save_counters_soon(session)  # and its frame count is saved
-    await _close_if_gone(ws, session)
+    if not closing:
+        await _close_if_gone(ws, session)
 
 
 async def _close_if_gone(ws: WebSocket, session: Session) -> None:
