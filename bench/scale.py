@@ -113,7 +113,7 @@ def run_shards(n: int, args, walk, api_key: str) -> list[dict]:
             targets.append(("direct", Endpoint(addresses[0], list(pids))))
         for route, target in targets:
             asyncio.run(warm_up(target, walk, api_key))
-            cpu0 = sum(map(cpu_s, target.pids))
+            cpu0, gateway0 = sum(map(cpu_s, target.pids)), cpu_s(gateway.pid)
             run = asyncio.run(
                 load_run(
                     target, walk, args.devices, api_key=api_key, seconds=args.seconds,
@@ -129,6 +129,11 @@ def run_shards(n: int, args, walk, api_key: str) -> list[dict]:
                     "shards_idle_rss_mb": idle_rss,
                     "mb_per_resident_session": (shard_rss - idle_rss) / args.devices,
                     "cpu_s_whole_run": sum(map(cpu_s, target.pids)) - cpu0,
+                    "gateway_cpu_ms_per_frame": 1e3
+                    * (cpu_s(gateway.pid) - gateway0)
+                    / max(1, run["frames_acked"])
+                    if route == "gateway"
+                    else 0.0,
                 }
             )
             print(
@@ -228,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{r['shards']} shards {r['route']:>7}: {r['acked_per_s']:6.1f} frames/s, keyframe "
             f"p50/p95 {r['keyframe_ack_ms']['p50']:.0f}/{r['keyframe_ack_ms']['p95']:.0f} ms, "
             f"{r['server_cpu_ms_per_acked_frame']:.1f} ms CPU/frame, "
+            f"(gateway {r['gateway_cpu_ms_per_frame']:.1f}), "
             f"{r['mb_per_resident_session']:.1f} MB/session, {r['stalled_sockets']} stalled"
         )
     return 0
