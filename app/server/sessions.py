@@ -677,6 +677,8 @@ class SessionManager:
         (`close`; else the keyframe pipeline closes it once its reply has gone out)."""
         if self.resident.get(session.id) is session:
             self.resident.forget(session)
+        if session.moved:  # a renewal and a write both found the claim gone
+            return
         session.moved = True
         self.metrics.sessions_taken_over.inc()
         log.warning(

@@ -213,8 +213,14 @@ async def _stream_frames(ws: WebSocket, session: Session) -> None:
             with contextlib.suppress(Exception):  # the client may be gone; the map is not affected
                 await asyncio.wait_for(ws.send_bytes(msgpack.packb(message)), SEND_TIMEOUT_S)
 
-    def close_now() -> None:  # the session closed while the loop waits for a frame
-        closing.append(asyncio.ensure_future(_close_if_gone(ws, session)))
+    loop = asyncio.get_running_loop()
+
+    def close_now() -> None:
+        """The session closed (deleted, maybe from a request's thread, or moved) while this
+        loop may be waiting for a frame: close the socket now, on the loop."""
+        loop.call_soon_threadsafe(
+            lambda: closing.append(asyncio.ensure_future(_close_if_gone(ws, session)))
+        )
 
     closing: list[asyncio.Future] = []
     session.on_close.add(close_now)

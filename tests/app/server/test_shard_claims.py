@@ -3,7 +3,7 @@ store. A shard claims what it serves (owner, epoch), beats with its address, ans
 session another live shard holds with 503 naming that shard, lets its sessions go when it
 stops, and drops a session claimed away from it without writing to it again. On any server,
 a keyframe resent under the same stream id is answered from the store, not mapped twice.
-The xfail tests pin app bugs found while writing these (each reason says where)."""
+"""
 
 from __future__ import annotations
 
@@ -295,16 +295,6 @@ def test_a_shard_that_lost_its_claim_closes_the_socket_1012_after_session_moved(
     assert fenced.closed.rcvd is not None and fenced.closed.rcvd.code == 1012
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason=(
-        "app bug: SessionManager._drop_taken_over counts (and logs, and closes) on every "
-        "call; when keep_claims listed the resident sessions before a keyframe's fenced "
-        "commit dropped the session, its renewal then drops it again: "
-        "semanticxr_sessions_taken_over_total counts the one session twice"
-    ),
-)
 def test_a_session_taken_over_is_counted_once_when_its_renewal_meets_the_claim_too(
     shards, store, hold_renewal
 ):
@@ -432,18 +422,6 @@ def test_a_stream_id_of_64_allowed_characters_is_taken(live_server):
     assert reply["type"] == "ack", reply
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason=(
-        "app bug: SessionManager._delete (run by the REST route in a worker thread) calls "
-        "Session.close off the event loop; the stream socket's on_close callback (close_now "
-        "in app/server/routes/ws.py) then calls asyncio.ensure_future with no running loop, "
-        "the RuntimeError is swallowed by Session.close (RuntimeWarning: coroutine "
-        "'_close_if_gone' was never awaited), so the socket stays open, no 1001, until the "
-        "device sends again"
-    ),
-)
 def test_deleting_a_session_closes_its_idle_stream_socket_1001(live_server):
     server = live_server()
     sid = create(server.url)
