@@ -82,16 +82,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_cluster(settings: ServerSettings) -> int:
-    """`serve --cluster`: join (or start) the Ray cluster, start the map shards as detached
-    actors, then serve the gateway on --port until Ctrl-C. Shards of a local cluster this
-    command started stop with it; on a cluster that was already running they stay up for
-    the other gateways (stop them with `ray stop`, or this command with --shards on a
-    fresh cluster)."""
+    """`serve --cluster`: join (or start) the Ray cluster, start the models deployment when
+    --perception includes models (the shards call it: `app/cluster/serve_models.py`), start
+    the map shards as detached actors, then serve the gateway on --port until Ctrl-C. Shards
+    of a local cluster this command started stop with it; on a cluster that was already
+    running they stay up for the other gateways (stop them with `ray stop`, or this command
+    with --shards on a fresh cluster)."""
     import sys
 
     from uvicorn import Server
 
     from app.cluster.gateway import create_gateway_app
+    from app.cluster.serve_models import ModelsDeploymentError, start_models
     from app.cluster.shards import ClusterError, connect, start_shards
     from app.server.runner import uvicorn_config
     from app.store import StoreUnavailableError, open_store
@@ -103,8 +105,10 @@ def run_cluster(settings: ServerSettings) -> int:
         return 2
     try:
         connect(settings.cluster)
+        if "models" in settings.perception_backends:
+            settings = dataclasses.replace(settings, models_service=start_models(settings))
         start_shards(settings)
-    except ClusterError as exc:
+    except (ClusterError, ModelsDeploymentError) as exc:
         print(f"semanticxr serve: {exc}", file=sys.stderr)
         return 2
     print(

@@ -5,8 +5,8 @@ the sessions it loads in the shared PostgreSQL store, commits under that claim, 
 second with the address gateways reach it at, and serves many sessions at once. Ray restarts
 an actor whose process dies (`max_restarts=-1`); the new incarnation beats under the same
 name at a new address, and its sessions are claimed again by whichever live shard the
-gateways route them to. Ray imports only here: a gateway and a standalone server never
-need it.
+gateways route them to. Ray imports only here and in `serve_models.py` (the shards' shared
+`models` backend): a gateway and a standalone server never need it.
 """
 
 from __future__ import annotations
@@ -91,6 +91,10 @@ def _actor_class():
                 **{**fields, "shard_name": name, "port": port},
                 shard_url=f"http://{reached_at}:{port}",
             )
+            if settings.models_service is not None:  # the cluster's models, not its own
+                from app.cluster.serve_models import use_models_service
+
+                use_models_service(settings.models_dir, settings.models_service)
             self.server = ServerThread(settings).start(timeout_s=300)
             self.name = name
 

@@ -88,6 +88,10 @@ class ServerSettings:
     shard_lease_s: float = 5.0
     """How long a shard's claim on a session lasts without renewal (it renews every second):
     after a shard dies or hangs, its sessions move to another shard after at most this long."""
+    models_service: str | None = None
+    """The Ray Serve application that runs the `models` perception backend for the map shards
+    (their crops embedded together, in shared batches): set by --cluster when --perception
+    includes models (default name semanticxr-models). Unset: each server loads its own models."""
 
     def allowed_host_list(self) -> list[str] | None:
         """The Host names served (None: any), from allowed_hosts or the bind address."""
@@ -115,6 +119,16 @@ class ServerSettings:
                 "cluster: the shards and gateways of a cluster share one PostgreSQL store; give "
                 "--store postgresql://USER:PASSWORD@HOST:5432/DB"
             )
+        if self.models_service is not None:
+            if "models" not in self.perception_backends:
+                raise SettingsError(
+                    f"models_service: the models deployment serves --perception models, which "
+                    f"is not in --perception {self.perception}"
+                )
+            if self.cluster is None and self.shard_name is None:
+                raise SettingsError(
+                    "models_service: only map shards use the models deployment (give --cluster)"
+                )
         if not self.idle_unload_s > 0:
             raise SettingsError(f"idle_unload_s must be over 0 seconds, got {self.idle_unload_s}")
         if self.session_retention_days is not None and not self.session_retention_days > 0:

@@ -154,15 +154,28 @@ _loaded: dict[tuple, ModelsBackend] = {}
 _loaded_lock = threading.Lock()
 
 
-def load_models_backend(models_dir: str | None, profile: Profile = CPU_PROFILE) -> ModelsBackend:
+def load_models_backend(
+    models_dir: str | None,
+    profile: Profile = CPU_PROFILE,
+    models: tuple[OwlViTDetector, ClipEmbedder] | None = None,
+) -> ModelsBackend:
     """The backend with its models loaded, once per process for the same models_dir and
     profile (the CLI loads them before serving; the server's sessions then share them).
+
+    With `models` (a detector and an embedder made elsewhere, with their methods: a map
+    shard's, which call the cluster's models deployment), nothing is loaded here: the
+    backend is made on them and replaces this process's one for models_dir and profile.
 
     MissingModelsError (before any model loads) when a model is not where it must come
     from; the message names the folders and the commands that fetch them.
     """
     key = (str(Path(models_dir).resolve()) if models_dir else None, profile.name)
     with _loaded_lock:
+        if models is not None:
+            settings = load_settings(models_dir)
+            vocabulary = load_vocabulary(settings.vocabulary)
+            _loaded[key] = ModelsBackend(profile, *models, settings, vocabulary)
+            return _loaded[key]
         if key in _loaded:
             return _loaded[key]
         resolved = resolve_models(profile, models_dir)
