@@ -2,15 +2,15 @@
 shards on a local Ray, over PostgreSQL; and the shard hop on its own.
 
     python -m bench.scale --store postgresql://USER:PASSWORD@HOST/DB [--shards 1,2,4]
-                          [--devices 16] [--seconds 20] [--out out/]
+                          [--devices 16] [--seconds 20] [--saturate] [--out out/]
 
 For each shard count: the shards start as detached Ray actors (`app.cluster.shards`, each a
 SemanticXR server with `shard_name`), one gateway runs as `semanticxr gateway` in a child
 process, and `bench.load`'s devices (the same pre-encoded apartment walk, whole frames, one
 session each, paced at --fps) stream through the gateway for --seconds. CPU per acked frame
-and RSS are summed over the gateway and every shard (/proc). With one shard, the same
-devices also stream straight to the shard, and the difference of keyframe ack p50 is the
-shard hop (the gateway's relay: one more loopback socket each way).
+and RSS are summed over the gateway and every shard (/proc). With one shard, two devices
+also stream through the gateway and straight to the shard, alternated: the difference of
+keyframe ack p50 is the shard hop (the gateway's relay: one more loopback socket each way).
 
 Per-session cost: the shards' RSS over the resident sessions (each device's session is
 resident while it streams) beside the RSS of the idle shards; CPU ms per frame. The
@@ -93,7 +93,9 @@ def shard_processes(n: int) -> tuple[list[int], list[str]]:
     return pids, addresses
 
 
-def run_shards(n: int, args, walk, api_key: str) -> list[dict]:
+def run_shards(n: int, args, walk, api_key: str) -> tuple[list[dict], dict | None]:
+    """The load run through the gateway in front of `n` shards; with one shard, also the
+    shard hop (`measure_hop`)."""
     from app.cluster.shards import start_shards, stop_shards
 
     settings = ServerSettings(
@@ -103,50 +105,71 @@ def run_shards(n: int, args, walk, api_key: str) -> list[dict]:
     print(f"{n} shards: starting", file=sys.stderr)
     start_shards(settings)
     gateway, endpoint = start_gateway(args.store, api_key)
-    runs = []
+    hop = None
     try:
         pids, addresses = shard_processes(n)
         endpoint.pids += pids
+        # One warm-up session a shard: the gateway creates sessions round robin, and a
+        # shard's first keyframes pay its one-time costs (the text encoder's first batch).
+        for _ in range(n):
+            asyncio.run(warm_up(endpoint, walk, api_key))
         idle_rss = sum(map(rss_mb, pids))
-        targets = [("gateway", endpoint)]
-        if n == 1:
-            targets.append(("direct", Endpoint(addresses[0], list(pids))))
-        for route, target in targets:
-            asyncio.run(warm_up(target, walk, api_key))
-            cpu0, gateway0 = sum(map(cpu_s, target.pids)), cpu_s(gateway.pid)
-            run = asyncio.run(
-                load_run(
-                    target, walk, args.devices, api_key=api_key, seconds=args.seconds,
-                    fps=args.fps, saturate=False, sightings=False, seed=n,
-                )
-            )  # fmt: skip
-            shard_rss = sum(map(rss_mb, pids))
-            runs.append(
-                {
-                    "shards": n,
-                    "route": route,
-                    **{k: v for k, v in run.items() if k != "per_device"},
-                    "shards_idle_rss_mb": idle_rss,
-                    "mb_per_resident_session": (shard_rss - idle_rss) / args.devices,
-                    "cpu_s_whole_run": sum(map(cpu_s, target.pids)) - cpu0,
-                    "gateway_cpu_ms_per_frame": 1e3
-                    * (cpu_s(gateway.pid) - gateway0)
-                    / max(1, run["frames_acked"])
-                    if route == "gateway"
-                    else 0.0,
-                }
+        cpu0, gateway0 = sum(map(cpu_s, endpoint.pids)), cpu_s(gateway.pid)
+        run = asyncio.run(
+            load_run(
+                endpoint, walk, args.devices, api_key=api_key, seconds=args.seconds,
+                fps=args.fps, saturate=args.saturate, sightings=False, seed=n,
             )
-            print(
-                f"  {n} shards, {route}: {run['acked_per_s']:.1f} frames/s acked, keyframe ack "
-                f"p50/p95 {run['keyframe_ack_ms']['p50']:.0f}/{run['keyframe_ack_ms']['p95']:.0f}"
-                f" ms, {run['server_cpu_ms_per_acked_frame']:.1f} ms CPU a frame",
-                file=sys.stderr,
-            )
+        )  # fmt: skip
+        result = {
+            "shards": n,
+            "route": "gateway",
+            **{k: v for k, v in run.items() if k != "per_device"},
+            "shards_idle_rss_mb": idle_rss,
+            "mb_per_resident_session": (sum(map(rss_mb, pids)) - idle_rss) / args.devices,
+            "cpu_s_whole_run": sum(map(cpu_s, endpoint.pids)) - cpu0,
+            "gateway_cpu_ms_per_frame": 1e3
+            * (cpu_s(gateway.pid) - gateway0)
+            / max(1, run["frames_acked"]),
+        }
+        print(
+            f"  {n} shards: {run['acked_per_s']:.1f} frames/s acked, keyframe ack p50/p95 "
+            f"{run['keyframe_ack_ms']['p50']:.0f}/{run['keyframe_ack_ms']['p95']:.0f} ms, "
+            f"{run['server_cpu_ms_per_acked_frame']:.1f} ms CPU a frame",
+            file=sys.stderr,
+        )
+        if n == 1 and not args.saturate:
+            hop = measure_hop(endpoint, Endpoint(addresses[0], list(pids)), walk, args, api_key)
     finally:
         gateway.terminate()
         gateway.wait(30)
         stop_shards(n)
-    return runs
+    return [result], hop
+
+
+HOP_DEVICES = 2
+HOP_SECONDS = 10.0
+
+
+def measure_hop(gateway: Endpoint, direct: Endpoint, walk, args, api_key: str) -> dict:
+    """Keyframe ack p50 of HOP_DEVICES devices (a light load, so queues do not hide it)
+    through the gateway and straight to its one shard, alternated (gateway, direct, direct,
+    gateway); the hop is the difference of the means of the two p50s."""
+    p50s: dict[str, list[float]] = {"gateway": [], "direct": []}
+    for i, (route, target) in enumerate(
+        [("gateway", gateway), ("direct", direct), ("direct", direct), ("gateway", gateway)]
+    ):
+        run = asyncio.run(
+            load_run(
+                target, walk, HOP_DEVICES, api_key=api_key, seconds=HOP_SECONDS, fps=args.fps,
+                saturate=False, sightings=False, seed=100 + i,
+            )
+        )  # fmt: skip
+        p50s[route].append(run["keyframe_ack_ms"]["p50"])
+    means = {route: sum(v) / len(v) for route, v in p50s.items()}
+    hop = {"keyframe_ack_p50_ms": p50s, "hop_ms": means["gateway"] - means["direct"]}
+    print(f"  shard hop: {hop['hop_ms']:.1f} ms (keyframe ack p50 {p50s})", file=sys.stderr)
+    return hop
 
 
 def estimate(runs: list[dict], fps: float) -> dict:
@@ -189,6 +212,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--devices", type=int, default=16, help="paced devices in every run")
     parser.add_argument("--seconds", type=float, default=20.0, help="measured window of a run")
     parser.add_argument("--fps", type=float, default=5.0, help="frames per second per device")
+    parser.add_argument(
+        "--saturate", action="store_true", help="closed loop: what the shards can take"
+    )
     parser.add_argument("--out", default="out", help="folder for scale.json and scale.png")
     args = parser.parse_args(argv)
     if not args.store or not args.store.startswith(("postgresql:", "postgres:")):
@@ -207,18 +233,19 @@ def main(argv: list[str] | None = None) -> int:
     n_frames = math.ceil(args.seconds * args.fps - 1e-9)
     print(f"encoding {n_frames} frames...", file=sys.stderr)
     walk = encode_walk(n_frames, args.fps, sightings=False)
-    runs = [run for n in counts for run in run_shards(n, args, walk, api_key)]
-    hop = None
-    one = {r["route"]: r for r in runs if r["shards"] == 1}
-    if {"gateway", "direct"} <= one.keys():
-        hop = one["gateway"]["keyframe_ack_ms"]["p50"] - one["direct"]["keyframe_ack_ms"]["p50"]
+    runs, hop = [], None
+    for n in counts:
+        shard_runs, shard_hop = run_shards(n, args, walk, api_key)
+        runs += shard_runs
+        hop = hop or shard_hop
     document = {
         "machine": machine(),
         "devices": args.devices,
         "fps": args.fps,
+        "saturate": args.saturate,
         "seconds": args.seconds,
         "runs": runs,
-        "shard_hop_keyframe_p50_ms": hop,
+        "shard_hop": hop,
         "estimate": estimate(runs, args.fps),
         "caveat": (
             f"{os.cpu_count()} cores shared by every shard, the gateway, Ray and the devices: "
@@ -227,10 +254,11 @@ def main(argv: list[str] | None = None) -> int:
     }
     write_outputs(args.out, "scale", document)
     plot(runs, args.out)
-    print(f"shard hop (keyframe ack p50, gateway - direct, 1 shard): {hop} ms")
+    if hop is not None:
+        print(f"shard hop (keyframe ack p50, gateway - direct, 1 shard): {hop['hop_ms']:.1f} ms")
     for r in runs:
         print(
-            f"{r['shards']} shards {r['route']:>7}: {r['acked_per_s']:6.1f} frames/s, keyframe "
+            f"{r['shards']} shards: {r['acked_per_s']:6.1f} frames/s, keyframe "
             f"p50/p95 {r['keyframe_ack_ms']['p50']:.0f}/{r['keyframe_ack_ms']['p95']:.0f} ms, "
             f"{r['server_cpu_ms_per_acked_frame']:.1f} ms CPU/frame, "
             f"(gateway {r['gateway_cpu_ms_per_frame']:.1f}), "
