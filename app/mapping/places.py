@@ -24,6 +24,7 @@ from typing import Literal
 import numpy as np
 
 from app.mapping.object import MapObject
+from app.mapping.relations import Z_UP, snap_to_axis
 
 ON_MAX_GAP_M = 0.35
 """A point at most this far above a surface rests on it (a centroid sits half the thing's
@@ -38,9 +39,6 @@ LARGE_VOLUME_M3 = 0.03
 """An object is large (a landmark) with a box of at least this volume..."""
 LARGE_SIDE_M = 0.5
 """...or a box side at least this long (a table top, a wall, a door)."""
-
-Z_UP = np.array([0.0, 0.0, 1.0])
-"""Our synthetic world's up, and the default when no pose is known."""
 
 
 @dataclass(frozen=True)
@@ -102,15 +100,6 @@ def infer_up(pose: np.ndarray) -> np.ndarray:
     """
     poses = np.asarray(pose, np.float64).reshape(-1, 4, 4)
     return snap_to_axis(-poses[:, :3, 1].mean(axis=0))
-
-
-def snap_to_axis(vector: np.ndarray) -> np.ndarray:
-    """The unit axis (±x, ±y or ±z, float64 [3]) nearest to `vector` (float [3], nonzero)."""
-    vector = np.asarray(vector, np.float64)
-    axis = int(np.argmax(np.abs(vector)))
-    out = np.zeros(3)
-    out[axis] = 1.0 if vector[axis] >= 0 else -1.0
-    return out
 
 
 def describe_place(

@@ -1,0 +1,589 @@
+"""Relations from points: each relation on small scenes, their symmetries, the thresholds at
+their edges, and the index against a full recompute (issue 27)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from app.mapping import relations as rel
+from app.mapping.relations import Body, ObjectGeometry, RelationIndex
+
+Z_UP = np.array([0.0, 0.0, 1.0])
+Y_UP = np.array([0.0, 1.0, 0.0])
+PAIRWISE = {
+    "on": rel.on,
+    "in": rel.in_,
+    "under": rel.under,
+    "above": rel.above,
+    "below": rel.below,
+    "near": rel.near,
+    "next_to": rel.next_to,
+}
+
+
+def faces(parts, count: int = 200, seed: int = 0) -> np.ndarray:
+    """float64 [count, 3]: points on the faces of boxes ((x0, y0, z0), (x1, y1, z1)), spread
+    by face area (a thing seen all round, like a capped map object)."""
+    rng = np.random.default_rng(seed)
+    lo = np.array([p[0] for p in parts], np.float64)
+    hi = np.array([p[1] for p in parts], np.float64)
+    size = np.maximum(hi - lo, 1e-3)
+    areas = np.stack([size[:, 1] * size[:, 2], size[:, 0] * size[:, 2], size[:, 0] * size[:, 1]])
+    weights = np.repeat(areas.T, 2, axis=1).ravel()
+    pick = rng.choice(len(weights), count, p=weights / weights.sum())
+    box, axis, side = pick // 6, (pick % 6) // 2, pick % 2
+    points = lo[box] + rng.uniform(0, 1, (count, 3)) * size[box]
+    points[np.arange(count), axis] = np.where(side == 0, lo[box, axis], hi[box, axis])
+    return points
+
+
+def block(x, y, z, w, d, h, count: int = 120, seed: int = 0) -> np.ndarray:
+    return faces([((x, y, z), (x + w, y + d, z + h))], count, seed)
+
+
+def table(x, y, w=1.6, d=0.9, h=0.75, seed: int = 0) -> np.ndarray:
+    """A table top on four legs (the space under it is empty)."""
+    leg = 0.05
+    parts = [((x, y, h - 0.04), (x + w, y + d, h))]
+    parts += [
+        ((lx, ly, 0.0), (lx + leg, ly + leg, h - 0.04))
+        for lx in (x, x + w - leg)
+        for ly in (y, y + d - leg)
+    ]
+    return faces(parts, 240, seed)
+
+
+def chair(x, y, seed: int = 0) -> np.ndarray:
+    parts = [
+        ((x, y, 0.42), (x + 0.45, y + 0.45, 0.46)),
+        ((x, y + 0.41, 0.46), (x + 0.45, y + 0.45, 0.9)),
+    ]
+    parts += [
+        ((x + dx, y + dy, 0.0), (x + dx + 0.04, y + dy + 0.04, 0.42))
+        for dx in (0, 0.41)
+        for dy in (0, 0.41)
+    ]
+    return faces(parts, 200, seed)
+
+
+def sofa(x, y, seed: int = 0) -> np.ndarray:
+    return faces(
+        [((x, y, 0.0), (x + 2.0, y + 0.9, 0.45)), ((x, y + 0.7, 0.45), (x + 2.0, y + 0.9, 0.85))],
+        200,
+        seed,
+    )
+
+
+def open_box(x, y, w=0.4, h=0.3, seed: int = 0) -> np.ndarray:
+    t = 0.02
+    return faces(
+        [
+            ((x, y, 0.0), (x + w, y + w, t)),
+            ((x, y, 0.0), (x + t, y + w, h)),
+            ((x + w - t, y, 0.0), (x + w, y + w, h)),
+            ((x, y, 0.0), (x + w, y + t, h)),
+            ((x, y + w - t, 0.0), (x + w, y + w, h)),
+        ],
+        200,
+        seed,
+    )
+
+
+# A Z-up room.
+DESK = table(0.0, 0.0)
+MUG = block(0.5, 0.4, 0.75, 0.08, 0.08, 0.10, 80, seed=1)
+BAG_UNDER = block(0.6, 0.3, 0.0, 0.35, 0.25, 0.40, seed=2)
+LAMP_OVER = block(0.7, 0.35, 1.6, 0.2, 0.2, 0.15, 60, seed=3)
+SOFA = sofa(3.0, 0.0, seed=4)
+CHAIR_BY_SOFA = chair(2.45, 0.2, seed=5)
+BAG_ON_SOFA = block(3.5, 0.3, 0.45, 0.3, 0.38, 0.3, seed=6)
+BOX = open_box(6.0, 0.0, seed=7)
+BALL_IN_BOX = block(6.1, 0.1, 0.02, 0.15, 0.15, 0.15, 60, seed=8)
+
+
+def degrees_of(a, b, up=Z_UP) -> dict[str, float]:
+    a, b = Body(a, up), Body(b, up)
+    return {kind: relation(a, b) for kind, relation in PAIRWISE.items()}
+
+
+# --- each relation -----------------------------------------------------------------------
+
+
+def test_a_mug_on_the_desk_is_on_it_and_the_desk_is_not_on_the_mug():
+    assert rel.on(MUG, DESK) == 1.0
+    assert rel.on(DESK, MUG) == 0.0
+    assert rel.above(MUG, DESK) == 0.0  # on, not hovering above
+    assert rel.under(DESK, MUG) == 1.0  # the converse, as "the book under the mug"
+    assert rel.in_(MUG, DESK) == 0.0
+
+
+def test_a_mug_held_above_the_desk_is_above_it_not_on_it():
+    held = MUG + [0.0, 0.0, 0.3]
+    assert rel.on(held, DESK) == 0.0
+    assert rel.above(held, DESK) == 1.0
+    assert rel.below(DESK, held) == 1.0
+
+
+def test_a_mug_mostly_off_the_desk_edge_is_not_on_it():
+    # the desk ends at x = 1.6; a mug standing on the floor beside it, its rim at desk height
+    beside = block(1.64, 0.4, 0.0, 0.08, 0.08, 0.75, 80)
+    assert rel.on(beside, DESK) == 0.0
+    # half over the edge at desk height: "most of it over the desk" fails
+    overhanging = block(1.55, 0.4, 0.75, 0.3, 0.1, 0.05, 80)
+    assert rel.on(overhanging, DESK) < 0.5
+
+
+def test_a_bag_under_the_table_is_under_it_and_neither_on_nor_in_it():
+    degrees = degrees_of(BAG_UNDER, DESK)
+    assert degrees["under"] == 1.0
+    assert degrees["on"] == 0.0 and degrees["in"] == 0.0
+    assert rel.on(DESK, BAG_UNDER) == 0.0
+    assert rel.under(DESK, BAG_UNDER) == 0.0
+
+
+def test_a_lamp_hanging_over_the_table_is_above_it():
+    assert rel.above(LAMP_OVER, DESK) == 1.0
+    assert rel.below(DESK, LAMP_OVER) == 1.0
+    assert rel.under(DESK, LAMP_OVER) == 1.0
+    assert rel.on(LAMP_OVER, DESK) == 0.0
+    assert rel.near(LAMP_OVER, DESK) == 0.0  # 85 cm apart
+
+
+def test_a_ball_in_an_open_box_is_in_it_not_under_it_nor_on_it():
+    degrees = degrees_of(BALL_IN_BOX, BOX)
+    assert degrees["in"] == 1.0
+    assert degrees["under"] == 0.0  # the walls are beside it, nothing over it
+    assert degrees["on"] == 0.0  # both stand on the floor
+    assert rel.in_(BOX, BALL_IN_BOX) == 0.0
+
+
+def test_a_bag_on_the_sofa_is_on_it_not_in_it():
+    degrees = degrees_of(BAG_ON_SOFA, SOFA)
+    assert degrees["on"] == 1.0
+    assert degrees["in"] == 0.0  # a sofa's back alone does not wall it in
+    assert degrees["next_to"] == 0.0  # stacked, not side by side
+    assert degrees["near"] == 1.0
+
+
+def test_a_chair_next_to_the_sofa_is_near_and_next_to_it():
+    degrees = degrees_of(CHAIR_BY_SOFA, SOFA)
+    assert degrees["near"] == 1.0
+    assert degrees["next_to"] == 1.0
+    assert degrees["on"] == degrees["under"] == degrees["in"] == 0.0
+
+
+def test_a_mug_on_the_desk_is_near_it_but_not_next_to_it():
+    assert rel.near(MUG, DESK) == 1.0
+    assert rel.next_to(MUG, DESK) == 0.0
+
+
+def test_next_to_wants_a_similar_height():
+    # a lamp on a high shelf right above the sofa's arm: near, not side by side
+    lamp = block(5.05, 0.2, 1.2, 0.2, 0.2, 0.3, 60)
+    assert rel.near(lamp, SOFA) > 0.0
+    assert rel.next_to(lamp, SOFA) == 0.0
+
+
+def test_a_lamp_between_two_chairs_is_between_them():
+    left, right = chair(0.0, 0.0, seed=1), chair(2.0, 0.0, seed=2)
+    lamp = block(1.1, 0.1, 0.0, 0.25, 0.25, 1.2, 60)
+    assert rel.between(lamp, left, right) == 1.0
+    assert rel.between(lamp, right, left) == 1.0
+    assert rel.between(lamp + [3.0, 0, 0], left, right) == 0.0  # beyond the right chair
+    assert rel.between(lamp + [0, 2.0, 0], left, right) == 0.0  # far to the side
+    assert rel.between(left, lamp, right) == 0.0  # the chair is at the end, not between
+
+
+def test_left_and_right_depend_on_where_the_asker_stands():
+    mug, laptop = (
+        block(0.2, 0.4, 0.75, 0.08, 0.08, 0.1, 60),
+        block(1.2, 0.4, 0.75, 0.3, 0.2, 0.02, 60),
+    )
+    south, north = np.array([0.8, -2.0, 1.6]), np.array([0.8, 3.0, 1.6])
+    # from the south (looking +y) x grows to the right: the mug at x 0.2 is left of the laptop
+    assert rel.left_of(mug, laptop, south) == 1.0
+    assert rel.right_of(mug, laptop, south) == 0.0
+    assert rel.right_of(laptop, mug, south) == 1.0
+    # from the north, the other way round
+    assert rel.right_of(mug, laptop, north) == 1.0
+    assert rel.left_of(mug, laptop, north) == 0.0
+
+
+def test_in_front_of_and_behind_along_the_line_of_sight():
+    viewer = np.array([0.0, -3.0, 1.6])
+    tv = block(-0.5, 2.0, 0.5, 1.0, 0.1, 0.6, 60)
+    chair_before_tv = chair(-0.2, 0.0)
+    assert rel.in_front_of(chair_before_tv, tv, viewer) == 1.0
+    assert rel.behind(tv, chair_before_tv, viewer) == 1.0
+    assert rel.behind(chair_before_tv, tv, viewer) == 0.0
+    # nearer, but far off the line of sight: not in front of it
+    assert rel.in_front_of(chair_before_tv + [3.0, 0, 0], tv, viewer) == 0.0
+
+
+def test_closest_and_farthest_rank_the_candidates():
+    viewer = np.array([0.0, 0.0, 1.6])
+    lamps = [block(x, 0.0, 0.0, 0.2, 0.2, 1.5, 40, seed=i) for i, x in enumerate((3.0, 1.0, 2.0))]
+    closest, farthest = rel.closest_to(viewer, lamps), rel.farthest_from(viewer, lamps)
+    assert np.argmax(closest) == 1 and closest[1] == 1.0
+    assert np.argmax(farthest) == 0 and farthest[0] == 1.0
+    assert np.all((closest > 0) & (closest <= 1)) and closest[2] > closest[0]
+
+
+def test_superlatives_give_the_winner_one_and_the_others_less():
+    small_table, big_table = table(0, 0, 0.8, 0.6, seed=1), table(3, 0, 2.0, 1.0, seed=2)
+    shelf_low, shelf_high = (
+        block(0, 3, 0.4, 0.8, 0.3, 0.02, 60),
+        block(0, 3, 1.6, 0.8, 0.3, 0.02, 60),
+    )
+    np.testing.assert_allclose(rel.biggest([small_table, big_table])[1], 1.0)
+    assert rel.biggest([small_table, big_table])[0] < 0.5
+    assert rel.smallest([small_table, big_table])[0] == 1.0
+    assert rel.biggest([small_table, big_table], by="footprint")[0] < 0.5
+    assert rel.highest([shelf_low, shelf_high]).tolist()[1] == 1.0
+    assert rel.lowest([shelf_low, shelf_high]).tolist()[0] == 1.0
+    assert 0.0 < rel.highest([shelf_low, shelf_high])[0] < 0.1
+
+
+# --- thresholds at their edges -----------------------------------------------------------
+
+
+def two_dots_apart(distance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Two tiny things (two points each) whose closest points are `distance_m` apart."""
+    a = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.1]])
+    return a, a + [distance_m, 0.0, 0.0]
+
+
+def test_near_is_full_up_to_its_full_distance_and_gone_at_its_maximum():
+    assert rel.near(*two_dots_apart(0.0)) == 1.0
+    assert rel.near(*two_dots_apart(rel.NEAR_FULL_M)) == 1.0
+    assert rel.near(*two_dots_apart(0.5)) == pytest.approx(0.5)  # "within ~0.5 m"
+    assert 0.0 < rel.near(*two_dots_apart(rel.NEAR_MAX_M - 0.01)) < 0.01
+    assert rel.near(*two_dots_apart(rel.NEAR_MAX_M)) == 0.0
+    assert rel.near(*two_dots_apart(rel.NEAR_MAX_M + 0.01)) == 0.0
+    steps = [rel.near(*two_dots_apart(d)) for d in np.linspace(0, 1, 41)]
+    assert all(x >= y for x, y in zip(steps, steps[1:], strict=False))  # falls with distance
+
+
+def plate_and_cube(gap_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A cube (10 cm, a grid of points on its faces) whose bottom is `gap_m` above a 1 m plate
+    (a grid of points at height 0.75, on a post so that its bottom is the floor)."""
+    u = np.linspace(0.0, 1.0, 21)
+    plate = np.stack(np.meshgrid(u, u, [0.75]), axis=-1).reshape(-1, 3)
+    post = np.stack([np.full(20, 0.5), np.full(20, 0.5), np.linspace(0, 0.74, 20)], axis=1)
+    g = np.linspace(0.45, 0.55, 6)
+    h = np.linspace(0.0, 0.1, 6)
+    cube = np.concatenate(
+        [np.stack(np.meshgrid(g, g, [z]), -1).reshape(-1, 3) for z in (0.0, 0.1)]
+        + [np.stack(np.meshgrid([x], g, h), -1).reshape(-1, 3) for x in (0.45, 0.55)]
+    )
+    return cube + [0.0, 0.0, 0.75 + gap_m], np.concatenate([plate, post])
+
+
+def test_on_holds_within_a_few_centimetres_and_above_takes_over():
+    for gap in (0.0, 0.01, rel.ON_FULL_GAP_M - 1e-9):
+        thing, plate = plate_and_cube(gap)
+        assert rel.on(thing, plate) == pytest.approx(1.0) and rel.above(thing, plate) < 1e-6
+    for gap in (rel.ON_MAX_GAP_M, 0.3, rel.VERTICAL_FULL_GAP_M):
+        thing, plate = plate_and_cube(gap)
+        assert rel.on(thing, plate) == 0.0 and rel.above(thing, plate) == pytest.approx(1.0)
+    middle = 0.5 * (rel.ON_FULL_GAP_M + rel.ON_MAX_GAP_M)
+    thing, plate = plate_and_cube(middle)
+    assert rel.on(thing, plate) == pytest.approx(0.5)
+    assert rel.on(thing, plate) + rel.above(thing, plate) == pytest.approx(1.0)
+    thing, plate = plate_and_cube(rel.VERTICAL_MAX_GAP_M)
+    assert rel.above(thing, plate) == 0.0
+
+
+def test_a_thing_sunk_a_little_into_its_support_is_still_on_it():
+    thing, plate = plate_and_cube(-0.5 * rel.ON_SLACK_M)
+    assert rel.on(thing, plate) == 1.0
+
+
+def test_an_up_that_is_not_an_axis_counts_as_the_nearest_axis():
+    assert rel.on(MUG, DESK, up=[0.1, -0.05, 0.9]) == 1.0
+    np.testing.assert_array_equal(rel.snap_to_axis([0.2, -0.9, 0.1]), [0.0, -1.0, 0.0])
+
+
+def test_bodies_for_different_ups_do_not_mix():
+    with pytest.raises(ValueError):
+        rel.on(Body(MUG, Z_UP), Body(DESK, Y_UP))
+    with pytest.raises(ValueError):
+        Body(np.zeros((0, 3)))
+
+
+# --- symmetries (hypothesis) -------------------------------------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    arcs=st.lists(
+        st.tuples(st.floats(-np.pi, np.pi), st.floats(0.01, np.pi / 2)), min_size=1, max_size=12
+    ),
+    turn=st.floats(-np.pi, np.pi),
+)
+def test_the_turn_walled_in_is_the_union_of_the_arcs_whichever_way_it_is_turned(arcs, turn):
+    centres, half_widths = np.array(arcs).T
+    openings = rel._arc_openings(centres, half_widths)
+    samples = np.linspace(-np.pi, np.pi, 20_001)[:-1]
+    off = np.abs((samples[:, None] - centres + np.pi) % (2 * np.pi) - np.pi)
+    uncovered = 1.0 - (off <= half_widths).any(axis=1).mean()
+    assert openings.sum() / (2 * np.pi) == pytest.approx(uncovered, abs=2e-3)
+    for moved in ((centres + turn + np.pi) % (2 * np.pi) - np.pi, -centres):
+        again = rel._arc_openings(moved, half_widths)
+        assert again.sum() == pytest.approx(openings.sum(), abs=1e-9)
+        assert again.max() == pytest.approx(openings.max(), abs=1e-9)
+
+
+@st.composite
+def scenes(draw) -> list[np.ndarray]:
+    """2 to 5 things in a 2 m square: blocks on the floor, some stacked on another block,
+    some tables (a bag can land under one); continuous random geometry from a drawn seed."""
+    seed = draw(st.integers(0, 2**31 - 1))
+    rng = np.random.default_rng(seed)
+    things: list[np.ndarray] = []
+    tops: list[tuple[float, float, float, float, float]] = []  # x, y, w, d, top
+    for i in range(draw(st.integers(2, 5))):
+        kind = draw(st.sampled_from(["block", "stacked", "table"]))
+        w, d = rng.uniform(0.05, 0.9, 2)
+        x, y = rng.uniform(0, 2.0, 2)
+        if kind == "table":
+            h = rng.uniform(0.4, 0.9)
+            things.append(table(x, y, w + 0.3, d + 0.3, h, seed=seed + i))
+            tops.append((x, y, w + 0.3, d + 0.3, h))
+            continue
+        z = 0.0
+        if kind == "stacked" and tops:
+            bx, by, bw, bd, z = tops[int(rng.integers(len(tops)))]
+            w, d = min(w, bw), min(d, bd)
+            x, y = bx + rng.uniform(0, bw - w), by + rng.uniform(0, bd - d)
+        h = rng.uniform(0.03, 0.6)
+        things.append(block(x, y, z, w, d, h, int(rng.integers(20, 120)), seed=seed + i))
+        tops.append((x, y, w, d, z + h))
+    return things
+
+
+def all_degrees(things, up=Z_UP, viewer=None) -> dict:
+    bodies = [Body(t, up) for t in things]
+    out = {}
+    for i, a in enumerate(bodies):
+        for j, b in enumerate(bodies):
+            if i == j:
+                continue
+            for kind, relation in PAIRWISE.items():
+                out[kind, i, j] = relation(a, b)
+            if viewer is not None:
+                for kind in ("left_of", "right_of", "in_front_of", "behind"):
+                    out[kind, i, j] = getattr(rel, kind)(a, b, viewer)
+            for k in range(len(bodies)):
+                if k not in (i, j):
+                    out["between", i, j, k] = rel.between(bodies[k], a, b)
+    if viewer is not None:
+        out["closest"] = tuple(rel.closest_to(viewer, bodies))
+        out["farthest"] = tuple(rel.farthest_from(viewer, bodies))
+    for name in ("biggest", "smallest", "highest", "lowest"):
+        out[name] = tuple(getattr(rel, name)(bodies))
+    out["biggest_footprint"] = tuple(rel.biggest(bodies, by="footprint"))
+    return out
+
+
+def assert_same_degrees(expected: dict, actual: dict, tolerance: float = 1e-6) -> None:
+    assert expected.keys() == actual.keys()
+    for key, value in expected.items():
+        assert np.allclose(actual[key], value, rtol=0.0, atol=tolerance), key
+
+
+def rotation_about_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    things=scenes(),
+    angle=st.floats(-np.pi, np.pi),
+    shift=st.tuples(*[st.floats(-5.0, 5.0)] * 3),
+)
+def test_a_scene_turned_about_up_and_moved_has_the_same_relations(things, angle, shift):
+    viewer = np.array([1.0, -2.5, 1.6])
+    turn, shift = rotation_about_z(angle), np.array(shift)
+    moved = [t @ turn.T + shift for t in things]
+    assert_same_degrees(
+        all_degrees(things, viewer=viewer), all_degrees(moved, viewer=viewer @ turn.T + shift)
+    )
+
+
+@settings(max_examples=25, deadline=None)
+@given(things=scenes())
+def test_a_z_up_scene_seen_y_up_has_the_same_relations(things):
+    # (x, y, z) Z-up -> (x, z, -y) Y-up: the same room in an XR runtime's frame
+    to_y_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    viewer = np.array([1.0, -2.5, 1.6])
+    assert_same_degrees(
+        all_degrees(things, Z_UP, viewer),
+        all_degrees([t @ to_y_up.T for t in things], Y_UP, viewer @ to_y_up.T),
+    )
+
+
+@settings(max_examples=40, deadline=None)
+@given(things=scenes())
+def test_near_and_next_to_are_symmetric_and_the_rest_one_way(things):
+    degrees = all_degrees(things)
+    for i in range(len(things)):
+        for j in range(len(things)):
+            if i == j:
+                continue
+            assert degrees["near", i, j] == pytest.approx(degrees["near", j, i], abs=1e-12)
+            assert degrees["next_to", i, j] == pytest.approx(degrees["next_to", j, i], abs=1e-12)
+            assert degrees["below", i, j] == degrees["above", j, i]
+            for kind in ("on", "in", "under", "above"):
+                # A on B => B not on A (and the same for in, under, above)
+                assert min(degrees[kind, i, j], degrees[kind, j, i]) == 0.0, kind
+            assert all(0.0 <= degrees[kind, i, j] <= 1.0 for kind in PAIRWISE)
+
+
+@settings(max_examples=25, deadline=None)
+@given(things=scenes())
+def test_a_stacked_scene_has_its_stack(things):
+    # every "stacked" block rests on what it was put on, whatever the seed
+    bodies = [Body(t) for t in things]
+    for a in bodies:
+        for b in bodies:
+            if a is not b and rel.on(a, b) > 0.0:
+                assert rel.on(b, a) == 0.0 and rel.near(a, b) == 1.0
+
+
+# --- the index ---------------------------------------------------------------------------
+
+
+def full_recompute(geometry: dict[int, np.ndarray]) -> dict:
+    """Every kind for every ordered pair, from the bodies alone (no prefilter)."""
+    bodies = {i: Body(points) for i, points in geometry.items()}
+    out = {}
+    for i in bodies:
+        for j in bodies:
+            if i != j:
+                for kind, relation in PAIRWISE.items():
+                    out[kind, i, j] = relation(bodies[i], bodies[j])
+    return out
+
+
+def index_degrees(index: RelationIndex, ids) -> dict:
+    return {
+        (kind, i, j): index.degree(kind, i, j)
+        for i in ids
+        for j in ids
+        if i != j
+        for kind in PAIRWISE
+    }
+
+
+@st.composite
+def histories(draw) -> list[tuple[dict[int, np.ndarray], list[int]]]:
+    """A few deltas over ids 0..7: things put somewhere, moved, removed."""
+    seed = draw(st.integers(0, 2**31 - 1))
+    rng = np.random.default_rng(seed)
+    pool = draw(scenes()) + draw(scenes())
+    deltas = []
+    for _ in range(draw(st.integers(1, 5))):
+        upserts = {}
+        for object_id in draw(st.lists(st.integers(0, 7), max_size=4, unique=True)):
+            points = pool[int(rng.integers(len(pool)))]
+            upserts[object_id] = points + rng.uniform(-0.3, 0.3, 3) * [1, 1, 0]
+        removed = draw(st.lists(st.integers(0, 7), max_size=2, unique=True))
+        deltas.append((upserts, [r for r in removed if r not in upserts]))
+    return deltas
+
+
+@settings(max_examples=30, deadline=None)
+@given(history=histories(), read_between=st.booleans())
+def test_the_index_equals_a_full_recompute_after_any_deltas(history, read_between):
+    index = RelationIndex()
+    live: dict[int, np.ndarray] = {}
+    for upserts, removed in history:
+        index.update({i: ObjectGeometry(f"thing {i}", p) for i, p in upserts.items()}, removed)
+        live.update(upserts)
+        for r in removed:
+            live.pop(r, None)
+        if read_between:  # settled pairs must be recomputed as much as stale ones
+            index.settle()
+    assert sorted(index.ids()) == sorted(live)
+    expected = full_recompute(live)
+    assert index_degrees(index, live) == pytest.approx(expected, abs=1e-12)
+    fresh = RelationIndex()
+    fresh.update({i: ObjectGeometry(f"thing {i}", p) for i, p in live.items()})
+    assert index_degrees(fresh, live) == pytest.approx(expected, abs=1e-12)
+
+
+def room_index() -> RelationIndex:
+    index = RelationIndex()
+    index.update(
+        {
+            1: ObjectGeometry("desk", DESK),
+            2: ObjectGeometry("mug", MUG),
+            3: ObjectGeometry("bag", BAG_UNDER),
+            4: ObjectGeometry("lamp", LAMP_OVER),
+            5: ObjectGeometry("sofa", SOFA),
+            6: ObjectGeometry("chair", CHAIR_BY_SOFA),
+        }
+    )
+    return index
+
+
+def test_the_index_answers_what_is_on_under_and_next_to_what():
+    index = room_index()
+    assert index.degree("on", 2, 1) == 1.0 and index.degree("on", 1, 2) == 0.0
+    assert index.degree("under", 3, 1) == 1.0
+    assert index.degree("below", 1, 4) == index.degree("above", 4, 1) == 1.0
+    assert index.degree("next_to", 6, 5) == index.degree("next_to", 5, 6) == 1.0
+    assert index.degree("near", 2, 5) == 0.0  # out of reach: never computed
+    subjects, anchors, degrees = index.pairs("on", anchor=1)
+    assert subjects.tolist() == [2] and anchors.tolist() == [1] and degrees.tolist() == [1.0]
+    subjects, _, _ = index.pairs("under", anchor=1)
+    assert subjects.tolist() == [3]
+    subjects, anchors, _ = index.pairs("next_to")
+    assert sorted(zip(subjects.tolist(), anchors.tolist(), strict=True)) == [(5, 6), (6, 5)]
+    assert {(r.kind, r.subject, r.anchor) for r in index.relations_of(2)} >= {
+        ("on", 2, 1),
+        ("under", 1, 2),
+        ("near", 2, 1),
+    }
+    with pytest.raises(ValueError):
+        index.degree("beside", 1, 2)  # type: ignore[arg-type]
+
+
+def test_a_new_label_alone_recomputes_nothing_and_a_move_only_its_pairs():
+    index = room_index()
+    index.settle()
+    assert index.update({2: ObjectGeometry("cup", MUG.copy())}) == []
+    assert index.label(2) == "cup" and index.stale_pairs == 0
+    changed = index.update({6: ObjectGeometry("chair", CHAIR_BY_SOFA + [-2.0, 3.0, 0.0])})
+    assert changed == [6] and index.stale_pairs == 0  # moved out of everyone's reach
+    assert index.degree("next_to", 6, 5) == 0.0
+    index.update({6: ObjectGeometry("chair", CHAIR_BY_SOFA)})
+    assert index.stale_pairs == 1  # the sofa: the only pair within reach
+    assert index.degree("next_to", 6, 5) == 1.0 and index.stale_pairs == 0
+
+
+def test_removing_an_object_removes_its_relations():
+    index = room_index()
+    index.update({}, removed=[1])
+    assert 1 not in index and len(index) == 5
+    assert index.degree("on", 2, 1) == 0.0
+    assert all(1 not in (r.subject, r.anchor) for r in index.relations_of(2))
+    index.update({}, removed=[1, 99])  # already gone, never known: nothing to do
+
+
+def test_a_y_up_index_answers_like_a_z_up_one():
+    to_y_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    z_up, y_up = room_index(), RelationIndex(up=Y_UP)
+    y_up.update(
+        {
+            i: ObjectGeometry(z_up.label(i), p @ to_y_up.T)
+            for i, p in enumerate((DESK, MUG, BAG_UNDER, LAMP_OVER, SOFA, CHAIR_BY_SOFA), start=1)
+        }
+    )
+    ids = z_up.ids()
+    assert index_degrees(y_up, ids) == pytest.approx(index_degrees(z_up, ids), abs=1e-9)
