@@ -13,17 +13,19 @@ any rotation about up and any translation.
 - pairwise, held by `RelationIndex`: `on`, `in_`, `under`, `above`, `below`, `near`,
   `next_to` (`degree(kind, a, b)`: how much `a` stands in `kind` to the anchor `b`);
 - `between(a, b, c)`;
-- from a viewpoint (the asker's position): `left_of`, `right_of`, `in_front_of`, `behind`,
-  and over a candidate set `closest_to` / `farthest_from`;
-- superlatives over a candidate set: `biggest`, `smallest`, `highest`, `lowest`.
+- from a viewpoint (the asker's position): `left_of`, `right_of`, `in_front_of`, `behind`;
+- superlatives over a candidate set: `closest_to` / `farthest_from` (the asker or a thing),
+  `biggest`, `smallest`, `highest`, `lowest`.
 
-The functions take a `Body` (points prepared once for an up axis) or plain points.
+The functions take a `Body` (points prepared once for an up axis) or plain points; the
+kinds' names (as the query grammar names them) map to them in PAIRWISE_RELATIONS,
+VIEWPOINT_RELATIONS and SUPERLATIVES.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -239,7 +241,7 @@ class Body:
     local:    float [3, N >= 1]: the points in the up frame, one row per axis: the two world
               axes other than up (the view from above; a reflection for a negative up, which
               keeps distances and areas), then the height along up. The input's float type
-              (float32 from deltas).
+              (float32 from deltas; float16 from the wire becomes float32).
     lo, hi:   float64 [3] the box corners in that frame (the prefilter)
     bottom, top: heights of the lowest / highest points (HEIGHT_QUANTILE from each end)
     centroid: float64 [3] world frame; centre: float64 [3] the same in the up frame
@@ -266,6 +268,8 @@ class Body:
         points = np.asarray(points)
         if not np.issubdtype(points.dtype, np.floating):
             points = points.astype(np.float64)
+        elif points.dtype.itemsize < 4:  # float16 as on the wire: numpy computes it slowly
+            points = points.astype(np.float32)
         if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
             raise ValueError(f"a body needs points [N >= 1, 3], got shape {points.shape}")
         self.axis, self.sign = _axis_of(up)
@@ -694,28 +698,36 @@ def behind(a: BodyLike, b: BodyLike, viewer: np.ndarray, up=Z_UP) -> float:
     )
 
 
-def _distances_from(viewer: np.ndarray, bodies: list[Body]) -> np.ndarray:
-    """float64 [n]: from the viewer (world float [3]) to each body's closest point."""
+def _distances_from(reference: BodyLike, bodies: list[Body]) -> np.ndarray:
+    """float64 [n]: from the reference (a world point float [3], or a thing: a body or its
+    points [N, 3]) to each body's closest point."""
     out = np.empty(len(bodies))
+    if isinstance(reference, Body) or np.ndim(reference) == 2:
+        thing = _body(reference, bodies[0].up) if bodies else None
+        for i, body in enumerate(bodies):
+            out[i] = _closest_distance(thing, body, np.inf)  # type: ignore[arg-type]
+        return out
     for i, body in enumerate(bodies):
-        offsets = body.local - body.to_local(viewer)[:, None]
+        offsets = body.local - body.to_local(reference)[:, None]
         out[i] = np.sqrt(np.einsum("ij,ij->j", offsets, offsets).min())
     return out
 
 
-def closest_to(viewer: np.ndarray, candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
-    """float64 [n]: degree to which each candidate is the closest to `viewer` (float [3]) by
-    its closest point: 1 for the winner, exp(-extra distance / DISTANCE_SCALE_M) for others."""
-    distances = _distances_from(viewer, _bodies(*candidates, up=up))
+def closest_to(reference: BodyLike, candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
+    """float64 [n]: degree to which each candidate is the closest to `reference` (the asker's
+    position float [3], or a thing: a body or its points [N, 3], "the lamp closest to the
+    window") by closest points: 1 for the winner, exp(-extra distance / DISTANCE_SCALE_M)
+    for the others."""
+    distances = _distances_from(reference, _bodies(*candidates, up=up))
     if len(distances) == 0:
         return distances
     return np.exp(-(distances - distances.min()) / DISTANCE_SCALE_M)
 
 
-def farthest_from(viewer: np.ndarray, candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
-    """float64 [n]: degree to which each candidate is the farthest from `viewer` (mirror of
-    `closest_to`)."""
-    distances = _distances_from(viewer, _bodies(*candidates, up=up))
+def farthest_from(reference: BodyLike, candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
+    """float64 [n]: degree to which each candidate is the farthest from `reference` (mirror
+    of `closest_to`)."""
+    distances = _distances_from(reference, _bodies(*candidates, up=up))
     if len(distances) == 0:
         return distances
     return np.exp(-(distances.max() - distances) / DISTANCE_SCALE_M)
@@ -766,6 +778,35 @@ def lowest(candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
     if len(heights) == 0:
         return heights
     return np.exp(-(heights - heights.min()) / HEIGHT_SCALE_M)
+
+
+PAIRWISE_RELATIONS: dict[str, Callable[..., float]] = {
+    "on": on,
+    "in": in_,
+    "under": under,
+    "above": above,
+    "below": below,
+    "near": near,
+    "next_to": next_to,
+}
+"""Each pairwise kind's function (subject, anchor, up=...) -> degree."""
+VIEWPOINT_RELATIONS: dict[str, Callable[..., float]] = {
+    "left_of": left_of,
+    "right_of": right_of,
+    "in_front_of": in_front_of,
+    "behind": behind,
+}
+"""Each viewpoint kind's function (subject, anchor, viewer, up=...) -> degree."""
+SUPERLATIVES: dict[str, Callable[..., np.ndarray]] = {
+    "closest": closest_to,
+    "farthest": farthest_from,
+    "biggest": biggest,
+    "smallest": smallest,
+    "highest": highest,
+    "lowest": lowest,
+}
+"""Each superlative's function: (reference, candidates, up=...) for closest / farthest,
+(candidates, up=...) for the others -> degrees [n]."""
 
 
 # -- the index ----------------------------------------------------------------------------

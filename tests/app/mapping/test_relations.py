@@ -13,15 +13,7 @@ from app.mapping.relations import Body, ObjectGeometry, RelationIndex
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 Y_UP = np.array([0.0, 1.0, 0.0])
-PAIRWISE = {
-    "on": rel.on,
-    "in": rel.in_,
-    "under": rel.under,
-    "above": rel.above,
-    "below": rel.below,
-    "near": rel.near,
-    "next_to": rel.next_to,
-}
+PAIRWISE = rel.PAIRWISE_RELATIONS
 
 
 def faces(parts, count: int = 200, seed: int = 0) -> np.ndarray:
@@ -230,6 +222,9 @@ def test_closest_and_farthest_rank_the_candidates():
     assert np.argmax(closest) == 1 and closest[1] == 1.0
     assert np.argmax(farthest) == 0 and farthest[0] == 1.0
     assert np.all((closest > 0) & (closest <= 1)) and closest[2] > closest[0]
+    window = block(3.6, -0.2, 0.8, 0.05, 0.6, 1.2, 60)  # closest to a thing, by closest points
+    assert np.argmax(rel.closest_to(window, lamps)) == 0
+    assert np.argmax(rel.farthest_from(Body(window), lamps)) == 1
 
 
 def test_superlatives_give_the_winner_one_and_the_others_less():
@@ -297,9 +292,31 @@ def test_on_holds_within_a_few_centimetres_and_above_takes_over():
     assert rel.above(thing, plate) == 0.0
 
 
+def test_under_holds_up_to_its_full_clearance_and_is_gone_at_its_maximum():
+    cube, _ = plate_and_cube(-0.75)  # on the floor, its top at 0.1
+    u = np.linspace(0.0, 1.0, 21)
+    for clearance, degree in (
+        (0.05, 1.0),
+        (rel.VERTICAL_FULL_GAP_M, 1.0),
+        (0.5 * (rel.VERTICAL_FULL_GAP_M + rel.VERTICAL_MAX_GAP_M), 0.5),
+        (rel.VERTICAL_MAX_GAP_M, 0.0),
+    ):
+        roof = np.stack(np.meshgrid(u, u, [0.1 + clearance]), -1)  # over the cube's top
+        assert rel.under(cube, roof.reshape(-1, 3)) == pytest.approx(degree), clearance
+
+
 def test_a_thing_sunk_a_little_into_its_support_is_still_on_it():
     thing, plate = plate_and_cube(-0.5 * rel.ON_SLACK_M)
     assert rel.on(thing, plate) == 1.0
+
+
+def test_points_as_on_the_wire_give_the_same_answers():
+    # float16 on the wire, float32 in a delta's arrays: the same relations, to rounding
+    for dtype in (np.float16, np.float32):
+        assert rel.on(MUG.astype(dtype), DESK.astype(dtype)) == 1.0
+        assert rel.under(BAG_UNDER.astype(dtype), DESK.astype(dtype)) == 1.0
+        assert rel.next_to(CHAIR_BY_SOFA.astype(dtype), SOFA.astype(dtype)) == 1.0
+        assert rel.in_(BALL_IN_BOX.astype(dtype), BOX.astype(dtype)) == 1.0
 
 
 def test_an_up_that_is_not_an_axis_counts_as_the_nearest_axis():
@@ -375,16 +392,17 @@ def all_degrees(things, up=Z_UP, viewer=None) -> dict:
             for kind, relation in PAIRWISE.items():
                 out[kind, i, j] = relation(a, b)
             if viewer is not None:
-                for kind in ("left_of", "right_of", "in_front_of", "behind"):
-                    out[kind, i, j] = getattr(rel, kind)(a, b, viewer)
+                for kind, relation in rel.VIEWPOINT_RELATIONS.items():
+                    out[kind, i, j] = relation(a, b, viewer)
             for k in range(len(bodies)):
                 if k not in (i, j):
                     out["between", i, j, k] = rel.between(bodies[k], a, b)
     if viewer is not None:
         out["closest"] = tuple(rel.closest_to(viewer, bodies))
         out["farthest"] = tuple(rel.farthest_from(viewer, bodies))
+        out["closest to the first"] = tuple(rel.closest_to(bodies[0], bodies[1:]))
     for name in ("biggest", "smallest", "highest", "lowest"):
-        out[name] = tuple(getattr(rel, name)(bodies))
+        out[name] = tuple(rel.SUPERLATIVES[name](bodies))
     out["biggest_footprint"] = tuple(rel.biggest(bodies, by="footprint"))
     return out
 
