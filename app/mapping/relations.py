@@ -1044,7 +1044,9 @@ class RelationIndex:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(subjects int64 [m], anchors int64 [m], degrees float64 [m]): every pair standing
         in `kind` with degree above min_degree, only those with this subject and / or this
-        anchor when given. Symmetric kinds (near, next_to) list each pair both ways."""
+        anchor when given. Symmetric kinds (near, next_to) list each pair both ways. With a
+        subject or an anchor only that object's stale pairs are computed; without, all of the
+        map's (the first such read after building a large map computes every pair)."""
         if kind not in PAIRWISE_KINDS:
             raise ValueError(f"unknown relation {kind!r}; one of {PAIRWISE_KINDS}")
         if subject is not None:
