@@ -270,6 +270,27 @@ class PlaceRecord(Record):
     """That object's label."""
 
 
+class AnchorRecord(Record):
+    """An object a relational hit is measured against."""
+
+    id: int
+    label: str
+
+
+class HitRelation(Record):
+    """Why a relational hit answers ("the mug on the desk"): the relation it stands in."""
+
+    kind: str
+    """A relation (on, in, under, above, below, near, next_to, between, left_of, right_of,
+    in_front_of, behind) or a superlative (closest, farthest, biggest, smallest, highest,
+    lowest); the question's first relation when it names several."""
+    anchors: list[AnchorRecord]
+    """What it is measured against: two for `between`; none for the asker ("near me",
+    "closest to me") or a superlative within the category ("the biggest table")."""
+    degree: Annotated[Score, Field(ge=0.0, le=1.0)]
+    """How much the hit stands in `kind` to the anchors, in [0, 1] (0: not at all)."""
+
+
 class QueryHit(Record):
     """One result of a query: an object and how well it matches."""
 
@@ -292,6 +313,9 @@ class QueryHit(Record):
     place: PlaceRecord | None = None
     """Extension (living map): where it is (a removed hit: where it was last seen), told by
     the other objects of the present map; null when nothing large is near."""
+    relation: HitRelation | None = None
+    """Extension (relations): set when the question was answered as relational ("the mug
+    on the desk"); null for a plain answer."""
 
 
 class QueryResult(Record):

@@ -61,8 +61,12 @@ from app.mapping.engine import (
     limit_numpy_threads,
 )
 from app.mapping.export import imported_object, imported_stay
+from app.mapping.grammar import is_relational, parse
 from app.mapping.object import Change, MapObject
-from app.mapping.publish import update_message
+from app.mapping.places import infer_up
+from app.mapping.publish import client_points, update_message
+from app.mapping.relational import MapThing, RelationalHit, answer
+from app.mapping.relations import Z_UP, ObjectGeometry, RelationIndex
 from app.mapping.relevance import Rating, rate_hits
 from app.perception import DEFAULT_BACKEND, BackendOptions, UnknownBackendError, make_backend
 from app.perception.base import FrameDetections, PerceptionBackend
@@ -227,6 +231,15 @@ class _Pending:
     shard failure)."""
 
 
+@dataclass
+class _Relations:
+    """A session's relation index and the object versions it holds."""
+
+    index: RelationIndex
+    versions: dict[int, int]
+    """id -> the version of the object whose points the index holds."""
+
+
 class _Mapped(NamedTuple):
     ack: Ack
     keyframe: int | None
@@ -257,6 +270,9 @@ class Session:
     """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
     warnings: list[str] = field(default_factory=list)
     """Problems worth a user's attention, each said once (in the log and in the stats)."""
+    _relations: _Relations | None = None
+    """The relation index of the confirmed objects, made by the first relational query."""
+    _relations_lock: threading.Lock = field(default_factory=threading.Lock)
     users: int = 0
     """Sockets and requests using the session now (counted by `Residency`)."""
     last_used: float = field(default_factory=time.monotonic)
@@ -369,6 +385,53 @@ class Session:
             hits = [*hits, *(QueryHit(o, float(s)) for o, s in zip(removed, scores, strict=True))]
             hits = sorted(hits, key=lambda h: -h.score)[:k]
         return hits, rate_hits(self.engine.encoder, embedding, [h.object.label for h in hits])
+
+    def relational_query(
+        self, text: str, k: int
+    ) -> tuple[list[RelationalHit], dict[int, MapObject]] | None:
+        """The top-k hits of a question about how things stand ("the mug on the desk",
+        app.mapping.relational) and the objects they name by id; None for a question to
+        answer as plain (`rated_query`). Up is inferred from the newest device pose (Z
+        without one); the asker stands at that pose's camera."""
+        reading = parse(text)
+        if not is_relational(reading):
+            return None
+        with self._map_lock:
+            objects = [(o, o.version) for o in self.engine.confirmed_objects()]
+            pose = self.engine.last_pose
+        up = Z_UP if pose is None else infer_up(pose)
+        viewer = None if pose is None else np.asarray(pose, np.float64)[:3, 3]
+        things = [MapThing(o.id, o.label, o.embedding) for o, _ in objects]
+        with self._relations_lock:  # the index computes pairs as it is read
+            index = self._relation_index(objects, up)
+            hits = answer(reading, things, index, self.engine.encoder, viewer, k)
+        if hits is None:
+            return None
+        return hits, {o.id: o for o, _ in objects}
+
+    def _relation_index(
+        self, objects: list[tuple[MapObject, int]], up: np.ndarray
+    ) -> RelationIndex:
+        """Under `_relations_lock`: the index brought up to the confirmed objects (id,
+        version), each by its client-capped points (what a device holds). Each query pays a
+        pass over the ids; only objects whose version changed get new bodies, and only their
+        pairs are recomputed, when read. A new up axis starts a new index."""
+        held = self._relations
+        if held is None or not np.array_equal(held.index.up, up):
+            held = self._relations = _Relations(RelationIndex(up), {})
+        max_points = self.knobs.max_object_points_client
+        upserts = {
+            o.id: ObjectGeometry(o.label, client_points(o, max_points))
+            for o, version in objects
+            if held.versions.get(o.id) != version
+        }
+        present = {o.id for o, _ in objects}
+        removed = [i for i in held.versions if i not in present]
+        held.index.update(upserts, removed)
+        for i in removed:
+            del held.versions[i]
+        held.versions.update({o.id: version for o, version in objects if o.id in upserts})
+        return held.index
 
     def build_delta(self, since: int | None) -> dict:
         """The update message for a subscriber whose last applied seq is `since`."""

@@ -20,6 +20,8 @@ from app.mapping.export import export_change, export_json_chunks, exported_stay,
 from app.mapping.object import Change, MapObject
 from app.mapping.places import Z_UP, describe_places, infer_up
 from app.mapping.publish import client_points
+from app.mapping.relational import RelationalHit
+from app.mapping.relational import is_match as is_relational_match
 from app.perception import UnknownBackendError
 from app.protocol.rest import MapExport
 from app.server.auth import (
@@ -341,6 +343,14 @@ def query(
         raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
     t0 = time.perf_counter()
     with session_in_use(request, sid) as session:
+        # A question about how things stand is answered from the relation index; a plain
+        # one (or one whose anchors the map lacks) as always, as is any with include=removed.
+        related = session.relational_query(text, k) if include is None else None
+        if related is not None:
+            result = _relational_result(session, text, *related, points)
+            result.latency_ms = (time.perf_counter() - t0) * 1e3
+            manager(request).metrics.query_latency.observe(result.latency_ms / 1e3)
+            return result
         removed = manager(request).removed_objects(session) if include == "removed" else None
         hits, rating = session.rated_query(text, k, removed)
         now_t = session.engine.last_t
@@ -365,6 +375,51 @@ def query(
     manager(request).metrics.query_latency.observe(latency_ms / 1e3)
     return protocol.QueryResult(
         text=text, match=rating.match, results=results, latency_ms=latency_ms, now_t=now_t
+    )
+
+
+def _relational_result(
+    session: Session,
+    text: str,
+    hits: list[RelationalHit],
+    objects: dict[int, MapObject],
+    points: bool,
+) -> protocol.QueryResult:
+    """A relational answer: each hit with its relation; `match` when the best hit's score
+    (target relevance x degrees x anchor relevances) reaches relational.MATCH_MIN_SCORE.
+    `score` is the target phrase's raw cosine."""
+    found = [objects[h.id] for h in hits]
+    places = _places_of(session, [o.centroid for o in found], [o.id for o in found])
+    max_points = session.knobs.max_object_points_client
+    results = [
+        protocol.QueryHit(
+            id=obj.id,
+            label=obj.label,
+            score=hit.cosine,
+            relevance=hit.relevance,
+            bbox=obj.bbox,
+            centroid=obj.centroid,
+            points=client_points(obj, max_points) if points else None,
+            state=obj.state,
+            last_seen_t=obj.last_seen_t,
+            place=place,
+            relation=protocol.rest.HitRelation(
+                kind=hit.relation.kind,
+                anchors=[
+                    protocol.rest.AnchorRecord(id=i, label=label)
+                    for i, label in hit.relation.anchors
+                ],
+                degree=hit.relation.degree,
+            ),
+        )
+        for hit, obj, place in zip(hits, found, places, strict=True)
+    ]
+    return protocol.QueryResult(
+        text=text,
+        match=is_relational_match(hits),
+        results=results,
+        latency_ms=0.0,
+        now_t=session.engine.last_t,
     )
 
 

@@ -1,0 +1,75 @@
+"""Relational answers from a map of sampled-point boxes, with the real text encoder: the right
+copy of a duplicated category, no match when nothing satisfies the relation, plain questions
+left plain (issue 27)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from relation_scene import SCENE
+
+from app.mapping.grammar import parse
+from app.mapping.relational import MapThing, answer, is_match
+from app.mapping.relations import ObjectGeometry, RelationIndex
+
+Z_UP = np.array([0.0, 0.0, 1.0])
+
+
+@pytest.fixture(scope="module")
+def scene(encoder):
+    labels = sorted({label for label, _ in SCENE.values()})
+    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
+    things = [MapThing(i, label, embedding[label]) for i, (label, _) in SCENE.items()]
+    index = RelationIndex(Z_UP)
+    index.update({i: ObjectGeometry(label, pts) for i, (label, pts) in SCENE.items()})
+    return things, index, encoder
+
+
+def ask(scene, text, viewer=None, k=5):
+    things, index, encoder = scene
+    return answer(parse(text), things, index, encoder, viewer=viewer, k=k)
+
+
+@pytest.mark.parametrize(
+    ("text", "expected", "kind", "anchor"),
+    [
+        ("the mug on the desk", 10, "on", 1),
+        ("the mug on the shelf", 11, "on", 2),
+        ("mug sitting on the table", 12, "on", 3),
+        ("which chair is next to the sofa", 21, "next_to", 4),
+        ("what is under the table", 30, "under", 3),
+    ],
+)
+def test_a_relation_picks_the_copy_that_stands_in_it(scene, text, expected, kind, anchor):
+    hits = ask(scene, text)
+    assert hits is not None
+    best = hits[0]
+    assert best.id == expected, [(h.id, h.label, round(h.score, 3)) for h in hits]
+    assert best.relation.kind == kind
+    assert best.relation.anchors == [(anchor, SCENE[anchor][0])]
+    assert best.relation.degree > 0.5
+    assert is_match(hits)
+
+
+def test_a_relation_nothing_satisfies_answers_no_match(scene):
+    hits = ask(scene, "the mug under the sofa")
+    assert hits is not None and hits[0].label == "mug"
+    assert hits[0].relation.degree == 0.0
+    assert not is_match(hits)
+
+
+@pytest.mark.parametrize("text", ["where are my keys", "the red mug", "keys on a ring"])
+def test_a_plain_question_or_an_anchor_not_on_the_map_is_left_to_the_plain_ranking(scene, text):
+    assert ask(scene, text) is None
+
+
+def test_the_superlative_ranks_within_the_category(scene):
+    hits = ask(scene, "the highest mug")
+    assert hits is not None and hits[0].id == 11 and hits[0].relation.kind == "highest"
+    assert {h.label for h in hits[:3]} == {"mug"}
+
+
+def test_closest_to_me_needs_the_askers_position(scene):
+    assert ask(scene, "the mug closest to me") is None
+    hits = ask(scene, "the mug closest to me", viewer=np.array([1.0, 4.5, 1.6]))
+    assert hits is not None and hits[0].id == 12 and is_match(hits)

@@ -1,0 +1,66 @@
+"""A room of sampled-point boxes with duplicate categories in distinct relations (three mugs
+on a desk, a shelf and a table; a chair at the desk and one next to the sofa; a bag under
+the table): Z-up, metres. For the relational query tests (issue 27)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def faces(parts, count: int = 200, seed: int = 0) -> np.ndarray:
+    """float64 [count, 3]: points on the faces of boxes ((x0, y0, z0), (x1, y1, z1))."""
+    rng = np.random.default_rng(seed)
+    lo = np.array([p[0] for p in parts], np.float64)
+    hi = np.array([p[1] for p in parts], np.float64)
+    size = np.maximum(hi - lo, 1e-3)
+    areas = np.stack([size[:, 1] * size[:, 2], size[:, 0] * size[:, 2], size[:, 0] * size[:, 1]])
+    weights = np.repeat(areas.T, 2, axis=1).ravel()
+    pick = rng.choice(len(weights), count, p=weights / weights.sum())
+    box, axis, side = pick // 6, (pick % 6) // 2, pick % 2
+    points = lo[box] + rng.uniform(0, 1, (count, 3)) * size[box]
+    points[np.arange(count), axis] = np.where(side == 0, lo[box, axis], hi[box, axis])
+    return points
+
+
+def block(x, y, z, w, d, h, seed: int = 0) -> np.ndarray:
+    return faces([((x, y, z), (x + w, y + d, z + h))], 150, seed)
+
+
+def table(x, y, w=1.6, d=0.9, h=0.75, seed: int = 0) -> np.ndarray:
+    """A top on four legs: the space under it is empty."""
+    leg = 0.05
+    parts = [((x, y, h - 0.04), (x + w, y + d, h))]
+    parts += [
+        ((lx, ly, 0.0), (lx + leg, ly + leg, h - 0.04))
+        for lx in (x, x + w - leg)
+        for ly in (y, y + d - leg)
+    ]
+    return faces(parts, 300, seed)
+
+
+def chair(x, y, seed: int = 0) -> np.ndarray:
+    parts = [
+        ((x, y, 0.42), (x + 0.45, y + 0.45, 0.46)),
+        ((x, y + 0.41, 0.46), (x + 0.45, y + 0.45, 0.9)),
+    ]
+    parts += [
+        ((x + dx, y + dy, 0.0), (x + dx + 0.04, y + dy + 0.04, 0.42))
+        for dx in (0, 0.41)
+        for dy in (0, 0.41)
+    ]
+    return faces(parts, 200, seed)
+
+
+# id -> (label, points): Z-up, metres
+SCENE = {
+    1: ("desk", table(0.0, 0.0, w=1.2, d=0.6, seed=1)),
+    2: ("shelf", block(3.0, 0.0, 0.0, 0.8, 0.3, 1.2, seed=2)),
+    3: ("table", table(0.0, 3.0, seed=3)),
+    4: ("sofa", block(5.0, 3.0, 0.0, 2.0, 0.9, 0.8, seed=4)),
+    10: ("mug", block(0.5, 0.2, 0.75, 0.08, 0.08, 0.1, seed=10)),  # on the desk
+    11: ("mug", block(3.3, 0.1, 1.2, 0.08, 0.08, 0.1, seed=11)),  # on the shelf
+    12: ("mug", block(1.0, 3.4, 0.75, 0.08, 0.08, 0.1, seed=12)),  # on the table
+    20: ("chair", chair(0.3, -0.65, seed=20)),  # at the desk
+    21: ("chair", chair(4.4, 3.2, seed=21)),  # next to the sofa
+    30: ("bag", block(0.5, 3.2, 0.0, 0.4, 0.3, 0.3, seed=30)),  # under the table
+}
