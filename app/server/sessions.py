@@ -387,12 +387,13 @@ class Session:
         return hits, rate_hits(self.engine.encoder, embedding, [h.object.label for h in hits])
 
     def relational_query(
-        self, text: str, k: int
+        self, text: str, k: int, asker: np.ndarray | None = None
     ) -> tuple[list[RelationalHit], dict[int, MapObject]] | None:
         """The top-k hits of a question about how things stand ("the mug on the desk",
         app.mapping.relational) and the objects they name by id; None for a question to
         answer as plain (`rated_query`). Up is inferred from the newest device pose (Z
-        without one); the asker stands at that pose's camera."""
+        without one); the asker stands at `asker` (world metres), else at that pose's
+        camera."""
         reading = parse(text)
         if not is_relational(reading):
             return None
@@ -400,7 +401,7 @@ class Session:
             objects = [(o, o.version) for o in self.engine.confirmed_objects()]
             pose = self.engine.last_pose
         up = Z_UP if pose is None else infer_up(pose)
-        viewer = None if pose is None else np.asarray(pose, np.float64)[:3, 3]
+        viewer = asker if asker is not None or pose is None else np.asarray(pose)[:3, 3]
         things = [MapThing(o.id, o.label, o.embedding) for o, _ in objects]
         with self._relations_lock:  # the index computes pairs as it is read
             index = self._relation_index(objects, up)

@@ -322,6 +322,10 @@ def list_changes(
     return protocol.ChangeList(changes=records, now_t=now_t)
 
 
+MAX_FROM_CHARS = 100
+"""Longest `from` a query may carry (three numbers)."""
+
+
 @router.get(
     "/sessions/{sid}/query",
     response_model=protocol.QueryResult,
@@ -337,15 +341,24 @@ def query(
     k: int = Query(5, ge=1, description="how many results (at most the server's max_query_k)"),
     points: bool = Query(True, description="include each result's points"),
     include: Literal["removed"] | None = Query(None, description=INCLUDE_DOC),
+    from_: str | None = Query(
+        None,
+        alias="from",
+        max_length=MAX_FROM_CHARS,
+        description="where the asker stands, 'x,y,z' in world metres, for questions seen "
+        "from the asker ('the lamp closest to me', 'the chair on the left of the sofa'); "
+        "default: the camera of the session's newest frame",
+    ),
 ) -> protocol.QueryResult:
     max_k = manager(request).settings.max_query_k
     if k > max_k:
         raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
+    asker = None if from_ is None else _position("from", from_)
     t0 = time.perf_counter()
     with session_in_use(request, sid) as session:
         # A question about how things stand is answered from the relation index; a plain
         # one (or one whose anchors the map lacks) as always, as is any with include=removed.
-        related = session.relational_query(text, k) if include is None else None
+        related = session.relational_query(text, k, asker) if include is None else None
         if related is not None:
             result = _relational_result(session, text, *related, points)
             result.latency_ms = (time.perf_counter() - t0) * 1e3
@@ -376,6 +389,21 @@ def query(
     return protocol.QueryResult(
         text=text, match=rating.match, results=results, latency_ms=latency_ms, now_t=now_t
     )
+
+
+def _position(name: str, value: str) -> np.ndarray:
+    """'x,y,z' as a float64 [3] point; 422 naming `name` unless it is three finite numbers
+    within MAX_WORLD_M of the origin."""
+    parts = value.split(",")
+    try:
+        point = np.array([float(p) for p in parts], np.float64)
+    except ValueError:
+        point = None
+    if point is None or point.shape != (3,) or not np.isfinite(point).all():
+        raise HTTPException(422, f"{name}: give three numbers x,y,z in metres, got {value!r}")
+    if np.abs(point).max() > MAX_WORLD_M:
+        raise HTTPException(422, f"{name}: over {MAX_WORLD_M:g} m from the origin")
+    return point
 
 
 def _relational_result(

@@ -87,3 +87,22 @@ def test_plain_questions_are_answered_as_before(http, sid, text):
     before = ask(http, sid, text, include="removed")
     assert all(h.relation is None for h in result.results)
     assert result.model_dump(exclude={"latency_ms"}) == before.model_dump(exclude={"latency_ms"})
+
+
+def test_the_asker_may_say_where_they_stand(http, sid):
+    """`from=x,y,z` places the asker ("closest to me"); without it (this imported map has no
+    pose) the question is answered as a plain one."""
+    for where, expected in [("3.3,0.1,1.5", 11), ("1.0,3.4,1.5", 12), ("0.5,0.2,1.5", 10)]:
+        result = ask(http, sid, "the mug closest to me", **{"from": where})
+        assert result.results[0].id == expected, (where, [h.id for h in result.results])
+        assert result.results[0].relation is not None
+    assert all(h.relation is None for h in ask(http, sid, "the mug closest to me").results)
+
+
+@pytest.mark.parametrize("where", ["1,2", "a,b,c", "nan,0,0", "1,2,3,4", "1e9,0,0", "", "9" * 101])
+def test_a_bad_from_gets_422_naming_it(http, sid, where):
+    reply = http.get(
+        f"/v1/sessions/{sid}/query", params={"text": "the mug closest to me", "from": where}
+    )
+    assert reply.status_code == 422, reply.text
+    assert "from" in reply.json()["detail"]
