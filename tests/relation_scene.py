@@ -1,6 +1,7 @@
 """A room of sampled-point boxes with duplicate categories in distinct relations (three mugs
 on a desk, a shelf and a table; a chair at the desk and one next to the sofa; a bag under
-the table): Z-up, metres. For the relational query tests (issue 27)."""
+the table): Z-up, metres. For the relational query tests (issue 27); its shapes (`faces`,
+`block`, `table`, `chair`) serve the relation tests too."""
 
 from __future__ import annotations
 
@@ -22,11 +23,11 @@ def faces(parts, count: int = 200, seed: int = 0) -> np.ndarray:
     return points
 
 
-def block(x, y, z, w, d, h, seed: int = 0) -> np.ndarray:
-    return faces([((x, y, z), (x + w, y + d, z + h))], 150, seed)
+def block(x, y, z, w, d, h, seed: int = 0, count: int = 150) -> np.ndarray:
+    return faces([((x, y, z), (x + w, y + d, z + h))], count, seed)
 
 
-def table(x, y, w=1.6, d=0.9, h=0.75, seed: int = 0) -> np.ndarray:
+def table(x, y, w=1.6, d=0.9, h=0.75, seed: int = 0, count: int = 300) -> np.ndarray:
     """A top on four legs: the space under it is empty."""
     leg = 0.05
     parts = [((x, y, h - 0.04), (x + w, y + d, h))]
@@ -35,7 +36,7 @@ def table(x, y, w=1.6, d=0.9, h=0.75, seed: int = 0) -> np.ndarray:
         for lx in (x, x + w - leg)
         for ly in (y, y + d - leg)
     ]
-    return faces(parts, 300, seed)
+    return faces(parts, count, seed)
 
 
 def chair(x, y, seed: int = 0) -> np.ndarray:

@@ -33,10 +33,9 @@ def run(args: argparse.Namespace) -> int:
     from uvicorn import Server
 
     from app.cli.ports import check_ports
-    from app.cli.serve import settings_from_args
+    from app.cli.serve import settings_from_args, store_reachable
     from app.cluster.gateway import create_gateway_app
     from app.server.runner import uvicorn_config
-    from app.store import StoreUnavailableError, open_store
 
     settings = settings_from_args(args)
     if not settings.store_url.startswith(("postgresql:", "postgres:")):
@@ -51,10 +50,7 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(levelname)s %(name)s: %(message)s"
     )
-    try:
-        open_store(settings.store_url).close()
-    except StoreUnavailableError as exc:
-        print(f"semanticxr gateway: --store: {exc}", file=sys.stderr)
+    if not store_reachable("gateway", settings):
         return 2
     print(f"SemanticXR gateway on http://{settings.host}:{settings.port}")
     Server(uvicorn_config(create_gateway_app(settings), settings)).run()

@@ -96,12 +96,8 @@ def run_cluster(settings: ServerSettings) -> int:
     from app.cluster.serve_models import ModelsDeploymentError, start_models
     from app.cluster.shards import ClusterError, connect, start_shards
     from app.server.runner import uvicorn_config
-    from app.store import StoreUnavailableError, open_store
 
-    try:  # a wrong --store fails here, before any shard starts
-        open_store(settings.store_url).close()
-    except StoreUnavailableError as exc:
-        print(f"semanticxr serve: --store: {exc}", file=sys.stderr)
+    if not store_reachable("serve", settings):  # before any shard starts
         return 2
     try:
         connect(settings.cluster)
@@ -117,3 +113,18 @@ def run_cluster(settings: ServerSettings) -> int:
     )
     Server(uvicorn_config(create_gateway_app(settings), settings)).run()
     return 0
+
+
+def store_reachable(command: str, settings: ServerSettings) -> bool:
+    """Whether the store opens; else one line naming --store on stderr (the password
+    hidden: the store's errors show its URL redacted)."""
+    import sys
+
+    from app.store import StoreUnavailableError, open_store
+
+    try:
+        open_store(settings.store_url).close()
+    except StoreUnavailableError as exc:
+        print(f"semanticxr {command}: --store: {exc}", file=sys.stderr)
+        return False
+    return True

@@ -287,7 +287,7 @@ class _SocketRelay:
     def headers(self) -> dict[str, str]:
         return {k: v for k, v in self.ws.headers.items() if k == "authorization"}
 
-    async def connect(self, first: bool) -> ClientConnection:
+    async def connect(self) -> ClientConnection:
         """A socket to the session's shard, routing again until one takes it (or the
         deadline passes: NoLiveShard / _Refused)."""
         give_up = time.monotonic() + self.deadline_s
@@ -338,7 +338,7 @@ class _SocketRelay:
 
     async def run(self) -> None:
         try:
-            self.upstream = await self.connect(first=True)
+            self.upstream = await self.connect()
         except (_Refused, NoLiveShard) as exc:
             await self.refuse(exc)
             return
@@ -383,7 +383,7 @@ class _SocketRelay:
             self.path,
         )
         try:
-            upstream = await self.connect(first=False)
+            upstream = await self.connect()
         except (_Refused, NoLiveShard) as exc:
             detail = exc.detail if isinstance(exc, _Refused) else str(exc)
             await self.close_client(CLOSE_TRY_LATER, f"no map shard took the session: {detail}")

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import relation_scene as scene
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from relation_scene import chair, faces
 
 from app.mapping import relations as rel
 from app.mapping.relations import Body, ObjectGeometry, RelationIndex
@@ -16,49 +18,13 @@ Y_UP = np.array([0.0, 1.0, 0.0])
 PAIRWISE = rel.PAIRWISE_RELATIONS
 
 
-def faces(parts, count: int = 200, seed: int = 0) -> np.ndarray:
-    """float64 [count, 3]: points on the faces of boxes ((x0, y0, z0), (x1, y1, z1)), spread
-    by face area (a thing seen all round, like a capped map object)."""
-    rng = np.random.default_rng(seed)
-    lo = np.array([p[0] for p in parts], np.float64)
-    hi = np.array([p[1] for p in parts], np.float64)
-    size = np.maximum(hi - lo, 1e-3)
-    areas = np.stack([size[:, 1] * size[:, 2], size[:, 0] * size[:, 2], size[:, 0] * size[:, 1]])
-    weights = np.repeat(areas.T, 2, axis=1).ravel()
-    pick = rng.choice(len(weights), count, p=weights / weights.sum())
-    box, axis, side = pick // 6, (pick % 6) // 2, pick % 2
-    points = lo[box] + rng.uniform(0, 1, (count, 3)) * size[box]
-    points[np.arange(count), axis] = np.where(side == 0, lo[box, axis], hi[box, axis])
-    return points
-
-
 def block(x, y, z, w, d, h, count: int = 120, seed: int = 0) -> np.ndarray:
-    return faces([((x, y, z), (x + w, y + d, z + h))], count, seed)
+    return scene.block(x, y, z, w, d, h, seed=seed, count=count)
 
 
 def table(x, y, w=1.6, d=0.9, h=0.75, seed: int = 0) -> np.ndarray:
     """A table top on four legs (the space under it is empty)."""
-    leg = 0.05
-    parts = [((x, y, h - 0.04), (x + w, y + d, h))]
-    parts += [
-        ((lx, ly, 0.0), (lx + leg, ly + leg, h - 0.04))
-        for lx in (x, x + w - leg)
-        for ly in (y, y + d - leg)
-    ]
-    return faces(parts, 240, seed)
-
-
-def chair(x, y, seed: int = 0) -> np.ndarray:
-    parts = [
-        ((x, y, 0.42), (x + 0.45, y + 0.45, 0.46)),
-        ((x, y + 0.41, 0.46), (x + 0.45, y + 0.45, 0.9)),
-    ]
-    parts += [
-        ((x + dx, y + dy, 0.0), (x + dx + 0.04, y + dy + 0.04, 0.42))
-        for dx in (0, 0.41)
-        for dy in (0, 0.41)
-    ]
-    return faces(parts, 200, seed)
+    return scene.table(x, y, w, d, h, seed=seed, count=240)
 
 
 def sofa(x, y, seed: int = 0) -> np.ndarray:
