@@ -85,8 +85,20 @@ class QueryRater:
     def rate(self, query_embedding: np.ndarray, labels: Sequence[str]) -> Rating:
         """query_embedding: float [dim] of the query text; labels: the hits' labels, best
         first. Relevance per hit and whether any matches."""
+        standing = self.standing(query_embedding, labels)
+        if standing is None:  # no labels, or every label alike: nothing stands out
+            return Rating([0.0] * len(labels), False)
+        relevance = [relevance_of(z, gap) for z, gap in standing]
+        return Rating(relevance, is_match(relevance))
+
+    def standing(
+        self, query_embedding: np.ndarray, labels: Sequence[str]
+    ) -> list[tuple[float, float]] | None:
+        """Per label, (z, gap) of the query's score against it, in standard deviations of
+        the query's scores over the vocabulary (module docstring); None for no labels or a
+        query that scores every label alike."""
         if not labels:
-            return Rating([], False)
+            return None
         query = np.asarray(query_embedding, np.float32)
         extra = [label for label in dict.fromkeys(labels) if label not in self.vocabulary]
         vocabulary_scores = self._vocabulary_embeddings @ query
@@ -94,17 +106,20 @@ class QueryRater:
         scores = np.concatenate([vocabulary_scores, extra_scores]).astype(np.float64)
         by_label = dict(zip(self.vocabulary + extra, scores.tolist(), strict=True))
         spread = float(scores.std())
-        if spread < 1e-6:  # every label alike: nothing stands out
-            return Rating([0.0] * len(labels), False)
+        if spread < 1e-6:
+            return None
         mean, best = float(scores.mean()), float(scores.max())
-        relevance = []
-        for label in labels:
-            z = (by_label[label] - mean) / spread
-            gap = (best - by_label[label]) / spread
-            stands_out = CONFIDENT + (z - MATCH_MIN_Z) / (2 * RAMP_Z)
-            is_best = CONFIDENT + (MATCH_MAX_GAP_Z - gap) / (2 * RAMP_GAP_Z)
-            relevance.append(round(float(np.clip(min(stands_out, is_best), 0.0, 1.0)), 5))
-        return Rating(relevance, is_match(relevance))
+        return [((by_label[x] - mean) / spread, (best - by_label[x]) / spread) for x in labels]
+
+
+def relevance_of(
+    z: float, gap: float, min_z: float = MATCH_MIN_Z, max_gap_z: float = MATCH_MAX_GAP_Z
+) -> float:
+    """A label's relevance in [0, 1] from its standing (`QueryRater.standing`): the smaller
+    of two ramps crossing CONFIDENT at min_z and max_gap_z."""
+    stands_out = CONFIDENT + (z - min_z) / (2 * RAMP_Z)
+    is_best = CONFIDENT + (max_gap_z - gap) / (2 * RAMP_GAP_Z)
+    return round(float(np.clip(min(stands_out, is_best), 0.0, 1.0)), 5)
 
 
 _raters: weakref.WeakKeyDictionary[TextEncoder, QueryRater] = weakref.WeakKeyDictionary()
