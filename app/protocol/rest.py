@@ -10,7 +10,7 @@ Geometry is rounded to 0.1 mm and scores to 5 decimals on the wire (JSON text is
 from __future__ import annotations
 
 import dataclasses
-from typing import Annotated, Any, Literal, TypeVar
+from typing import Annotated, Any, Literal, TypeVar, get_args
 
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model
@@ -23,6 +23,14 @@ MAX_QUERY_CHARS = 500
 """Longest query text."""
 MAX_NAME_CHARS = 200
 """Longest session name."""
+
+UpAxis = Literal["+x", "-x", "+y", "-y", "+z", "-z"]
+"""Which way is up in the world frame: a world axis and its sense ("+z": our synthetic world,
+"+y": XR runtimes)."""
+UP_AXES: tuple[str, ...] = get_args(UpAxis)
+UpSource = Literal["set", "inferred", "default"]
+"""Where a session's up comes from: set at creation, inferred from the device's poses, or
+the default (+z) while neither."""
 
 
 def _rounded_floats(values: Any) -> Any:
@@ -151,6 +159,9 @@ class CreateSession(Record):
     perception: str | None = Field(None, max_length=100)
     """Perception backend: detections or one the server loaded with --perception (default:
     the first of those)."""
+    up: UpAxis | None = None
+    """Extension: which world axis is up ("+x", "-x", "+y", "-y", "+z" or "-z"), for the
+    relations and places answers. Left out, the server infers it from the device's poses."""
 
 
 class SessionCreated(Record):
@@ -188,6 +199,12 @@ class SessionSummary(Record):
     """Whether the session's map is in memory now (else it loads on first use)."""
     last_used_at: float | None = None
     """Unix time of the session's last frame or use (what retention counts from)."""
+    up: UpAxis | None = None
+    """Extension: the world axis that is up, what relations and places are measured along
+    (None from a server that does not say)."""
+    up_source: UpSource | None = None
+    """Extension: "set" at creation, "inferred" from the device's poses, or "default" (+z)
+    until the poses say (None from a server that does not say)."""
 
 
 class LatencySummary(Record):
@@ -235,6 +252,12 @@ class SessionStats(Record):
     warnings: list[str] = Field(default_factory=list)
     """Extension: problems with what the session is fed, each once, with the fix (e.g.
     frames without detections on a backend that needs them)."""
+    up: UpAxis | None = None
+    """Extension: the world axis that is up, what relations and places are measured along
+    (None from a server that does not say)."""
+    up_source: UpSource | None = None
+    """Extension: "set" at creation, "inferred" from the device's poses, or "default" (+z)
+    until the poses say (None from a server that does not say)."""
 
 
 class ObjectRecord(Record):
@@ -375,6 +398,10 @@ Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
 """A JSON number that is neither NaN nor infinite."""
 
 
+def _none(value: object) -> bool:
+    return value is None
+
+
 class ExportedSession(Record):
     """The session an export was taken from (what an import creates)."""
 
@@ -387,14 +414,15 @@ class ExportedSession(Record):
     perception: str | None = Field(None, max_length=100)
     """Extension: the session's perception backend (an import falls back to the server's
     default when it is not loaded)."""
+    up: Annotated[UpAxis | None, Field(exclude_if=_none)] = None
+    """Extension: the session's up axis, when it was set or inferred (absent while the
+    session used the default); an import keeps it."""
+    up_source: Annotated[Literal["set", "inferred"] | None, Field(exclude_if=_none)] = None
+    """Extension: where `up` came from ("set" when absent); an import keeps it."""
 
 
 MAX_EXPORTED_STAYS = 32
 """Stays an exported object may hold: the map's MAX_STAYS (app.mapping.object)."""
-
-
-def _none(value: object) -> bool:
-    return value is None
 
 
 class ExportedStay(Record):

@@ -132,6 +132,11 @@ class SessionRecord:
     """Bumped at every claim; an owner's writes name the epoch its claim returned."""
     lease_until: float | None = None
     """Unix time (seconds) the owner's lease ends unless renewed; None without an owner."""
+    up: str | None = None
+    """The world axis that is up ("+x", "-x", "+y", "-y", "+z" or "-z"), set at creation or
+    inferred from the poses; None while neither (the default, +z, applies)."""
+    up_source: str | None = None
+    """With `up`: "set" (at creation) or "inferred" (from the poses); None without."""
 
     def __post_init__(self) -> None:
         if self.last_used_at is None:
@@ -298,6 +303,7 @@ class Store(abc.ABC):
         last_pose: np.ndarray | None = None,
         epoch: int | None = None,
         done: tuple[str, int, bytes] | None = None,
+        inferred_up: str | None = None,
     ) -> None:
         """Persist one keyframe's changes at once; returns once they survive a crash.
 
@@ -324,15 +330,18 @@ class Store(abc.ABC):
         done: (stream_id, seq, ack): the ack of the frame committed, remembered under its
                  (stream_id, seq) in the same transaction (`done_ack`; replacing an earlier one
                  under that key); the session keeps the newest DONE_WINDOW.
+        inferred_up: the up axis the session's poses settled ("+y", ...), kept on the
+                 session row with up_source "inferred" (the server gives it once, and only
+                 to a session whose up is not set).
         Raises ValueError (and changes nothing) on a seq older than the stored one, changes
         to objects or change entries without a newer seq, an unconfirmed object, an upsert
         that is not present or a retired object that is not removed or not in `removed`, an
         id not below `next_object_id`, more than MAX_STAYS stays, a time that is not finite,
         a change of an unknown kind, arrays that are not float32 points [N, 3] /
-        embedding [d] / per-label sums [d] of the object's labels / a pose of 16 values, or a
-        `done` that is not (str, int, bytes); KeyError on an unknown session; SessionFenced
-        on a stale epoch; StoreUnavailableError (and changes nothing) when the storage cannot
-        take it.
+        embedding [d] / per-label sums [d] of the object's labels / a pose of 16 values, a
+        `done` that is not (str, int, bytes), or an `inferred_up` that names no axis;
+        KeyError on an unknown session; SessionFenced on a stale epoch;
+        StoreUnavailableError (and changes nothing) when the storage cannot take it.
         """
 
     @abc.abstractmethod

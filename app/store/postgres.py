@@ -243,6 +243,16 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
         )
         """,
     ),
+    # 5 -> 6: the session's up axis ("+x" ... "-z"), set at creation or inferred from the
+    # poses, and where it came from ("set" or "inferred"); NULL while the default (+z)
+    # applies, as for every session from before it.
+    (
+        "ALTER TABLE sessions ADD COLUMN up text"
+        " CHECK (up IS NULL OR up IN ('+x', '-x', '+y', '-y', '+z', '-z'))",
+        "ALTER TABLE sessions ADD COLUMN up_source text"
+        " CHECK (up_source IS NULL OR up_source IN ('set', 'inferred'))",
+        "ALTER TABLE sessions ADD CHECK ((up IS NULL) = (up_source IS NULL))",
+    ),
 )
 """_MIGRATIONS[i] takes a store from schema version _FIRST_VERSION + i to the next one,
 in one transaction with the new version number."""
@@ -601,6 +611,7 @@ class PostgresStore(Store):
         last_pose: np.ndarray | None = None,
         epoch: int | None = None,
         done: tuple[str, int, bytes] | None = None,
+        inferred_up: str | None = None,
     ) -> None:
         """`Store.commit_keyframe`, in one transaction under the session row's lock (the epoch
         checked under it): returns once the server has committed it; faults raise
@@ -621,6 +632,7 @@ class PostgresStore(Store):
             last_pose,
             epoch,
             done,
+            inferred_up,
         )
         seq = keyframe.seq
 

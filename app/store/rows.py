@@ -11,6 +11,9 @@ reload).
 `prepare_keyframe` checks and encodes one `Store.commit_keyframe` call before its
 transaction opens; `KeyframeCommit.check_follows` is the part that needs the stored row.
 
+A session's up axis (schema 6) is its name, "+x" ... "-z" (`UP_AXES`), and where it came
+from, "set" or "inferred" (`UP_SOURCES`); both NULL while the default applies.
+
 Owners, remembered acks and the shard registry (schema 5) are the same statements in every
 store: they are written here once, with SQLite's `?` placeholders (`with_format_params`
 gives PostgreSQL's `%s`), with the decisions around them (`claimed_epoch`, `check_epoch`).
@@ -36,6 +39,7 @@ from app.mapping.object import (
     stays_from_bytes,
     stays_to_bytes,
 )
+from app.protocol.rest import UP_AXES
 from app.store.base import (
     CHANGE_KINDS,
     COUNTER_NAMES,
@@ -49,11 +53,13 @@ from app.store.base import (
 )
 
 FLOAT32_LE = np.dtype("<f4")
+UP_SOURCES = ("set", "inferred")
+"""Where a stored `up` came from (the default, +z, is stored as no up at all)."""
 
 SESSION_COLUMNS = (
     "session_id, name, mode, perception, knobs, token_hash, created_at, "
     "frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, last_pose, "
-    "sightings, owner, epoch, lease_until"
+    "sightings, owner, epoch, lease_until, up, up_source"
 )
 """The columns of `session_to_row` / `session_from_row`, in order."""
 N_SESSION_COLUMNS = len(SESSION_COLUMNS.split(","))
@@ -131,7 +137,7 @@ class KeyframeCommit:
     revived_ids: list[int]
     """Ids whose earlier `removed` changes go (before this commit's changes are written)."""
     assignments: dict[str, Any]
-    """Session columns to set: counters, last use, last t and pose."""
+    """Session columns to set: counters, last use, last t and pose, an inferred up."""
     epoch: int | None
     """The epoch the commit applies at (None: at any)."""
     done: tuple[str, int, bytes] | None
@@ -199,6 +205,7 @@ def prepare_keyframe(
     last_pose: Any,
     epoch: int | None = None,
     done: tuple[str, int, bytes] | None = None,
+    inferred_up: str | None = None,
 ) -> KeyframeCommit:
     """`Store.commit_keyframe`'s arguments checked and encoded; ValueError as it documents,
     except the checks against the stored row (`KeyframeCommit.check_follows`) and the
@@ -234,6 +241,8 @@ def prepare_keyframe(
         assignments["last_t"] = checked_time("last_t", last_t)
     if last_pose is not None:
         assignments["last_pose"] = pose_to_blob(last_pose)
+    if inferred_up is not None:
+        assignments["up"], assignments["up_source"] = checked_up(inferred_up, "inferred")
     return KeyframeCommit(
         session_id=session_id,
         seq=seq,
@@ -366,7 +375,9 @@ def change_filter(
 # ---------------------------------------------------------------------- rows <-> objects
 def session_to_row(rec: SessionRecord) -> tuple:
     """The columns of SESSION_COLUMNS for a new session; ValueError on a last_t that is not
-    finite or a pose that is not 16 finite values."""
+    finite, a pose that is not 16 finite values or an up that is not an axis set or
+    inferred."""
+    up, up_source = (None, None) if rec.up is None else checked_up(rec.up, rec.up_source)
     return (
         rec.session_id,
         rec.name,
@@ -387,7 +398,19 @@ def session_to_row(rec: SessionRecord) -> tuple:
         rec.owner,
         int(rec.epoch),
         checked_time("lease_until", rec.lease_until),
+        up,
+        up_source,
     )
+
+
+def checked_up(up: str, source: str | None) -> tuple[str, str]:
+    """(up, source) when `up` names an axis (UP_AXES) and `source` is one of UP_SOURCES;
+    ValueError otherwise."""
+    if up not in UP_AXES:
+        raise ValueError(f"up must be one of {', '.join(UP_AXES)}; got {up!r}")
+    if source not in UP_SOURCES:
+        raise ValueError(f"up_source must be one of {', '.join(UP_SOURCES)}; got {source!r}")
+    return up, source
 
 
 def to_json(value: Any) -> str:
@@ -427,7 +450,7 @@ def session_from_row(row: tuple) -> SessionRecord:
     frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, pose, *rest = (
         counters
     )
-    sightings, owner, epoch, lease_until = rest
+    sightings, owner, epoch, lease_until, up, up_source = rest
     return SessionRecord(
         session_id=sid,
         name=name,
@@ -448,6 +471,8 @@ def session_from_row(row: tuple) -> SessionRecord:
         owner=owner,
         epoch=epoch,
         lease_until=lease_until,
+        up=up,
+        up_source=up_source,
     )
 
 

@@ -237,6 +237,15 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
         )
         """,
     ),
+    # 5 -> 6: the session's up axis ("+x" ... "-z"), set at creation or inferred from the
+    # poses, and where it came from ("set" or "inferred"); NULL while the default (+z)
+    # applies, as for every session from before it.
+    (
+        "ALTER TABLE sessions ADD COLUMN up TEXT"
+        " CHECK (up IS NULL OR up IN ('+x', '-x', '+y', '-y', '+z', '-z'))",
+        "ALTER TABLE sessions ADD COLUMN up_source TEXT CHECK ((up IS NULL) = (up_source IS NULL)"
+        " AND (up_source IS NULL OR up_source IN ('set', 'inferred')))",
+    ),
 )
 """_MIGRATIONS[i] takes a store from schema version i + 1 to i + 2; a new store is created
 at version 1 (`_SCHEMA`) and migrated like any other, so there is one path to each version."""
@@ -557,6 +566,7 @@ class SqliteStore(Store):
         last_pose: np.ndarray | None = None,
         epoch: int | None = None,
         done: tuple[str, int, bytes] | None = None,
+        inferred_up: str | None = None,
     ) -> None:
         """`Store.commit_keyframe`, in one SQLite transaction (WAL, synchronous): returns
         once the changes survive kill -9; storage errors raise StoreUnavailableError."""
@@ -576,6 +586,7 @@ class SqliteStore(Store):
             last_pose,
             epoch,
             done,
+            inferred_up,
         )
         seq = keyframe.seq
 

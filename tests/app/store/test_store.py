@@ -391,8 +391,16 @@ def test_the_database_is_created_in_wal_mode_with_its_parent_dirs(tmp_path):
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
 
+def back_to_version_5(db: sqlite3.Connection) -> None:
+    """Undo migration 5 -> 6 (the session's up axis)."""
+    for column in ("up_source", "up"):  # up_source's check names up: it goes first
+        db.execute(f"ALTER TABLE sessions DROP COLUMN {column}")
+    db.execute("PRAGMA user_version = 5")
+
+
 def back_to_version_4(db: sqlite3.Connection) -> None:
-    """Undo migration 4 -> 5 (map shards) on a store holding no owners or acks."""
+    """Undo migrations 4 -> 5 (map shards) and after on a store holding no owners or acks."""
+    back_to_version_5(db)
     for table in ("done_acks", "shards"):
         db.execute(f"DROP TABLE {table}")
     db.execute("DROP INDEX sessions_by_owner")
@@ -431,7 +439,7 @@ def test_a_version_1_store_opens_with_its_sessions_on_the_detections_backend(tmp
     with SqliteStore(path) as store:
         assert [s.perception for s in store.list_sessions()] == ["detections", "models"]
     with sqlite3.connect(path) as db:
-        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 5
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 6
 
 
 def test_a_version_2_store_counts_its_sessions_as_used_at_the_upgrade(tmp_path):
