@@ -41,6 +41,11 @@ ANCHOR_CANDIDATES = 3
 """How many of an anchor phrase's best-rated objects a relation is weighed against."""
 ANCHOR_MIN_RELEVANCE = 0.1
 """Least relevance of an anchor candidate (below it an object is not what the phrase means)."""
+HEAD_NOUN_RELEVANCE = 0.75
+"""Least relevance of a label to a phrase with the same head noun: "table" names the dining
+table and the side table, "counter" the kitchen counter, "lamp" the floor lamp. The text
+encoder rates such a label low when the vocabulary holds the bare word ("table" beats "dining
+table" for the phrase "table"), yet in a question about a map the phrase means them."""
 MATCH_MIN_SCORE = 0.25
 """Least score (target relevance x degrees x anchor relevances) of a best hit that answers
 the question: `match` true. A mug fully on the desk scores ~1, a mug under no sofa 0."""
@@ -94,7 +99,10 @@ class _Grounding:
         self.embedding = encoder.encode_query(phrase).astype(np.float32)
         labels = list(dict.fromkeys(t.label for t in things))
         rating = rater_for(encoder).rate(self.embedding, labels)
-        by_label = dict(zip(labels, rating.relevance, strict=True))
+        by_label = {
+            label: max(rated, HEAD_NOUN_RELEVANCE) if same_head(phrase, label) else rated
+            for label, rated in zip(labels, rating.relevance, strict=True)
+        }
         self.relevance = np.array([by_label[t.label] for t in things], np.float64)
 
     def candidates(self) -> list[int]:
@@ -179,6 +187,34 @@ def answer(
         )
         for i in order[:k]
     ]
+
+
+_IRREGULAR_PLURALS = {
+    "shelves": "shelf", "knives": "knife", "people": "person", "boxes": "box", "glasses":
+    "glasses", "dishes": "dish", "benches": "bench", "couches": "couch", "watches": "watch",
+}  # fmt: skip
+
+
+def head_noun(phrase: str) -> str:
+    """The last word of a phrase, lower case, a plural's s dropped ("dining tables" ->
+    "table"; "glass" and "bus" keep theirs)."""
+    words = phrase.lower().split()
+    if not words:
+        return ""
+    word = words[-1]
+    if word in _IRREGULAR_PLURALS:
+        return _IRREGULAR_PLURALS[word]
+    if word.endswith("ies") and len(word) > 4:
+        return word[:-3] + "y"
+    if word.endswith("s") and not word.endswith(("ss", "us", "is")) and len(word) > 3:
+        return word[:-1]
+    return word
+
+
+def same_head(phrase: str, label: str) -> bool:
+    """Whether a phrase and a label end in the same noun ("the table" and "dining table")."""
+    head = head_noun(phrase)
+    return bool(head) and head == head_noun(label)
 
 
 def _question(reading: Reading) -> str:

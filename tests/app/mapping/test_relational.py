@@ -9,7 +9,7 @@ import pytest
 from relation_scene import SCENE
 
 from app.mapping.grammar import parse
-from app.mapping.relational import MapThing, answer, is_match
+from app.mapping.relational import MapThing, answer, head_noun, is_match, same_head
 from app.mapping.relations import ObjectGeometry, RelationIndex
 
 Z_UP = np.array([0.0, 0.0, 1.0])
@@ -73,3 +73,42 @@ def test_closest_to_me_needs_the_askers_position(scene):
     assert ask(scene, "the mug closest to me") is None
     hits = ask(scene, "the mug closest to me", viewer=np.array([1.0, 4.5, 1.6]))
     assert hits is not None and hits[0].id == 12 and is_match(hits)
+
+
+@pytest.mark.parametrize(
+    ("phrase", "head"),
+    [
+        ("dining table", "table"),
+        ("the tables", "table"),
+        ("shelves", "shelf"),
+        ("glass", "glass"),
+        ("boxes", "box"),
+        ("batteries", "battery"),
+        ("", ""),
+    ],
+)
+def test_head_noun_is_the_last_word_singular(phrase, head):
+    assert head_noun(phrase) == head
+
+
+def test_an_anchor_named_by_its_head_noun_grounds_to_the_longer_label(encoder):
+    """ "the table" means the map's dining table, "the counter" its kitchen counter, though
+    the encoder rates those labels low for the bare word."""
+    renamed = {3: "dining table", 2: "wall shelf"}
+    labels = sorted({renamed.get(i, label) for i, (label, _) in SCENE.items()})
+    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
+    things = [
+        MapThing(i, renamed.get(i, label), embedding[renamed.get(i, label)])
+        for i, (label, _) in SCENE.items()
+    ]
+    index = RelationIndex(Z_UP)
+    index.update({t.id: ObjectGeometry(t.label, SCENE[t.id][1]) for t in things})
+    for text, expected, anchor in [
+        ("the mug on the table", 12, 3),
+        ("the mug on the shelf", 11, 2),
+    ]:
+        hits = answer(parse(text), things, index, encoder)
+        assert hits is not None and hits[0].id == expected, text
+        assert hits[0].relation.anchors == [(anchor, renamed[anchor])]
+        assert is_match(hits)
+    assert same_head("the table", "dining table") and not same_head("table", "table lamp")
