@@ -11,14 +11,16 @@ happened and where a query's hit is, against the present map, when it answers.
 - **near**: else the nearest large object (box volume >= LARGE_VOLUME_M3 or a side >=
   LARGE_SIDE_M) within NEAR_MAX_M of the point (distance to its box).
 
-"Up" is one of the world axes (our synthetic world is Z-up, XR runtimes are Y-up):
-`infer_up` takes it from camera poses.
+"Up" is one of the world axes (our synthetic world is Z-up, XR runtimes are Y-up), named
+"+x", "-x", "+y", "-y", "+z" or "-z" (`up_vector`, `up_name`). A session may set it; else
+`UpInference` takes it from its keyframes' camera poses once they agree (`infer_up`: at once,
+from the poses given).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -91,15 +93,98 @@ class _LabelsOf(Sequence[str]):
         return self._objects[i].label
 
 
+def camera_up(pose: np.ndarray) -> np.ndarray:
+    """The camera's up in the world, float64 [3] (or [n, 3] for [n, 4, 4] poses): -y of the
+    OpenCV camera (y points down), the negated second column of the camera-to-world pose."""
+    return -np.asarray(pose, np.float64)[..., :3, 1]
+
+
 def infer_up(pose: np.ndarray) -> np.ndarray:
     """The world axis (±x, ±y or ±z, float64 [3]) nearest to the camera's up.
 
     pose: camera-to-world float [4, 4] (OpenCV camera: y points down, so up is -y), or
     [n, 4, 4] for the mean of many cameras' up. One camera pitched over 45° (looking at the
-    floor) points a horizontal axis: many poses say it better.
+    floor) points a horizontal axis: many poses say it better (`UpInference`).
     """
     poses = np.asarray(pose, np.float64).reshape(-1, 4, 4)
-    return snap_to_axis(-poses[:, :3, 1].mean(axis=0))
+    return snap_to_axis(camera_up(poses).mean(axis=0))
+
+
+_AXIS_LETTERS = "xyz"
+DEFAULT_UP = "+z"
+"""Up until a session sets one or its poses settle one (our synthetic world is Z-up)."""
+
+
+def up_vector(name: str) -> np.ndarray:
+    """The unit axis (float64 [3]) named "+x", "-x", "+y", "-y", "+z" or "-z"; ValueError
+    for any other name."""
+    if not (isinstance(name, str) and len(name) == 2 and name[0] in "+-" and name[1] in "xyz"):
+        raise ValueError(f"up must be one of +x, -x, +y, -y, +z, -z; got {name!r}")
+    axis = np.zeros(3)
+    axis[_AXIS_LETTERS.index(name[1])] = 1.0 if name[0] == "+" else -1.0
+    return axis
+
+
+def up_name(vector: np.ndarray) -> str:
+    """The name ("+z", ...) of the world axis nearest to `vector` (float [3], nonzero)."""
+    axis = snap_to_axis(vector)
+    i = int(np.argmax(np.abs(axis)))
+    return ("+" if axis[i] > 0 else "-") + _AXIS_LETTERS[i]
+
+
+UP_STABLE_KEYFRAMES = 8
+"""An inferred up is settled once the mean camera up has snapped to the same axis, with
+UP_MIN_MEAN_COSINE along it, this many keyframes in a row (~1.3 s of a device at 30 fps
+sending every 5th frame as a keyframe): a device that starts by looking at the floor has
+not settled it yet."""
+UP_MIN_MEAN_COSINE = 0.7
+"""...and the mean of the cameras' unit up vectors has at least this component along the
+axis: the cameras agree, tilted from it by about 45° or less on average (a mean of cameras
+that disagree is short and settles nothing)."""
+
+
+@dataclass
+class UpInference:
+    """Which way is up, from the poses of a session's keyframes, one at a time (no I/O).
+
+    A running mean of the cameras' up vectors (`camera_up`, unit vectors in the world
+    frame), snapped to the nearest axis; `observe` answers that axis once it is stable
+    (UP_STABLE_KEYFRAMES, UP_MIN_MEAN_COSINE), else None, and the same axis ever after:
+    settled, it never flips (the server persists it, so a reload does not flip it either).
+    A few tilted poses move a mean of many little, so they neither settle an axis nor undo
+    a streak on their own (while the mean holds only a few poses, one can reset the
+    streak: settling then takes a few keyframes more)."""
+
+    total: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """Sum of the cameras' up vectors seen, float64 [3]."""
+    count: int = 0
+    """Poses seen."""
+    candidate: str | None = None
+    """The axis the mean has snapped to, agreeing, over the last `streak` keyframes."""
+    streak: int = 0
+    settled: str | None = None
+    """The stable axis, once the poses have settled one; None until then."""
+
+    def observe(self, pose: np.ndarray) -> str | None:
+        """Count one keyframe's camera-to-world pose (float [4, 4], OpenCV camera); the up
+        axis ("+y", ...) once stable, else None."""
+        up = camera_up(pose)
+        norm = float(np.linalg.norm(up))
+        if self.settled is not None or not np.isfinite(norm) or norm == 0.0:
+            return self.settled
+        self.total += up / norm
+        self.count += 1
+        mean = self.total / self.count
+        name = up_name(mean)
+        if float(mean @ up_vector(name)) < UP_MIN_MEAN_COSINE:
+            self.candidate, self.streak = None, 0
+        elif name == self.candidate:
+            self.streak += 1
+        else:
+            self.candidate, self.streak = name, 1
+        if self.streak >= UP_STABLE_KEYFRAMES:
+            self.settled = self.candidate
+        return self.settled
 
 
 def describe_place(

@@ -63,15 +63,16 @@ from app.mapping.engine import (
 from app.mapping.export import imported_object, imported_stay
 from app.mapping.grammar import is_relational, parse
 from app.mapping.object import Change, MapObject
-from app.mapping.places import infer_up
+from app.mapping.places import DEFAULT_UP, UpInference, up_vector
 from app.mapping.publish import client_points, update_message
 from app.mapping.relational import MapThing, RelationalHit, answer
-from app.mapping.relations import Z_UP, ObjectGeometry, RelationIndex
+from app.mapping.relations import ObjectGeometry, RelationIndex
 from app.mapping.relevance import Rating, rate_hits
 from app.perception import DEFAULT_BACKEND, BackendOptions, UnknownBackendError, make_backend
 from app.perception.base import FrameDetections, PerceptionBackend
 from app.protocol import Ack, ErrorReply, FrameBudget, FrameInput
 from app.protocol.rest import (
+    UP_AXES,
     EmbeddingInfo,
     LatencySummary,
     MapExport,
@@ -287,6 +288,9 @@ class Session:
     epoch: int | None = None
     """On a map shard: the epoch of this shard's claim; every write is conditional on it.
     None on a standalone server (it claims nothing)."""
+    up_inference: UpInference = field(default_factory=UpInference)
+    """The up axis its keyframes' poses say, while the session has none set or settled
+    (memory only: a session unloaded before its poses settle one starts counting again)."""
 
     @property
     def busy(self) -> bool:
@@ -313,6 +317,23 @@ class Session:
 
     def check_token(self, token: str | None) -> bool:
         return token_matches(self.record, token)
+
+    @property
+    def up_axis(self) -> str:
+        """The world axis that is up ("+z", "+y", ...): set at creation, else inferred from
+        the poses once they settle one (`UpInference`), else DEFAULT_UP."""
+        return self.record.up or DEFAULT_UP
+
+    @property
+    def up_source(self) -> str:
+        """Where `up_axis` comes from: "set", "inferred" or "default"."""
+        return self.record.up_source or "default"
+
+    @property
+    def up(self) -> np.ndarray:
+        """`up_axis` as a unit vector, float64 [3]: what relations and places are measured
+        along."""
+        return up_vector(self.up_axis)
 
     # ------------------------------------------------------------------ reading
     def stats(self) -> SessionStats:
@@ -355,6 +376,8 @@ class Session:
             ),
             knobs=knobs_to_dict(self.knobs),
             warnings=list(self.warnings),
+            up=self.up_axis,
+            up_source=self.up_source,
         )
 
     def warn_once(self, warning: str) -> None:
@@ -391,16 +414,15 @@ class Session:
     ) -> tuple[list[RelationalHit], dict[int, MapObject]] | None:
         """The top-k hits of a question about how things stand ("the mug on the desk",
         app.mapping.relational) and the objects they name by id; None for a question to
-        answer as plain (`rated_query`). Up is inferred from the newest device pose (Z
-        without one); the asker stands at `asker` (world metres), else at that pose's
-        camera."""
+        answer as plain (`rated_query`). Up is the session's (`up`); the asker stands at
+        `asker` (world metres), else at the camera of the newest device pose."""
         reading = parse(text)
         if not is_relational(reading):
             return None
         with self._map_lock:
             objects = [(o, o.version) for o in self.engine.confirmed_objects()]
             pose = self.engine.last_pose
-        up = Z_UP if pose is None else infer_up(pose)
+        up = self.up
         viewer = asker if asker is not None or pose is None else np.asarray(pose)[:3, 3]
         things = [MapThing(o.id, o.label, o.embedding) for o, _ in objects]
         with self._relations_lock:  # the index computes pairs as it is read
@@ -798,6 +820,8 @@ class SessionManager:
                         update_seq=stats.update_seq,
                         last_used_at=session.record.last_used_at,
                         resident=True,
+                        up=stats.up,
+                        up_source=stats.up_source,
                     )
                 )
                 continue
@@ -815,6 +839,8 @@ class SessionManager:
                     update_seq=entry.seq,
                     last_used_at=rec.last_used_at,
                     resident=False,
+                    up=rec.up or DEFAULT_UP,
+                    up_source=rec.up_source or "default",
                 )
             )
         return listed
@@ -869,22 +895,38 @@ class SessionManager:
 
     # ------------------------------------------------------------------ lifecycle
     def create(
-        self, name: str | None, mode: str, knob_changes: dict, perception: str | None = None
+        self,
+        name: str | None,
+        mode: str,
+        knob_changes: dict,
+        perception: str | None = None,
+        up: str | None = None,
     ) -> tuple[Session, str]:
         """A new session and its token (the only time the token is shown), resident.
 
         perception: one of the backends loaded at start (default: the first the server's
         `perception` setting names); UnknownBackendError naming --perception otherwise.
+        up: the world axis that is up ("+x", "-x", "+y", "-y", "+z", "-z"; InputError naming
+        `up` otherwise); None: inferred from the poses (`Session.up_axis`).
         Raises StoredSessionsFull past max_sessions stored, and as `acquire` does when the
         resident budget has no room."""
-        session, token = self._create(name, mode, knob_changes, perception)
+        session, token = self._create(name, mode, knob_changes, perception, up)
         self.release(session)
         return session, token
 
     def _create(
-        self, name: str | None, mode: str, knob_changes: dict, perception: str | None
+        self,
+        name: str | None,
+        mode: str,
+        knob_changes: dict,
+        perception: str | None,
+        up: str | None = None,
+        up_source: str = "set",
     ) -> tuple[Session, str]:
-        """`create`, the session left in use (release it)."""
+        """`create`, the session left in use (release it); `up_source`: where a given `up`
+        came from ("set", or "inferred" by the session an import comes from)."""
+        if up is not None and up not in UP_AXES:
+            raise InputError("up", f"must be one of {', '.join(UP_AXES)}; got {up!r}")
         knobs = updated_knobs(Knobs(), knob_changes or {})
         perception = perception or self.settings.perception_backends[0]
         if perception not in self.backends:
@@ -905,6 +947,8 @@ class SessionManager:
             created_at=now,
             perception=perception,
             last_used_at=now,
+            up=up,
+            up_source=None if up is None else up_source,
         )
 
         def make() -> Session:
@@ -952,7 +996,9 @@ class SessionManager:
                 )
         _check_imported_history(export)
         perception = spec.perception if spec.perception in self.backends else None
-        session, token = self._create(spec.name, spec.mode, spec.knobs, perception)
+        session, token = self._create(
+            spec.name, spec.mode, spec.knobs, perception, spec.up, spec.up_source or "set"
+        )
         try:
             engine = session.engine
             if spec.embedding.dim != engine.encoder.dim:
@@ -1429,6 +1475,9 @@ class SessionManager:
                 rec = session.record
                 rec.keyframes = engine.keyframes
                 rec.next_object_id = engine.next_object_id
+                # Until set or settled, up is the poses' say; settled, it is saved with the
+                # keyframe that settled it (a reload never flips the session's answers).
+                inferred_up = None if rec.up else session.up_inference.observe(frame.pose)
                 committing = True
                 ack = Ack(frame.seq, keyframe=True, update_seq=stats.seq, objects=stats.confirmed)
                 self.store.commit_keyframe(
@@ -1449,7 +1498,11 @@ class SessionManager:
                     done=None
                     if pending.stream is None
                     else (pending.stream, frame.seq, _ack_record(ack)),
+                    inferred_up=inferred_up,
                 )
+                if inferred_up is not None:
+                    rec.up, rec.up_source = inferred_up, "inferred"
+                    log.info("session %s: up is %s (inferred from its poses)", session.id, rec.up)
             except SessionFenced:
                 self._drop_taken_over(session, close=False)  # its engine holds unsaved changes
                 raise SessionMoved(SessionMoved.MESSAGE) from None

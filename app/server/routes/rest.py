@@ -18,7 +18,7 @@ from app.errors import InputError
 from app.mapping.engine import MAX_WORLD_M
 from app.mapping.export import export_change, export_json_chunks, exported_stay, ply_bytes
 from app.mapping.object import Change, MapObject
-from app.mapping.places import Z_UP, describe_places, infer_up
+from app.mapping.places import describe_places
 from app.mapping.publish import client_points
 from app.mapping.relational import RelationalHit
 from app.mapping.relational import is_match as is_relational_match
@@ -126,12 +126,10 @@ def _places_of(
     session: Session, points: list, exclude: list[int]
 ) -> list[protocol.PlaceRecord | None]:
     """Where each point is, in words, against the session's present map (`exclude`: each
-    point's own object), up from its last pose (Z when none)."""
+    point's own object), along the session's up."""
     if not points:
         return []
-    pose = session.engine.last_pose
-    up = Z_UP if pose is None else infer_up(pose)
-    places = describe_places(np.asarray(points, np.float64), session.objects(), up, exclude)
+    places = describe_places(np.asarray(points, np.float64), session.objects(), session.up, exclude)
     return [
         None if p is None else protocol.PlaceRecord(relation=p.relation, id=p.id, label=p.label)
         for p in places
@@ -179,13 +177,13 @@ def _created(session: Session, token: str) -> protocol.SessionCreated:
     responses=CREATE_ERRORS
     | _errors(
         _400="the body is not JSON",
-        _422="an unknown knob, a knob value of the wrong type or out of range, or a "
-        "perception backend the server did not load",
+        _422="an unknown knob, a knob value of the wrong type or out of range, a "
+        "perception backend the server did not load, or an `up` that is not an axis",
     ),
 )
 def create_session(body: protocol.CreateSession, request: Request) -> protocol.SessionCreated:
     session, token = created_or_refused(
-        lambda: manager(request).create(body.name, body.mode, body.knobs, body.perception)
+        lambda: manager(request).create(body.name, body.mode, body.knobs, body.perception, body.up)
     )
     return _created(session, token)
 
@@ -499,6 +497,8 @@ def export_map(
                 "perception": session.record.perception,
             },
         }
+        if session.record.up is not None:  # set or inferred; the default goes unsaid
+            header["session"] |= {"up": session.up_axis, "up_source": session.up_source}
     filename = f"semanticxr-{sid}.{format}"
     disposition = {"Content-Disposition": f'attachment; filename="{filename}"'}
     if format == "ply":

@@ -11,7 +11,17 @@ from hypothesis import strategies as st
 
 from app.mapping import places
 from app.mapping.object import MapObject
-from app.mapping.places import Landmarks, Place, describe_place, describe_places, infer_up
+from app.mapping.places import (
+    UP_STABLE_KEYFRAMES,
+    Landmarks,
+    Place,
+    UpInference,
+    describe_place,
+    describe_places,
+    infer_up,
+    up_name,
+    up_vector,
+)
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 
@@ -94,6 +104,85 @@ def test_up_is_the_camera_up_snapped_to_an_axis():
     look_down[:3, :3] = np.stack([np.cross(down, forward), down, forward], axis=1)
     np.testing.assert_array_equal(infer_up(look_down), [0.0, 0.0, 1.0])
     np.testing.assert_array_equal(infer_up(np.stack([identity] * 3)), [0.0, -1.0, 0.0])
+
+
+def look(forward, world_up) -> np.ndarray:
+    """A camera-to-world pose (OpenCV camera) looking along `forward`, level with `world_up`."""
+    forward = np.asarray(forward, np.float64) / np.linalg.norm(forward)
+    right = np.cross(forward, world_up)
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2] = right, np.cross(forward, right), forward
+    return pose
+
+
+def headset(n: int, up=(0.0, 1.0, 0.0), seed: int = 0) -> list[np.ndarray]:
+    """`n` poses looking about a room whose up is `up`, pitched 35° down to 10° up."""
+    rng = np.random.default_rng(seed)
+    up = np.asarray(up, np.float64)
+    across = np.roll(np.abs(up), 1)  # a horizontal axis
+    other = np.cross(up, across)
+    poses = []
+    for _ in range(n):
+        yaw, pitch = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(-35, 10))
+        horizontal = np.cos(yaw) * across + np.sin(yaw) * other
+        poses.append(look(np.cos(pitch) * horizontal + np.sin(pitch) * up, up))
+    return poses
+
+
+def settle(inference: UpInference, poses) -> list[str | None]:
+    return [inference.observe(pose) for pose in poses]
+
+
+def test_axis_names_and_vectors_go_both_ways():
+    for name in ("+x", "-x", "+y", "-y", "+z", "-z"):
+        assert up_name(up_vector(name)) == name
+    assert up_name([0.2, -0.9, 0.3]) == "-y"
+    for bad in ("y", "+Y", "up", "", "+w", None):
+        with pytest.raises(ValueError, match="up must be one of"):
+            up_vector(bad)
+
+
+@pytest.mark.parametrize("up", ["+y", "-y", "+z", "-z", "+x", "-x"])
+def test_up_settles_after_enough_agreeing_keyframes(up):
+    inference = UpInference()
+    said = settle(inference, headset(UP_STABLE_KEYFRAMES + 3, up_vector(up)))
+    assert said == [None] * (UP_STABLE_KEYFRAMES - 1) + [up] * 4
+    assert inference.settled == up
+
+
+def test_our_synthetic_walk_settles_z_up():
+    from client_sim.world.rooms import make_scene
+    from client_sim.world.trajectory import walk_trajectory
+
+    inference = UpInference()
+    said = settle(inference, walk_trajectory(make_scene("apartment", 0), 40, seed=1))
+    assert said.index("+z") == UP_STABLE_KEYFRAMES - 1 and said[-1] == "+z"
+
+
+def test_a_few_tilted_poses_neither_settle_nor_break_the_streak():
+    # looking straight down at the floor of a Y-up room: up points along the floor (+x)
+    at_the_floor = look([0.0, -1.0, 0.0], [1.0, 0.0, 0.0])
+    assert up_name(-at_the_floor[:3, 1]) == "+x"
+    inference = UpInference()
+    assert settle(inference, [at_the_floor] * 3) == [None] * 3  # fewer than stable
+    said = settle(inference, headset(6 * UP_STABLE_KEYFRAMES))
+    assert "+x" not in said and said[-1] == "+y"
+    # a tilted pose once the mean holds a few keeps the streak: settled on time
+    steady = UpInference()
+    poses = headset(UP_STABLE_KEYFRAMES + 2, seed=3)
+    poses[5:5] = [at_the_floor]
+    assert settle(steady, poses).index("+y") == UP_STABLE_KEYFRAMES - 1
+    # settled, nothing flips it
+    assert settle(steady, [at_the_floor] * 10 * UP_STABLE_KEYFRAMES)[-1] == "+y"
+    assert steady.settled == "+y"
+
+
+def test_cameras_that_disagree_settle_nothing():
+    inference = UpInference()
+    spread = [look([1.0, 0.0, 0.0], up) for up in ([0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1])]
+    assert settle(inference, spread * 10) == [None] * 40
+    assert inference.candidate is None and inference.count == 40
 
 
 # --- properties --------------------------------------------------------------------------
