@@ -983,6 +983,7 @@ class SessionManager:
         used, so a restart keeps it: the changes at the update seqs they carry (one commit
         per seq, in order, so `since_seq` reads the same history) and the objects at the
         seq of the newest change (1 without changes), which is the session's update seq.
+        The export's up axis, when it has one, is kept with its source (set or inferred).
         Raises as `create` does, and InputError naming the field when the export's embedding
         dimension is not the session's encoder's, it holds more objects or removed objects
         than max_objects, an id twice, a removed object or a stay beyond MAX_WORLD_M, or
