@@ -65,3 +65,34 @@ SCENE = {
     21: ("chair", chair(4.4, 3.2, seed=21)),  # next to the sofa
     30: ("bag", block(0.5, 3.2, 0.0, 0.4, 0.3, 0.3, seed=30)),  # under the table
 }
+
+
+def scene_export(name: str = "relations") -> dict:
+    """SCENE as a `semanticxr-map` export for POST /v1/sessions/import (ids kept, points to
+    0.1 mm): a server holding it answers relational questions without a walk. No pose: up is
+    Z, and the asker's position is unknown."""
+    objects = []
+    for i, (label, points) in SCENE.items():
+        pts = points.round(4)
+        objects.append(
+            {
+                "id": i,
+                "version": 1,
+                "label": label,
+                "bbox": [*pts.min(0).tolist(), *pts.max(0).tolist()],
+                "centroid": pts.mean(0).tolist(),
+                "n_obs": 3,
+                "points": pts.tolist(),
+            }
+        )
+    return {
+        "format": "semanticxr-map",
+        "version": 1,
+        "session": {
+            "name": name,
+            "mode": "semanticxr",
+            "knobs": {},
+            "embedding": {"model": "all-MiniLM-L6-v2", "dim": 384},
+        },
+        "objects": objects,
+    }

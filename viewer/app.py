@@ -33,18 +33,20 @@ import viser.transforms as vtf
 from app.client import ApiError, Disconnect, SessionApi, UpdatesSubscriber
 from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
-from app.mapping.relevance import is_match
 from app.protocol import SessionStats, unpack_update
 from viewer.scene import (
-    HIT_BOXES_NODE,
+    ANCHORS_GROUP,
     HITS_GROUP,
     PANEL_PX,
+    RELATION_LINES_NODE,
     DeltaError,
     FloorGrid,
+    RelationHighlight,
     Rgb,
     SceneModel,
     floor_grid,
     frame_view,
+    relation_words,
 )
 
 MAX_PATH_POINTS = 5000
@@ -66,6 +68,11 @@ HIT_BOX_THICKNESS_PX = 4.0
 """Line width of the highlighted hits' boxes."""
 MOVE_LINE_THICKNESS_PX = 3.0
 """Line width of the lines from a moved object's old place to its new one."""
+CONFIDENT_DEGREE = 0.5
+"""A hit stands in its relation from this degree on; under it the list says "not on the desk"
+(static/app.js says the same)."""
+RELATION_LINE_THICKNESS_PX = 4.0
+"""Line width of the lines from a relational answer's target to its anchors."""
 FLOOR_NODE = "/floor"
 """The floor grid: faint lines under the map, at its lowest box face along up."""
 FLOOR_CELL_RGB, FLOOR_SECTION_RGB = (228, 228, 228), (200, 200, 200)
@@ -110,7 +117,9 @@ class ViserSceneSink:
             text,
             position=position,
             font_screen_scale=1.0 if hit else 0.7,
-            anchor="bottom-center",
+            # an anchor's label hangs below its centre, so that it does not cover the label
+            # of the target above it ("mug — on the desk" over "desk")
+            anchor="top-center" if name.startswith(ANCHORS_GROUP) else "bottom-center",
         )
 
     def set_boxes(self, name: str, segments: np.ndarray, colors: np.ndarray) -> None:
@@ -118,13 +127,16 @@ class ViserSceneSink:
             name,
             segments,
             colors,
-            thickness=HIT_BOX_THICKNESS_PX if name == HIT_BOXES_NODE else BOX_THICKNESS_PX,
+            # the hits' and the relational answer's boxes (under /hits) stand out
+            thickness=HIT_BOX_THICKNESS_PX if name.startswith(HITS_GROUP) else BOX_THICKNESS_PX,
             thickness_units="screen",
         )
 
     def set_lines(self, name: str, segments: np.ndarray, colors: np.ndarray) -> None:
+        relation = name == RELATION_LINES_NODE
+        thickness = RELATION_LINE_THICKNESS_PX if relation else MOVE_LINE_THICKNESS_PX
         self._handles[name] = self.scene.add_line_segments(
-            name, segments, colors, thickness=MOVE_LINE_THICKNESS_PX, thickness_units="screen"
+            name, segments, colors, thickness=thickness, thickness_units="screen"
         )
 
     def set_visible(self, name: str, visible: bool) -> None:
@@ -183,6 +195,33 @@ def _megabytes(n_bytes: Any) -> str:
 
 def _milliseconds(value: Any) -> str:
     return f"{value:.0f} ms" if isinstance(value, int | float) else "-"
+
+
+def _strength(hit: dict) -> float:
+    """How brightly a hit is drawn, in [0, 1]: its relevance, times its relation's degree in
+    a relational answer (the mug on the shelf is no answer to "the mug on the desk")."""
+    relation = hit.get("relation")
+    return hit["relevance"] * (relation["degree"] if relation else 1.0)
+
+
+def _hit_line(hit: dict, held: set[int]) -> str:
+    """One hit of the GUI's list, markdown: "mug — on the desk (0.93) — relevance `0.91`,
+    score `0.612` (#10)", the relation's degree in brackets ("mug — not on the desk (0.00)"
+    under CONFIDENT_DEGREE). Names are escaped (user data)."""
+    said = html.escape(hit["label"])
+    relation = hit.get("relation")
+    if relation:
+        anchors = relation["anchors"]
+        words = relation_words(relation["kind"], [a["label"] for a in anchors])
+        negation = "" if relation["degree"] >= CONFIDENT_DEGREE else "not "
+        said += f" — {negation}{html.escape(words)} ({relation['degree']:.2f})"
+        if any(a["id"] not in held for a in anchors):
+            said += " (anchor not received yet)"
+    missing = "" if hit["id"] in held else " (not received yet)"
+    return (
+        f"{said} — relevance `{hit['relevance']:.2f}`, score `{hit['score']:.3f}` "
+        f"(#{hit['id']}){missing}"
+    )
 
 
 def _up_vector(direction: UpDirection) -> np.ndarray:
@@ -377,26 +416,23 @@ class ViewerApp:
 
     def run_query(self, text: str, k: int = 5) -> list[dict]:
         """GET /v1/sessions/{sid}/query, highlight the hits and list them in the GUI; the
-        results, best first.
+        results, best first. A relational answer ("the mug on the desk") also shows its
+        target and anchors (`SceneModel.highlight`), and each hit its relation in words.
 
         Raises ViewerError when the server cannot answer (the highlight is left as it was).
         """
-        try:
-            results = self.api.query_blocking(text, k)  # no points: hits are drawn from the model
+        try:  # no points: hits are drawn from the model
+            answer = self.api.query_result_blocking(text, k)
         except ApiError as exc:
             raise ViewerError(f"query failed: {exc}") from exc
-        with self._lock:  # as bright as relevant: a weak hit is barely lifted from the rest
-            self.model.highlight((r["id"], r["relevance"]) for r in results)
+        results, self.last_match = answer["results"], answer["match"]
+        relation = RelationHighlight.of_hit(results[0], self.last_match) if results else None
+        with self._lock:  # as bright as it answers: a weak hit is barely lifted from the rest
+            self.model.highlight(((r["id"], _strength(r)) for r in results), relation)
             held = set(self.model.objects)
-        self.last_match = is_match([r["relevance"] for r in results])
         verdict = "" if self.last_match else " — **no confident match**"
         lines = [f"**{len(results)} hits** for *{html.escape(text)}*{verdict}:", ""]
-        for rank, r in enumerate(results, 1):
-            missing = "" if r["id"] in held else " (not received yet)"
-            lines.append(
-                f"{rank}. {html.escape(r['label'])} — relevance `{r['relevance']:.2f}`, "
-                f"score `{r['score']:.3f}` (#{r['id']}){missing}"
-            )
+        lines += [f"{rank}. {_hit_line(r, held)}" for rank, r in enumerate(results, 1)]
         self.gui.results.content = "\n".join(lines)
         return results
 

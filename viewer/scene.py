@@ -12,6 +12,10 @@ Node names (stable per object, so an update replaces exactly its own nodes):
     /boxes                 every object's bounding box, batched into ONE line-segments node
     /hits/boxes            the boxes of the highlighted query hits, bright
     /hits/labels/{id}      a hit's label with its score
+    /hits/relation/boxes   a relational answer's target box and its anchors' boxes, in two
+                           colours (TARGET_RGB, ANCHOR_RGB), ONE line-segments node
+    /hits/relation/lines   a line from the target's centre to each anchor's centre, ONE node
+    /hits/anchors/{id}     an anchor's label (anchors need not be among the hits)
     /ghosts/{id}           a removed object's last points, grey, fading (the living map)
     /labels/ghosts/{id}    its label, "(removed)"
     /moves                 a line from old to new place per moved object, ONE node
@@ -23,6 +27,14 @@ reason and so that hiding them all is one operation.
 
 While a query is highlighted the other objects are dimmed (points and boxes) and the plain
 labels are hidden, so the hits stand out.
+
+A relational answer ("the mug on the desk", issue 27) also shows what it is measured
+against: the target (the top hit) and its anchors are drawn in two colours of their own,
+points and boxes, with a line from the target's centre to each anchor's; the target's label
+says the relation in words ("mug — on the desk"). Anchors are drawn from the objects the
+viewer holds (an anchor not held yet is drawn when it arrives). Without a confident match
+there is no target: only the anchors are shown, so "the mug under the sofa" points at the
+sofa but at no mug. Clearing the highlight, or the next one, removes it all.
 
 Changes (the delta's optional `changes`, the living map): a "removed" change leaves a ghost
 of the object where it was, drawn from the points the viewer held before the removal; a
@@ -37,7 +49,7 @@ from __future__ import annotations
 
 import colorsys
 import zlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -52,6 +64,9 @@ LABELS_GROUP = "/labels"
 BOXES_NODE = "/boxes"
 HITS_GROUP = "/hits"
 HIT_BOXES_NODE = "/hits/boxes"
+RELATION_BOXES_NODE = "/hits/relation/boxes"
+RELATION_LINES_NODE = "/hits/relation/lines"
+ANCHORS_GROUP = "/hits/anchors"
 GHOSTS_GROUP = "/ghosts"
 MOVES_NODE = "/moves"
 
@@ -67,6 +82,11 @@ GHOST_RGB: Rgb = (120, 120, 120)
 """A fresh ghost: mid grey, plainly not a live object's saturated colour."""
 MOVE_LINE_RGB: Rgb = (30, 100, 230)
 """A fresh move line at its new end (blue; its old end is ghost grey, so it reads as an arrow)."""
+TARGET_RGB: Rgb = (235, 80, 0)
+"""A relational answer's target (the thing asked about): orange, the dashboard's accent."""
+ANCHOR_RGB: Rgb = (0, 150, 136)
+"""What the target is measured against ("the desk"): teal, far from orange, move-line blue
+and the hit yellow."""
 GHOST_FADE_S = 300.0
 """Device seconds over which a ghost or a move line fades into the background, then goes."""
 MAX_GHOSTS = 32
@@ -94,6 +114,11 @@ def label_node(object_id: int) -> str:
 def hit_label_node(object_id: int) -> str:
     """Scene name of a highlighted hit's label (with its score)."""
     return f"{HITS_GROUP}/labels/{object_id}"
+
+
+def anchor_label_node(object_id: int) -> str:
+    """Scene name of a relational answer's anchor's label."""
+    return f"{ANCHORS_GROUP}/{object_id}"
 
 
 def ghost_node(object_id: int) -> str:
@@ -173,6 +198,76 @@ class DeltaSummary:
     @property
     def changed(self) -> bool:
         return bool(self.added or self.updated or self.removed)
+
+
+# --- relational answers in words (static/app.js `relationWords` says the same) --------------
+
+_RELATION_PHRASES = {
+    "next_to": "next to",
+    "left_of": "left of",
+    "right_of": "right of",
+    "in_front_of": "in front of",
+    "closest": "closest to",
+    "farthest": "farthest from",
+}
+"""A kind's words before its anchors where they are not the kind itself ("on the desk")."""
+_TO_THE_ASKER = {
+    "near": "near you",
+    "next_to": "next to you",
+    "left_of": "on your left",
+    "right_of": "on your right",
+    "in_front_of": "in front of you",
+    "behind": "behind you",
+    "closest": "closest to you",
+    "farthest": "farthest from you",
+}
+"""A kind measured from the asker (no anchor): "the lamp closest to me"."""
+SUPERLATIVES_WITHIN_CATEGORY = ("biggest", "smallest", "highest", "lowest")
+
+
+def relation_words(kind: str, anchor_labels: Sequence[str]) -> str:
+    """A hit's relation in words: "on the desk", "between the chair and the sofa", "closest
+    to you" (no anchor: the asker), "the biggest" (a superlative within the category). A kind
+    this viewer does not know is said with its name ("beside the sofa" for "beside")."""
+    if kind in SUPERLATIVES_WITHIN_CATEGORY:
+        return f"the {kind}"
+    if not anchor_labels:
+        return _TO_THE_ASKER.get(kind, f"{kind.replace('_', ' ')} you")
+    names = [f"the {label}" for label in anchor_labels]
+    listed = names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+    return f"{_RELATION_PHRASES.get(kind, kind.replace('_', ' '))} {listed}"
+
+
+@dataclass(frozen=True)
+class RelationHighlight:
+    """A relational answer as the viewer draws it: the thing asked about and what it is
+    measured against."""
+
+    target: int | None
+    """The top hit's id; None when the answer is no confident match (only anchors shown)."""
+    anchors: tuple[int, ...]
+    """The anchors' ids: two for `between`, none for the asker or a superlative."""
+    words: str
+    """The relation in words (`relation_words`): "on the desk"."""
+
+    @classmethod
+    def of_hit(cls, hit: Mapping, matched: bool = True) -> RelationHighlight | None:
+        """From a query answer's hit (a dict as the protocol has it); None for a plain hit.
+        matched: whether the answer is a confident match (else the hit is not the target)."""
+        relation = hit.get("relation")
+        if not isinstance(relation, Mapping):
+            return None
+        anchors = relation.get("anchors") or []
+        return cls(
+            target=int(hit["id"]) if matched else None,
+            anchors=tuple(int(a["id"]) for a in anchors),
+            words=relation_words(str(relation.get("kind")), [str(a["label"]) for a in anchors]),
+        )
+
+    @property
+    def ids(self) -> set[int]:
+        """The target's and the anchors' ids."""
+        return set(self.anchors) | ({self.target} if self.target is not None else set())
 
 
 # --- colours and boxes (pure helpers) -------------------------------------------------------
@@ -394,6 +489,11 @@ class SceneModel:
         """(text, position) each hit label node has now."""
         self._boxes_shown = False  # whether /boxes exists in the scene
         self._hit_boxes_shown = False
+        self._relation: RelationHighlight | None = None
+        """The highlighted relational answer (None: a plain answer or no highlight)."""
+        self._relation_nodes: set[str] = set()  # /hits/relation/* nodes in the scene now
+        self._anchor_labels: dict[int, tuple[str, tuple[float, float, float]]] = {}
+        """(text, position) each anchor label node has now."""
         self._device_t: float | None = None
         """The newest device time seen (changes' `t`, upserts' `last_seen_t`): fading's clock."""
         self._ghosts: dict[int, _Ghost] = {}
@@ -416,6 +516,11 @@ class SceneModel:
     @property
     def highlighting(self) -> bool:
         return self._highlighting
+
+    @property
+    def relation(self) -> RelationHighlight | None:
+        """The highlighted relational answer; None for a plain one or no highlight."""
+        return self._relation
 
     @property
     def ghosts(self) -> Mapping[int, float]:
@@ -473,6 +578,8 @@ class SceneModel:
         gone: dict[int, ViewObject] = {}  # what removed objects looked like, for their ghosts
         boxes_changed = False  # /boxes is one node: resend it only when a box looks different
         hits_changed = False
+        members = self._relation.ids if self._relation is not None else set()
+        relation_changed = False  # the target or an anchor came, went or changed
         for oid in removed:
             held = self._objects.pop(oid, None)
             if held is not None:
@@ -481,6 +588,7 @@ class SceneModel:
                 summary.removed.append(oid)
                 boxes_changed = True
                 hits_changed |= oid in self._hits
+                relation_changed |= oid in members
         for obj in upserts:
             held = self._objects.get(obj.id)
             if held is not None and obj.version <= held.version:
@@ -494,9 +602,12 @@ class SceneModel:
             )
             boxes_changed |= looks_different
             hits_changed |= looks_different and obj.id in self._hits
+            relation_changed |= obj.id in members
         self.seq = seq
         if boxes_changed or hits_changed:
             self._redraw_boxes(all_boxes=boxes_changed, hits=hits_changed)
+        if relation_changed:
+            self._redraw_relation()
         seen_t = [u.last_seen_t for u in delta.upserts if u.last_seen_t is not None]
         self._note_changes(delta.changes, gone, before, summary)
         self._advance_device_t([c.t for c in delta.changes] + seen_t)
@@ -636,16 +747,22 @@ class SceneModel:
 
     # --- query highlighting -----------------------------------------------------------------
 
-    def highlight(self, hits: Iterable[tuple[int, float]]) -> None:
+    def highlight(
+        self, hits: Iterable[tuple[int, float]], relation: RelationHighlight | None = None
+    ) -> None:
         """Highlight query hits (id, relevance in [0, 1]), best first: boxes and colours as
         bright as their relevance (a 0.3 hit stays near the dimmed rest, a 0.8 one stands
         out), labels with the relevance; everything else dimmed. Replaces any earlier
-        highlight."""
+        highlight.
+
+        relation: a relational answer's target and anchors, drawn in TARGET_RGB and
+        ANCHOR_RGB with a line between their centres (see the module docstring)."""
         new_hits = {int(oid): float(relevance) for oid, relevance in hits}
         for oid in [o for o in self._hit_labels if o not in new_hits]:
             self.sink.remove(hit_label_node(oid))
             del self._hit_labels[oid]
         self._hits = new_hits
+        self._relation = relation
         self._highlighting = True
         for oid in new_hits:
             if oid in self._objects:
@@ -653,6 +770,7 @@ class SceneModel:
         self._recolor()
         self._update_labels_group()
         self._redraw_boxes(all_boxes=True, hits=True)
+        self._redraw_relation()
 
     def clear_highlight(self) -> None:
         """Back to the plain view: hit nodes removed, colours and labels restored."""
@@ -662,10 +780,12 @@ class SceneModel:
             self.sink.remove(hit_label_node(oid))
         self._hit_labels.clear()
         self._hits = {}
+        self._relation = None
         self._highlighting = False
         self._recolor()
         self._update_labels_group()
         self._redraw_boxes(all_boxes=True, hits=True)
+        self._redraw_relation()
 
     # --- internals --------------------------------------------------------------------------
 
@@ -676,6 +796,10 @@ class SceneModel:
         color = self._base_color(obj)
         if not self._highlighting:
             return color
+        if self._relation is not None and obj.id == self._relation.target:
+            return TARGET_RGB
+        if self._relation is not None and obj.id in self._relation.anchors:
+            return ANCHOR_RGB
         if obj.id in self._hits:
             return hit_color(color, self._hits[obj.id])
         return dimmed(color)
@@ -689,8 +813,12 @@ class SceneModel:
                 self._point_colors[oid] = color
 
     def _draw_hit_label(self, obj: ViewObject) -> None:
-        """A hit's label with its relevance (sent only if its text or place changed)."""
-        drawn = (f"{obj.label} {self._hits[obj.id]:.2f}", obj.center)
+        """A hit's label with its relevance, the target's with its relation in words (sent
+        only if its text or place changed)."""
+        if self._relation is not None and obj.id == self._relation.target:
+            drawn = (f"{obj.label} — {self._relation.words}", obj.center)
+        else:
+            drawn = (f"{obj.label} {self._hits[obj.id]:.2f}", obj.center)
         if self._hit_labels.get(obj.id) != drawn:
             self.sink.add_label(hit_label_node(obj.id), *drawn)
             self._hit_labels[obj.id] = drawn
@@ -719,8 +847,13 @@ class SceneModel:
             elif self._boxes_shown:
                 self.sink.remove(BOXES_NODE)
                 self._boxes_shown = False
-        if hits:
-            held_hits = [self._objects[oid] for oid in self._hits if oid in self._objects]
+        if hits:  # the target's and anchors' boxes are /hits/relation/boxes
+            members = self._relation.ids if self._relation is not None else set()
+            held_hits = [
+                self._objects[oid]
+                for oid in self._hits
+                if oid in self._objects and oid not in members
+            ]
             if held_hits:
                 self.sink.set_boxes(
                     HIT_BOXES_NODE,
@@ -731,3 +864,40 @@ class SceneModel:
             elif self._hit_boxes_shown:
                 self.sink.remove(HIT_BOXES_NODE)
                 self._hit_boxes_shown = False
+
+    def _redraw_relation(self) -> None:
+        """Bring the relational answer's nodes up to date with the held objects: the target's
+        and the anchors' boxes (one node), a line from the target's centre to each held
+        anchor's (one node), the anchors' labels; removed when there is nothing to show."""
+        relation, held = self._relation, self._objects
+        target = held.get(relation.target) if relation and relation.target is not None else None
+        anchors = [held[a] for a in relation.anchors if a in held] if relation else []
+        anchors = [a for a in anchors if target is None or a.id != target.id]
+        wanted: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        framed = [(target, TARGET_RGB)] if target is not None else []
+        framed += [(anchor, ANCHOR_RGB) for anchor in anchors]
+        if framed:
+            wanted[RELATION_BOXES_NODE] = (
+                box_segments(np.array([o.bbox for o, _ in framed], np.float32)),
+                _segment_colors([color for _, color in framed]),
+            )
+        if target is not None and anchors:
+            wanted[RELATION_LINES_NODE] = (
+                np.array([(target.center, a.center) for a in anchors], np.float32),
+                np.array([(TARGET_RGB, ANCHOR_RGB)] * len(anchors), np.uint8),
+            )
+        for name in sorted(self._relation_nodes - wanted.keys()):
+            self.sink.remove(name)
+        for name, (segments, colors) in wanted.items():
+            draw = self.sink.set_boxes if name == RELATION_BOXES_NODE else self.sink.set_lines
+            draw(name, segments, colors)
+        self._relation_nodes = set(wanted)
+
+        labels = {a.id: (a.label, a.center) for a in anchors}
+        for oid in [o for o in self._anchor_labels if o not in labels]:
+            self.sink.remove(anchor_label_node(oid))
+            del self._anchor_labels[oid]
+        for oid, drawn in labels.items():
+            if self._anchor_labels.get(oid) != drawn:
+                self.sink.add_label(anchor_label_node(oid), *drawn)
+                self._anchor_labels[oid] = drawn

@@ -252,6 +252,11 @@ class SessionApi:
 
     def query_blocking(self, text: str, k: int = 5) -> list[dict]:
         """`query` for a caller without an event loop (a GUI callback's thread)."""
+        return self.query_result_blocking(text, k)["results"]
+
+    def query_result_blocking(self, text: str, k: int = 5) -> dict:
+        """`query_result` for a caller without an event loop (a GUI callback's thread): the
+        whole answer, with `match` (a relational answer's is not the hits' relevance)."""
         url = f"{self.session_url}/query"
         try:
             response = httpx.get(
@@ -262,7 +267,7 @@ class SessionApi:
             )
         except httpx.HTTPError as exc:
             raise ApiError(f"GET {url}: {type(exc).__name__}: {exc}") from exc
-        return _hits(_answer("GET", url, response, 200))
+        return _result(_answer("GET", url, response, 200))
 
     async def health(self) -> None:
         """GET /healthz (the cheapest round trip); ApiError unless the server is up."""
@@ -304,8 +309,3 @@ def _result(answer: Any) -> dict:
     except InputError as exc:
         raise ApiError(f"a malformed query answer: {exc}") from exc
     return result.model_dump(exclude={"results": {"__all__": {"points"}}})
-
-
-def _hits(answer: Any) -> list[dict]:
-    """The hits of a query answer, parsed by the protocol, as dicts without points."""
-    return _result(answer)["results"]

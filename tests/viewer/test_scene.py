@@ -15,6 +15,7 @@ import pytest
 
 from app.protocol import ChangeEntry, UpsertEntry, pack_delta
 from viewer.scene import (
+    ANCHOR_RGB,
     BACKGROUND_RGB,
     BOXES_NODE,
     DIM_GREY_RGB,
@@ -26,8 +27,13 @@ from viewer.scene import (
     MAX_GHOSTS,
     MOVE_LINE_RGB,
     MOVES_NODE,
+    RELATION_BOXES_NODE,
+    RELATION_LINES_NODE,
+    TARGET_RGB,
     DeltaError,
+    RelationHighlight,
     SceneModel,
+    anchor_label_node,
     blend,
     box_segments,
     class_color,
@@ -43,6 +49,7 @@ from viewer.scene import (
     label_node,
     object_color,
     points_node,
+    relation_words,
 )
 
 DIM = 8
@@ -595,3 +602,149 @@ def test_a_ghost_of_an_object_the_viewer_never_held_is_not_drawn(scene):
     summary = model.apply_delta(delta(2, removed=[77], changes=[removal(77, 1.0, "laptop")]))
 
     assert summary.ghosted == [] and ghost_node(77) not in sink.nodes
+
+
+# --- relational answers ("the mug on the desk") ---------------------------------------------
+
+
+def chair_next_to_the_table(target: int | None = 3) -> RelationHighlight:
+    return RelationHighlight(target=target, anchors=(2,), words="next to the table")
+
+
+def relation_nodes(sink: RecordingSink) -> list[str]:
+    return sorted(n for n in sink.nodes if n.startswith(("/hits/relation", "/hits/anchors")))
+
+
+def test_a_relational_answer_draws_target_and_anchor_in_two_colours_with_a_line_between(scene):
+    model, sink = scene
+    # "the chair next to the table": chair 3 answers, chair 1 does not; the table is no hit
+    model.highlight([(3, 0.9), (1, 0.0)], chair_next_to_the_table())
+    chair, table = model.objects[3], model.objects[2]
+
+    boxes = sink.nodes[RELATION_BOXES_NODE]  # one node, the target's box then the anchor's
+    assert np.allclose(boxes["segments"], box_segments(np.array([chair.bbox, table.bbox])))
+    assert (boxes["colors"][:12] == TARGET_RGB).all() and (boxes["colors"][12:] == ANCHOR_RGB).all()
+    line = sink.nodes[RELATION_LINES_NODE]
+    assert line["kind"] == "lines"  # drawn bolder than box edges
+    assert np.allclose(line["segments"], [[chair.center, table.center]])
+    assert line["colors"].tolist() == [[list(TARGET_RGB), list(ANCHOR_RGB)]]
+    assert sink.nodes[points_node(3)]["color"] == TARGET_RGB
+    assert sink.nodes[points_node(2)]["color"] == ANCHOR_RGB  # the anchor stands out too
+    assert sink.nodes[points_node(1)]["color"] == dimmed(object_color(1))
+    assert sink.nodes[hit_label_node(3)]["text"] == "chair — next to the table"
+    assert sink.nodes[hit_label_node(1)]["text"] == "chair 0.00"
+    assert sink.nodes[anchor_label_node(2)] == {
+        "kind": "label",
+        "text": "table",
+        "position": table.center,
+    }
+    assert sink.nodes[HIT_BOXES_NODE]["segments"].shape == (12, 2, 3)  # chair 1's box alone
+    assert model.relation == chair_next_to_the_table()
+
+
+def test_between_draws_a_line_from_the_target_to_each_anchor(scene):
+    model, sink = scene
+    model.highlight([(2, 0.8)], RelationHighlight(2, (1, 3), "between the chair and the chair"))
+    table = model.objects[2]
+    line = sink.nodes[RELATION_LINES_NODE]
+    assert np.allclose(
+        line["segments"],
+        [[table.center, model.objects[1].center], [table.center, model.objects[3].center]],
+    )
+    assert sink.nodes[RELATION_BOXES_NODE]["segments"].shape == (3 * 12, 2, 3)
+    assert {anchor_label_node(1), anchor_label_node(3)} <= sink.nodes.keys()
+    assert HIT_BOXES_NODE not in sink.nodes  # the only hit is the target, in the relation's node
+
+
+def test_clearing_or_a_new_query_removes_the_target_anchors_and_line(scene):
+    model, sink = scene
+    plain = {name: dict(node) for name, node in sink.nodes.items()}
+    model.highlight([(3, 0.9)], chair_next_to_the_table())
+    model.highlight([(1, 0.7)])  # a plain question next
+    assert relation_nodes(sink) == [] and model.relation is None
+    assert sink.nodes[points_node(2)]["color"] == dimmed(object_color(2))
+    assert sink.nodes[hit_label_node(1)]["text"] == "chair 0.70"
+
+    model.highlight([(3, 0.9)], chair_next_to_the_table())
+    model.clear_highlight()
+    assert not [name for name in sink.nodes if name.startswith("/hits")]
+    for oid in (1, 2, 3):
+        assert sink.nodes[points_node(oid)]["color"] == plain[points_node(oid)]["color"]
+
+
+def test_an_anchor_not_held_yet_is_drawn_when_it_arrives_and_goes_when_it_is_removed(scene):
+    model, sink = scene
+    model.highlight([(3, 0.9)], RelationHighlight(3, (9,), "on the desk"))
+    assert RELATION_LINES_NODE not in sink.nodes  # nothing to draw the line to yet
+    assert sink.nodes[RELATION_BOXES_NODE]["segments"].shape == (12, 2, 3)  # the target's box
+
+    model.apply_delta(delta(2, [upsert(9, 1, "desk")]))
+    assert sink.nodes[points_node(9)]["color"] == ANCHOR_RGB
+    assert sink.nodes[anchor_label_node(9)]["text"] == "desk"
+    assert np.allclose(
+        sink.nodes[RELATION_LINES_NODE]["segments"],
+        [[model.objects[3].center, model.objects[9].center]],
+    )
+    model.apply_delta(delta(3, [upsert(9, 2, "desk", offset=1.0)]))  # the desk moved
+    assert np.allclose(sink.nodes[RELATION_LINES_NODE]["segments"][0, 1], model.objects[9].center)
+
+    model.apply_delta(delta(4, removed=[9]))
+    assert relation_nodes(sink) == [RELATION_BOXES_NODE]  # the target's box stays
+    sink.take()
+    model.apply_delta(delta(5, [upsert(1, 2)]))  # an object outside the answer: no redraw
+    assert not [op for op in sink.take() if "relation" in op[1] or "anchors" in op[1]]
+
+
+def test_without_a_confident_match_only_the_anchors_are_shown(scene):
+    # "the chair under the table" when no chair is: the table is shown, no chair singled out
+    model, sink = scene
+    model.highlight([(3, 0.2)], chair_next_to_the_table(target=None))
+    assert relation_nodes(sink) == [anchor_label_node(2), RELATION_BOXES_NODE]
+    assert (sink.nodes[RELATION_BOXES_NODE]["colors"] == ANCHOR_RGB).all()
+    assert sink.nodes[points_node(3)]["color"] == hit_color(object_color(3), 0.2)
+    assert sink.nodes[hit_label_node(3)]["text"] == "chair 0.20"
+
+
+@pytest.mark.parametrize(
+    "kind, anchors, words",
+    [
+        ("on", ["desk"], "on the desk"),
+        ("in", ["box"], "in the box"),
+        ("under", ["table"], "under the table"),
+        ("above", ["sofa"], "above the sofa"),
+        ("below", ["shelf"], "below the shelf"),
+        ("near", ["sofa"], "near the sofa"),
+        ("next_to", ["sofa"], "next to the sofa"),
+        ("between", ["chair", "sofa"], "between the chair and the sofa"),
+        ("left_of", ["lamp"], "left of the lamp"),
+        ("right_of", ["lamp"], "right of the lamp"),
+        ("in_front_of", ["tv"], "in front of the tv"),
+        ("behind", ["door"], "behind the door"),
+        ("closest", [], "closest to you"),
+        ("farthest", [], "farthest from you"),
+        ("closest", ["window"], "closest to the window"),
+        ("near", [], "near you"),
+        ("left_of", [], "on your left"),
+        ("biggest", [], "the biggest"),
+        ("smallest", [], "the smallest"),
+        ("highest", [], "the highest"),
+        ("lowest", [], "the lowest"),
+        ("beside", ["bed"], "beside the bed"),  # a kind a newer server may add
+    ],
+)
+def test_a_relation_in_words(kind, anchors, words):
+    assert relation_words(kind, anchors) == words
+
+
+def test_a_relation_is_read_from_a_query_hit():
+    hit = {
+        "id": 10,
+        "label": "mug",
+        "relation": {"kind": "on", "anchors": [{"id": 1, "label": "desk"}], "degree": 0.93},
+    }
+    assert RelationHighlight.of_hit(hit) == RelationHighlight(10, (1,), "on the desk")
+    assert RelationHighlight.of_hit(hit, matched=False) == RelationHighlight(
+        None, (1,), "on the desk"
+    )
+    assert RelationHighlight.of_hit({"id": 10, "label": "mug", "relation": None}) is None
+    assert RelationHighlight.of_hit({"id": 10, "label": "mug"}) is None  # an older server

@@ -18,10 +18,12 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 from analytic_world import BATHROOM, KITCHEN, RectSource
 from helpers_device import FAST_KNOBS, server_state
+from relation_scene import SCENE, scene_export
 
 from app.client import create_session
 from app.config import Knobs, updated_knobs
@@ -30,7 +32,17 @@ from app.server.settings import ServerSettings
 from client_sim.sources.base import FrameSource
 from client_sim.streaming import DeviceClient
 from viewer.app import FLOOR_NODE, ViewerApp
-from viewer.scene import HIT_BOXES_NODE, PANEL_PX, frame_view, points_node
+from viewer.scene import (
+    HIT_BOXES_NODE,
+    PANEL_PX,
+    RELATION_BOXES_NODE,
+    RELATION_LINES_NODE,
+    RelationHighlight,
+    anchor_label_node,
+    frame_view,
+    hit_label_node,
+    points_node,
+)
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
@@ -196,6 +208,45 @@ def test_the_browser_shows_one_point_cloud_per_confirmed_object_and_the_query_hi
             wait_for(
                 lambda: HIT_BOXES_NODE not in (page.evaluate(MOUNTED_NODES_JS) or []),
                 "the hit's box to go",
+            )
+
+
+def test_a_relational_answer_shows_its_target_and_anchor_joined_by_a_line(live_server):
+    server = live_server()
+    created = httpx.post(f"{server.url}/v1/sessions/import", json=scene_export(), timeout=30)
+    assert created.status_code == 201, created.text
+    sid, token = created.json()["session_id"], created.json()["token"]
+    relation_names = {RELATION_BOXES_NODE, RELATION_LINES_NODE}  # labels are not three.js nodes
+
+    with running_viewer(server.url, sid, token) as app:
+        wait_for(lambda: len(viewer_objects(app)) == len(SCENE), "the imported map")
+        with browser_page(app.url) as page:
+            results = app.run_query("the mug on the desk", k=3)
+            assert results[0]["id"] == 10 and app.last_match is True  # mug 10 is on desk 1
+            assert app.model.relation == RelationHighlight(10, (1,), "on the desk")
+            first, second = app.gui.results.content.splitlines()[2:4]
+            assert re.match(r"1\. mug — on the desk \([01]\.\d\d\) — relevance", first), first
+            assert re.match(r"2\. mug — not on the desk \(0\.\d\d\) — ", second), second
+            labels = {hit_label_node(10), anchor_label_node(1)}
+            assert app.model.sink._handles.keys() >= relation_names | labels
+            wait_for(
+                lambda: relation_names <= set(page.evaluate(MOUNTED_NODES_JS) or []),
+                "the target's and anchor's boxes and the line between them in the page",
+            )
+            ARTIFACTS.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(ARTIFACTS / "viewer_relation.png"))
+
+            # nothing satisfies it: the sofa is shown, no mug singled out, no line
+            app.run_query("the mug under the sofa", k=3)
+            assert app.last_match is False and "no confident match" in app.gui.results.content
+            assert app.model.relation == RelationHighlight(None, (4,), "under the sofa")
+            assert RELATION_LINES_NODE not in app.model.sink._handles
+
+            app.clear_query()
+            assert not [n for n in app.model.sink._handles if n.startswith("/hits")]
+            wait_for(
+                lambda: not relation_names & set(page.evaluate(MOUNTED_NODES_JS) or []),
+                "the relation's nodes to go from the page",
             )
 
 
