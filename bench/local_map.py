@@ -144,7 +144,7 @@ def points_storage_error(rng: np.random.Generator) -> dict:
     """Max error (m) of the stored points against the received float16 ones (uint8 offsets in
     the object's box, what the map keeps), for 1 m boxes (this bench) and 2 m boxes, with the
     float16 wire's own error for scale and uint16 offsets as the alternative."""
-    from client_sim.local_map import dequantise_points, quantise_points
+    from app.mapping.held import dequantise_points, quantise_points
 
     result: dict = {"bytes_per_point": 3}
     for side_m in (1.0, 2.0):

@@ -16,7 +16,8 @@ bulk is (issue 13, target 5: 50k objects of 200 points and 384-d embeddings with
   dimensions the kernel does not take (not a multiple of 16) the rows are scored in float32
   chunks instead.
 - points: one `bytes` of uint8 [<= max_points_per_object, 3] per object (3 bytes a point):
-  each axis quantised in 255 steps of the object's point box (lo, step: float32 columns), so
+  each axis quantised in 255 steps of the object's point box (lo, step: float32 columns;
+  app.mapping.held, which the server imports too: it measures relations on these points), so
   a point is within step / 2 of the received float16 one: 3.9 mm per axis for a 2 m object
   (uint16 would give 0.015 mm at twice the bytes; the wire's own float16 rounding is up to
   3.9 mm at 8-16 m from the origin and 15.6 mm at 32-64 m).
@@ -48,6 +49,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from app.mapping.held import dequantise_points, quantise_points
 from app.protocol import DEFAULT_EMBEDDING_DIM, DeltaError, parse_delta
 
 log = logging.getLogger(__name__)
@@ -62,9 +64,6 @@ of the interned label. Checked against tracemalloc in the tests and the bench.""
 
 _INDEX_BYTES_PER_OBJECT = 12
 """The id -> row index: an int64 id and an int32 row per object."""
-
-POINT_LEVELS = 255
-"""Points are stored as uint8 offsets: 255 steps per axis across the object's point box."""
 
 _BYTES_HEADER = sys.getsizeof(b"")
 """Bytes of an empty `bytes` object: the header every object's point bytes carry."""
@@ -159,29 +158,6 @@ def quantise_embeddings(embeddings: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     norms = np.linalg.norm(quantised.astype(np.float32), axis=1)
     scales = np.where(norms > 0, 1 / np.maximum(norms, 1e-12), 0).astype(np.float32)
     return quantised, scales
-
-
-def quantise_points(points: np.ndarray) -> tuple[bytes, np.ndarray, np.ndarray]:
-    """(uint8 [N, 3] as bytes, lo float32 [3], step float32 [3]) of float [N, 3] points.
-
-    Offsets are rounded in POINT_LEVELS steps of the points' own box, so
-    `lo + offset * step` is within step / 2 of each point per axis (step 0 on a flat axis).
-    """
-    as32 = np.asarray(points, np.float32).reshape(-1, 3)
-    if len(as32) == 0:
-        return b"", np.zeros(3, np.float32), np.zeros(3, np.float32)
-    lo, hi = as32.min(axis=0), as32.max(axis=0)
-    step = ((hi - lo) / POINT_LEVELS).astype(np.float32)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        offsets = np.where(step > 0, (as32 - lo) / step, 0.0)
-    quantised = np.clip(np.rint(offsets), 0, POINT_LEVELS).astype(np.uint8)
-    return quantised.tobytes(), lo, step
-
-
-def dequantise_points(data: bytes, lo: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """float32 [N, 3] metres of `quantise_points` output."""
-    offsets = np.frombuffer(data, np.uint8).reshape(-1, 3)
-    return (offsets.astype(np.float32) * step + lo).astype(np.float32)
 
 
 def _bfloat16_bits(values: np.ndarray) -> np.ndarray:

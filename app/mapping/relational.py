@@ -10,35 +10,59 @@ map is scored
 
 so the whole target category is weighed against the top anchors, not only today's top k,
 and a slightly wrong anchor reading still ranks sensibly. Pure: numpy, the grammar, the
-relation index and a text encoder; the server and the device's local map both call it.
+relation source and a text encoder; the server (`RelationIndex`) and the device's local map
+(`OnDemandRelations`) both call it, so both answer alike.
 
 Plain questions stay plain: `answer` returns None (the caller answers as today) when the
 reading has no relation or superlative, when an anchor phrase grounds to no confident map
 object (relevance >= app.mapping.relevance.CONFIDENT: "keys on a ring" with no ring), when a
 viewpoint relation or a superlative from the asker has no asker's position, or when a
 relation to the asker ("on my left") needs an anchor the map cannot supply.
+
+What a question costs (a device asks it of 10k objects): the phrases are embedded in one
+encoder call (labels come from its cache); relevance is rated per label; a clause is
+measured only for the objects its target may be (relevance above 0), pairwise relations only
+within reach of the anchors' boxes, and viewpoint and `between` relations from centroids in
+one numpy pass; a superlative over a category measures the members whose box bounds say they
+may rank in the top k (closest, farthest, biggest); the raw cosine (a tie-break) only for the
+objects tied near the top. The answer is the one measuring everything would give.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import heapq
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from app.mapping.grammar import Reading, is_relational
+from app.mapping.grammar import Reading, RelationClause, Superlative, is_relational
 from app.mapping.relations import (
     PAIRWISE_RELATIONS,
-    SUPERLATIVES,
     VIEWPOINT_RELATIONS,
-    RelationIndex,
-    between,
+    Body,
+    RelationSource,
+    between_degrees,
+    biggest_degrees,
+    box_distance_bounds,
+    boxes_in_up_frame,
+    closest_degrees,
+    distance_to,
+    farthest_degrees,
+    heights_along,
+    highest_degrees,
+    lowest_degrees,
+    smallest_degrees,
+    viewpoint_degrees,
+    volume_upper_bounds,
+    within_reach,
 )
-from app.mapping.relevance import CONFIDENT, rater_for
+from app.mapping.relevance import CONFIDENT, QueryRater, rater_for
 from app.semantics import TextEncoder
 
 ANCHOR_CANDIDATES = 3
-"""How many of an anchor phrase's best-rated objects a relation is weighed against."""
+"""How many of an anchor phrase's best-rated objects a relation is weighed against (ties by
+id, so the answer does not depend on the order the objects come in)."""
 ANCHOR_MIN_RELEVANCE = 0.1
 """Least relevance of an anchor candidate (below it an object is not what the phrase means)."""
 HEAD_NOUN_RELEVANCE = 0.75
@@ -53,12 +77,54 @@ the question: `match` true. A mug fully on the desk scores ~1, a mug under no so
 
 @dataclass(frozen=True)
 class MapThing:
-    """One object as a question sees it; its geometry is in the RelationIndex under `id`."""
+    """One object as a question sees it; its geometry is in the relation source under `id`."""
 
     id: int
     label: str
     embedding: np.ndarray
     """float32 [dim], unit."""
+
+
+@dataclass(frozen=True)
+class MapThings:
+    """A map's objects as columns, what `answer` reads of them: a device's local map gives
+    them straight from its rows, without one `MapThing` per object."""
+
+    ids: np.ndarray
+    """int64 [n], unique: each object's geometry is in the relation source under its id."""
+    labels: Sequence[str]
+    """The distinct labels."""
+    label_of: np.ndarray
+    """int [n]: each object's label, an index into `labels`."""
+    cosines: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    """(positions int [m], query float32 [dim], unit) -> float [m]: the raw cosine of those
+    objects' embeddings with the query (asked only for the few a ranking needs), each row on
+    its own (`row_dots`): copies with one embedding tie exactly, and the tie goes by id."""
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @classmethod
+    def of(cls, things: Sequence[MapThing]) -> MapThings:
+        codes: dict[str, int] = {}
+        label_of = np.array([codes.setdefault(t.label, len(codes)) for t in things], np.int64)
+
+        def cosines(positions: np.ndarray, query: np.ndarray) -> np.ndarray:
+            if len(positions) == 0:
+                return np.zeros(0, np.float32)
+            embeddings = np.stack([things[int(i)].embedding for i in positions])
+            return row_dots(embeddings.astype(np.float32), query)
+
+        ids = np.array([t.id for t in things], np.int64)
+        return cls(ids, list(codes), label_of, cosines)
+
+
+def row_dots(rows: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """float32 [m]: each row (float32 [m, d]) dotted with the vector (float32 [d]), a row's
+    value depending on that row alone. A matrix product's rounding depends on where a row
+    sits in the matrix, so two copies with one embedding could differ in the last bit and
+    the tie-break by cosine would follow the rows' order, not the ids."""
+    return (rows * vector).sum(axis=1, dtype=np.float32)
 
 
 @dataclass(frozen=True)
@@ -95,30 +161,378 @@ def is_match(hits: Sequence[RelationalHit]) -> bool:
 class _Grounding:
     """A phrase's relevance to every object (rated per label, as a plain query's hits)."""
 
-    def __init__(self, encoder: TextEncoder, phrase: str, things: Sequence[MapThing]):
-        self.embedding = encoder.encode_query(phrase).astype(np.float32)
-        labels = list(dict.fromkeys(t.label for t in things))
-        rating = rater_for(encoder).rate(self.embedding, labels)
-        by_label = {
-            label: max(rated, HEAD_NOUN_RELEVANCE) if same_head(phrase, label) else rated
-            for label, rated in zip(labels, rating.relevance, strict=True)
-        }
-        self.relevance = np.array([by_label[t.label] for t in things], np.float64)
+    def __init__(self, rater: QueryRater, phrase: str, embedding: np.ndarray, things: MapThings):
+        self.embedding = embedding
+        labels = list(things.labels)
+        rating = rater.rate(embedding, labels)
+        by_label = np.array(
+            [
+                max(rated, HEAD_NOUN_RELEVANCE) if same_head(phrase, label) else rated
+                for label, rated in zip(labels, rating.relevance, strict=True)
+            ],
+            np.float64,
+        )
+        self.relevance = by_label[things.label_of]
+        self._ids = things.ids
+        self._candidates: list[int] | None = None
 
     def candidates(self) -> list[int]:
-        """Indices of the best-rated objects, best first (ANCHOR_CANDIDATES at most)."""
-        order = np.argsort(-self.relevance, kind="stable")[:ANCHOR_CANDIDATES]
-        return [int(i) for i in order if self.relevance[i] >= ANCHOR_MIN_RELEVANCE]
+        """Positions of the best-rated objects, best first, ties by id (ANCHOR_CANDIDATES at
+        most, each rated at least ANCHOR_MIN_RELEVANCE)."""
+        if self._candidates is None:
+            relevance, n = self.relevance, len(self.relevance)
+            top = min(ANCHOR_CANDIDATES, n)
+            floor = float(np.partition(relevance, n - top)[n - top])
+            near_top = np.flatnonzero(relevance >= max(floor, ANCHOR_MIN_RELEVANCE))
+            order = np.lexsort((self._ids[near_top], -relevance[near_top]))
+            self._candidates = near_top[order][:ANCHOR_CANDIDATES].tolist()
+        return self._candidates
 
     @property
     def confident(self) -> bool:
         return bool(len(self.relevance)) and float(self.relevance.max()) >= CONFIDENT
 
 
+class _Question:
+    """One question being answered: the map's objects, their geometry, the phrases."""
+
+    def __init__(
+        self,
+        things: MapThings,
+        index: RelationSource,
+        rater: QueryRater,
+        embeddings: dict[str, np.ndarray],
+        viewer: np.ndarray | None,
+    ):
+        self.things, self.index, self.viewer = things, index, viewer
+        self.up = index.up
+        self._rater, self._embeddings = rater, embeddings
+        self._groundings: dict[str, _Grounding] = {}
+
+    def embedding(self, phrase: str) -> np.ndarray:
+        return self._embeddings[phrase]
+
+    def ground(self, phrase: str) -> _Grounding:
+        if phrase not in self._groundings:
+            self._groundings[phrase] = _Grounding(self._rater, phrase, self.embedding(phrase), self.things)
+        return self._groundings[phrase]
+
+    def ids(self, positions) -> np.ndarray:
+        return self.things.ids[positions]
+
+    def named(self, position: int) -> tuple[int, str]:
+        things = self.things
+        return int(things.ids[position]), things.labels[int(things.label_of[position])]
+
+
+_NONE = -1
+"""No anchor (in the int64 [m, 2] anchor positions a part measures)."""
+
+
+class _Part:
+    """A clause or the superlative: per object, a degree in [0, 1] and the anchors it was
+    measured against (positions, _NONE where none)."""
+
+    kind: str
+
+    def measure(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(degrees float64 [m], anchor positions int64 [m, 2]) of the objects at `positions`."""
+        raise NotImplementedError
+
+
+class _Clause(_Part):
+    """One relation clause; remembers what it measured, for the hits' explanations."""
+
+    def __init__(self, clause: RelationClause, question: _Question):
+        self.kind, self.phrases, self.q = clause.kind, clause.anchors, question
+        n = len(question.things)
+        self._degrees = np.zeros(n)
+        self._anchors = np.full((n, 2), _NONE, np.int64)
+        self._measured = np.zeros(n, bool)
+
+    def measure(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if not self.phrases:
+            degrees, anchors = self._from_asker(positions)
+        elif self.kind == "between":
+            degrees, anchors = self._between(positions)
+        else:
+            degrees, anchors = self._to_anchor(positions)
+        self._degrees[positions], self._anchors[positions] = degrees, anchors
+        self._measured[positions] = True
+        return degrees, anchors
+
+    def explain(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`measure`, from memory where it was measured already."""
+        missing = positions[~self._measured[positions]]
+        if len(missing):
+            self.measure(missing)
+        return self._degrees[positions], self._anchors[positions]
+
+    def _from_asker(self, positions):
+        """The asker is the anchor ("near me"): only objects within reach of them."""
+        q = self.q
+        relation = PAIRWISE_RELATIONS[self.kind]
+        here = Body(np.asarray(q.viewer, np.float64)[None], q.up)
+        degrees = np.zeros(len(positions))
+        ids = q.ids(positions)
+        lo, hi = q.index.boxes(ids)
+        for i in np.flatnonzero(within_reach(lo, hi, here.lo, here.hi)).tolist():
+            degrees[i] = relation(q.index.body(int(ids[i])), here, up=q.up)
+        return degrees, np.full((len(positions), 2), _NONE, np.int64)
+
+    def _to_anchor(self, positions):
+        """Best over the anchor candidates of degree x anchor relevance; an object no
+        candidate satisfies names the best candidate it was weighed against."""
+        q = self.q
+        grounding = q.ground(self.phrases[0])
+        ids = q.ids(positions)
+        best = np.zeros(len(positions))
+        anchors = np.full((len(positions), 2), _NONE, np.int64)
+        viewpoint = self.kind in VIEWPOINT_RELATIONS
+        centroids = q.index.centroids(ids) if viewpoint else None
+        for a in grounding.candidates():
+            anchor_id = int(q.things.ids[a])
+            if viewpoint:
+                anchor_centroid = q.index.centroids([anchor_id])[0]
+                degrees = viewpoint_degrees(self.kind, centroids, anchor_centroid, q.viewer, q.up)
+                degrees[positions == a] = 0.0  # not to itself
+            else:  # only the pairs within reach of this anchor are measured
+                degrees = q.index.degrees(self.kind, anchor_id, ids)
+            values = grounding.relevance[a] * degrees
+            better = values > best
+            best[better], anchors[better, 0] = values[better], a
+        top = grounding.candidates()
+        if top:  # unsatisfied: name the best anchor it was weighed against
+            anchors[anchors[:, 0] == _NONE, 0] = top[0]
+        return best, anchors
+
+    def _between(self, positions):
+        q = self.q
+        best = np.zeros(len(positions))
+        anchors = np.full((len(positions), 2), _NONE, np.int64)
+        if len(self.phrases) != 2:
+            return best, anchors
+        first, second = q.ground(self.phrases[0]), q.ground(self.phrases[1])
+        centroids = q.index.centroids(q.ids(positions))
+        for b in first.candidates():
+            for c in second.candidates():
+                if b == c:
+                    continue
+                ends = q.index.centroids(q.ids([b, c]))
+                weight = first.relevance[b] * second.relevance[c]
+                values = weight * between_degrees(centroids, ends[0], ends[1], q.up)
+                values[(positions == b) | (positions == c)] = 0.0
+                better = values > best
+                best[better] = values[better]
+                anchors[better] = (b, c)
+        return best, anchors
+
+
+class _Measure:
+    """One superlative's degree over the category's members (indices into the category),
+    from a number per member (a distance, a size) computed when asked, with an upper bound
+    on every member's degree once `settle` has found the extreme exactly."""
+
+    def settle(self) -> None:
+        """Compute the members that may hold the extreme, and so the extreme itself."""
+
+    def degree(self, j: int) -> float:
+        raise NotImplementedError
+
+    def upper(self) -> np.ndarray:
+        """float64 [m]: bounds on every member's degree (after `settle`)."""
+        raise NotImplementedError
+
+
+class _Distances(_Measure):
+    """Closest (farthest) from a reference: the asker's position or an anchor's body."""
+
+    def __init__(self, reference, ref_lo, ref_hi, members: np.ndarray, q: _Question, far: bool):
+        self.reference, self.members, self.q, self.far = reference, members, q, far
+        lo, hi = q.index.boxes(q.ids(members))
+        self.lower, self.longer = box_distance_bounds(lo, hi, ref_lo, ref_hi)
+        self.exact = np.full(len(members), np.nan)
+        self.extreme = np.nan
+
+    def distance(self, j: int) -> float:
+        if np.isnan(self.exact[j]):
+            body = self.q.index.body(int(self.q.things.ids[self.members[j]]))
+            self.exact[j] = distance_to(self.reference, body)
+        return float(self.exact[j])
+
+    def settle(self) -> None:
+        if self.far:  # the farthest: from the farthest box on, until no box may be farther
+            longest = -np.inf
+            for j in np.argsort(-self.longer, kind="stable").tolist():
+                if self.longer[j] <= longest:
+                    break
+                longest = max(longest, self.distance(j))
+            self.extreme = longest
+            return
+        shortest = np.inf
+        for j in np.argsort(self.lower, kind="stable").tolist():
+            if self.lower[j] >= shortest:
+                break
+            shortest = min(shortest, self.distance(j))
+        self.extreme = shortest
+
+    def degree(self, j: int) -> float:
+        distance = np.array([self.distance(j)])
+        if self.far:
+            return float(farthest_degrees(distance, self.extreme)[0])
+        return float(closest_degrees(distance, self.extreme)[0])
+
+    def upper(self) -> np.ndarray:
+        if self.far:
+            bound = farthest_degrees(
+                np.where(np.isnan(self.exact), self.longer, self.exact), self.extreme
+            )
+        else:
+            bound = closest_degrees(
+                np.where(np.isnan(self.exact), self.lower, self.exact), self.extreme
+            )
+        return np.minimum(bound, 1.0)
+
+
+class _Sizes(_Measure):
+    """Biggest by volume: members from the largest box bound on, until none may be bigger."""
+
+    def __init__(self, members: np.ndarray, q: _Question):
+        self.members, self.q = members, q
+        self.bound = volume_upper_bounds(*q.index.boxes(q.ids(members)))
+        self.exact = np.full(len(members), np.nan)
+        self.largest = np.nan
+
+    def size(self, j: int) -> float:
+        if np.isnan(self.exact[j]):
+            body = self.q.index.body(int(self.q.things.ids[self.members[j]]))
+            self.exact[j] = body.volume_m3()
+        return float(self.exact[j])
+
+    def settle(self) -> None:
+        largest = -np.inf
+        for j in np.argsort(-self.bound, kind="stable").tolist():
+            if self.bound[j] <= largest:
+                break
+            largest = max(largest, self.size(j))
+        self.largest = largest
+
+    def degree(self, j: int) -> float:
+        return float(biggest_degrees(np.array([self.size(j)]), self.largest)[0])
+
+    def upper(self) -> np.ndarray:
+        sizes = np.where(np.isnan(self.exact), self.bound, self.exact)
+        return np.minimum(biggest_degrees(sizes, self.largest), 1.0)
+
+
+class _Superlative(_Part):
+    """The target's extreme copy within its category (objects rated as confident targets;
+    every object when the target is unspecified); degree 0 outside it."""
+
+    def __init__(self, superlative: Superlative, target: np.ndarray, q: _Question):
+        self.kind, self.q = superlative.kind, q
+        self.category = np.flatnonzero(target >= CONFIDENT)
+        self.member = np.full(len(target), _NONE, np.int64)  # position -> index in category
+        self.member[self.category] = np.arange(len(self.category))
+        m = len(self.category)
+        self.degrees = np.full(m, np.nan)  # exact, where measured
+        self.anchors = np.full(m, _NONE, np.int64)
+        # (anchor position or _NONE, weight, measure): the degree is the best weighted one
+        self.measures: list[tuple[int, float, _Measure]] = []
+        if m == 0:
+            return
+        ids = q.ids(self.category)
+        if self.kind in ("highest", "lowest", "smallest"):  # every member, at once
+            if self.kind == "smallest":
+                sizes = [q.index.body(int(i)).volume_m3() for i in ids]
+                self.degrees = smallest_degrees(sizes)
+            else:
+                heights = heights_along(q.index.centroids(ids), q.up)
+                of = highest_degrees if self.kind == "highest" else lowest_degrees
+                self.degrees = of(heights)
+        elif self.kind == "biggest":
+            self.measures.append((_NONE, 1.0, _Sizes(self.category, q)))
+        elif superlative.anchors:  # closest / farthest from a thing
+            grounding = q.ground(superlative.anchors[0])
+            for a in grounding.candidates():
+                if self.member[a] != _NONE:
+                    continue
+                anchor_id = int(q.things.ids[a])
+                lo, hi = q.index.boxes([anchor_id])
+                measure = _Distances(
+                    q.index.body(anchor_id), lo[0], hi[0], self.category, q, self.kind == "farthest"
+                )
+                self.measures.append((a, float(grounding.relevance[a]), measure))
+            if not self.measures:
+                self.degrees = np.zeros(m)
+        else:  # closest / farthest from the asker
+            viewer = np.asarray(q.viewer, np.float64)
+            here = boxes_in_up_frame(viewer[None], viewer[None], q.up)[0][0]
+            far = self.kind == "farthest"
+            self.measures.append(
+                (_NONE, 1.0, _Distances(viewer, here, here, self.category, q, far))
+            )
+        for _, _, measure in self.measures:
+            measure.settle()
+
+    def _measure_member(self, j: int) -> None:
+        best, anchor = 0.0, _NONE
+        for a, weight, measure in self.measures:
+            value = weight * measure.degree(j)
+            if value > best:
+                best, anchor = value, a
+        self.degrees[j], self.anchors[j] = best, anchor
+
+    def apply(self, score: np.ndarray, k: int) -> np.ndarray:
+        """The scores times the degrees; a member whose bound keeps it out of the top k is
+        not measured and scores -1 (below every measured object)."""
+        out = np.zeros(len(score))
+        category = self.category
+        if len(category) == 0:
+            return out
+        base = score[category]
+        if not self.measures:
+            out[category] = base * self.degrees
+            return out
+        bound = base * np.max([w * measure.upper() for _, w, measure in self.measures], axis=0)
+        pending = np.flatnonzero(bound > 0)
+        pending = pending[np.argsort(-bound[pending], kind="stable")]
+        best_k: list[float] = []  # a min-heap of the k best measured scores
+        measured = []
+        for j in pending.tolist():
+            if len(best_k) >= k and best_k[0] > bound[j]:
+                break  # this one and every one after it score below k measured ones
+            self._measure_member(j)
+            value = base[j] * self.degrees[j]
+            if len(best_k) < k:
+                heapq.heappush(best_k, value)
+            else:
+                heapq.heappushpop(best_k, value)
+            measured.append(j)
+        skipped = np.setdiff1d(pending, measured)
+        out[category] = 0.0  # members with a 0 bound score 0 whatever their degree
+        out[category[measured]] = base[measured] * self.degrees[measured]
+        out[category[skipped]] = -1.0
+        return out
+
+    def measure(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        degrees = np.zeros(len(positions))
+        anchors = np.full((len(positions), 2), _NONE, np.int64)
+        for i, j in enumerate(self.member[positions].tolist()):
+            if j == _NONE:
+                continue
+            if np.isnan(self.degrees[j]):
+                self._measure_member(j)
+            degrees[i], anchors[i, 0] = self.degrees[j], self.anchors[j]
+        return degrees, anchors
+
+    explain = measure
+
+
 def answer(
     reading: Reading,
-    things: Sequence[MapThing],
-    index: RelationIndex,
+    things: Sequence[MapThing] | MapThings,
+    index: RelationSource,
     encoder: TextEncoder,
     viewer: np.ndarray | None = None,
     k: int = 5,
@@ -126,25 +540,28 @@ def answer(
     """The top-k objects answering a relational reading, best first; None when the caller
     should answer as a plain query (see the module docstring).
 
-    things: the map's objects, each with its points in `index` (same ids, same up axis);
-    viewer: the asker's position float [3], metres, world frame (None: unknown).
+    things: the map's objects (in any order), each with its geometry in `index` under its id
+    (same up axis); viewer: the asker's position float [3], metres, world frame (None:
+    unknown).
     """
-    if not is_relational(reading) or not things or k <= 0:
+    if not is_relational(reading) or not len(things) or k <= 0:
         return None
-    groundings: dict[str, _Grounding] = {}
-
-    def ground(phrase: str) -> _Grounding:
-        if phrase not in groundings:
-            groundings[phrase] = _Grounding(encoder, phrase, things)
-        return groundings[phrase]
-
+    if not isinstance(things, MapThings):
+        things = MapThings.of(things)
+    sup = reading.superlative
     anchor_phrases = [a for c in reading.relations for a in c.anchors]
-    if reading.superlative is not None:
-        anchor_phrases += reading.superlative.anchors
-    if not all(ground(a).confident for a in anchor_phrases):
+    if sup is not None:
+        anchor_phrases += sup.anchors
+    # the target phrase, or for an unspecified target the question's words (its cosine)
+    target_phrase = _question(reading) if reading.any_target else reading.target
+    phrases = list(dict.fromkeys([*anchor_phrases, target_phrase]))
+    embedded = encoder.encode(phrases).astype(np.float32)  # one call; labels are cached
+    q = _Question(
+        things, index, rater_for(encoder), dict(zip(phrases, embedded, strict=True)), viewer
+    )
+    if not all(q.ground(a).confident for a in anchor_phrases):
         return None
     needs_viewer = any(c.kind in VIEWPOINT_RELATIONS or not c.anchors for c in reading.relations)
-    sup = reading.superlative
     needs_viewer |= sup is not None and sup.kind in ("closest", "farthest") and not sup.anchors
     if needs_viewer and viewer is None:
         return None
@@ -152,41 +569,58 @@ def answer(
         return None  # "on my left": left of what? not read yet
 
     n = len(things)
-    if reading.any_target:
-        target = np.ones(n)
-        target_embedding = encoder.encode_query(_question(reading)).astype(np.float32)
-    else:
-        grounding = ground(reading.target)
-        target, target_embedding = grounding.relevance, grounding.embedding
-    cosine = np.stack([t.embedding for t in things]).astype(np.float32) @ target_embedding
-
+    target = np.ones(n) if reading.any_target else q.ground(reading.target).relevance
     score = target.copy()
-    explained: list[list[HitRelation]] = [[] for _ in range(n)]
-    for clause in reading.relations:
-        degrees, anchors = _clause(clause.kind, clause.anchors, things, index, ground, viewer)
-        score *= degrees
-        for i in range(n):
-            explained[i].append(HitRelation(clause.kind, anchors[i], float(degrees[i])))
+    live = np.flatnonzero(target > 0)  # an object the target cannot be scores 0 whatever
+    clauses = [_Clause(c, q) for c in reading.relations]
+    for clause in clauses:
+        degrees, _ = clause.measure(live)
+        score[live] *= degrees
+        live = live[score[live] > 0]
+    superlative = None
     if sup is not None:
-        degrees, anchors = _superlative(
-            sup.kind, sup.anchors, target, things, index, ground, viewer
-        )
-        score *= degrees
-        for i in range(n):
-            explained[i].append(HitRelation(sup.kind, anchors[i], float(degrees[i])))
+        superlative = _Superlative(sup, target, q)
+        score = superlative.apply(score, min(k, n))
 
-    order = sorted(range(n), key=lambda i: (-score[i], -target[i], -cosine[i], things[i].id))
-    return [
-        RelationalHit(
-            id=things[i].id,
-            label=things[i].label,
-            score=float(score[i]),
-            relevance=float(target[i]),
-            cosine=float(cosine[i]),
-            relation=explained[i][0],
+    top, cosine = _top(score, target, things, q.embedding(target_phrase), k)
+    explaining: _Clause | _Superlative = clauses[0] if clauses else superlative  # type: ignore[assignment]
+    degrees, anchors = explaining.explain(top)
+    hits = []
+    for i, position in enumerate(top.tolist()):
+        named = [q.named(int(a)) for a in anchors[i] if a != _NONE]
+        hits.append(
+            RelationalHit(
+                id=int(things.ids[position]),
+                label=things.labels[int(things.label_of[position])],
+                score=float(score[position]),
+                relevance=float(target[position]),
+                cosine=float(cosine[i]),
+                relation=HitRelation(explaining.kind, named, float(degrees[i])),
+            )
         )
-        for i in order[:k]
+    return hits
+
+
+def _top(
+    score: np.ndarray, target: np.ndarray, things: MapThings, query: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(positions int64 [<= k], their cosines): the k best by score, then target relevance,
+    then cosine, then id; cosines only for the objects tied near the top."""
+    n = len(score)
+    k = min(k, n)
+    kth_score = np.partition(score, n - k)[n - k]
+    ahead = np.flatnonzero(score > kth_score)
+    tied = np.flatnonzero(score == kth_score)
+    needed = k - len(ahead)
+    if needed < len(tied):
+        kth_target = np.partition(target[tied], len(tied) - needed)[len(tied) - needed]
+        tied = tied[target[tied] >= kth_target]
+    candidates = np.concatenate([ahead, tied])
+    cosine = np.asarray(things.cosines(candidates, query), np.float32)
+    order = np.lexsort((things.ids[candidates], -cosine, -target[candidates], -score[candidates]))[
+        :k
     ]
+    return candidates[order], cosine[order]
 
 
 _IRREGULAR_PLURALS = {
@@ -221,98 +655,3 @@ def _question(reading: Reading) -> str:
     """Words for an unspecified target's cosine: the anchors ("on the table" -> "table")."""
     clauses = [" ".join(c.anchors) for c in reading.relations]
     return " ".join(clauses) or "object"
-
-
-def _clause(kind, anchor_phrases, things, index, ground, viewer):
-    """Per object: the best over anchor candidates of degree x anchor relevances, and those
-    anchors as (id, label)."""
-    n = len(things)
-    best = np.zeros(n)
-    best_anchors: list[list[tuple[int, str]]] = [[] for _ in range(n)]
-    if not anchor_phrases:  # the asker is the anchor: "near me"
-        fn = PAIRWISE_RELATIONS[kind]
-        here = np.asarray(viewer, np.float64)[None]
-        for i, t in enumerate(things):
-            best[i] = fn(index.body(t.id), here, up=index.up)
-        return best, best_anchors
-    groundings = [ground(p) for p in anchor_phrases]
-    if kind == "between" and len(groundings) == 2:
-        for b in groundings[0].candidates():
-            for c in groundings[1].candidates():
-                if b == c:
-                    continue
-                weight = groundings[0].relevance[b] * groundings[1].relevance[c]
-                for i, t in enumerate(things):
-                    if i in (b, c):
-                        continue
-                    value = weight * between(
-                        index.body(t.id),
-                        index.body(things[b].id),
-                        index.body(things[c].id),
-                        up=index.up,
-                    )
-                    if value > best[i]:
-                        best[i] = value
-                        best_anchors[i] = [_named(things[b]), _named(things[c])]
-        return best, best_anchors
-    grounding = groundings[0]
-    position = {t.id: i for i, t in enumerate(things)}
-    for a in grounding.candidates():
-        weight = grounding.relevance[a]
-        anchor = things[a]
-        if kind in VIEWPOINT_RELATIONS:
-            fn = VIEWPOINT_RELATIONS[kind]
-            values = [
-                (i, fn(index.body(t.id), index.body(anchor.id), viewer, up=index.up))
-                for i, t in enumerate(things)
-                if i != a
-            ]
-        else:  # only this anchor's pairs are computed
-            subjects, _, degrees = index.pairs(kind, anchor=anchor.id)  # type: ignore[arg-type]
-            values = [
-                (position[s], d)
-                for s, d in zip(subjects.tolist(), degrees.tolist(), strict=True)
-                if s in position
-            ]
-        for i, degree in values:
-            if weight * degree > best[i]:
-                best[i] = weight * degree
-                best_anchors[i] = [_named(anchor)]
-    top = grounding.candidates()
-    for i in range(n):  # unsatisfied: name the best anchor it was weighed against
-        if not best_anchors[i] and top:
-            best_anchors[i] = [_named(things[top[0]])]
-    return best, best_anchors
-
-
-def _superlative(kind, anchor_phrases, target, things, index, ground, viewer):
-    """Per object: its superlative degree within the target category (objects rated as
-    confident targets; every object when the target is unspecified), 0 outside it."""
-    n = len(things)
-    degrees = np.zeros(n)
-    anchors: list[list[tuple[int, str]]] = [[] for _ in range(n)]
-    category = [i for i in range(n) if target[i] >= CONFIDENT]
-    if not category:
-        return degrees, anchors
-    bodies = [index.body(things[i].id) for i in category]
-    fn = SUPERLATIVES[kind]
-    if kind in ("closest", "farthest"):
-        if anchor_phrases:
-            grounding = ground(anchor_phrases[0])
-            for a in grounding.candidates():
-                if a in category:
-                    continue
-                values = grounding.relevance[a] * fn(index.body(things[a].id), bodies, up=index.up)
-                for j, i in enumerate(category):
-                    if values[j] > degrees[i]:
-                        degrees[i], anchors[i] = values[j], [_named(things[a])]
-            return degrees, anchors
-        values = fn(np.asarray(viewer, np.float64), bodies, up=index.up)
-    else:
-        values = fn(bodies, up=index.up)
-    degrees[category] = values
-    return degrees, anchors
-
-
-def _named(thing: MapThing) -> tuple[int, str]:
-    return (thing.id, thing.label)

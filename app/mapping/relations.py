@@ -19,7 +19,12 @@ any rotation about up and any translation.
 
 The functions take a `Body` (points prepared once for an up axis) or plain points; the
 kinds' names (as the query grammar names them) map to them in PAIRWISE_RELATIONS,
-VIEWPOINT_RELATIONS and SUPERLATIVES.
+VIEWPOINT_RELATIONS and SUPERLATIVES. Those that need only centroids or one number per thing
+(between, viewpoint, superlatives) have a form over many things at once (`*_degrees`).
+
+A question reads the map's geometry through a `RelationSource`: `RelationIndex`, kept as
+objects change (the server), or `OnDemandRelations`, measured when asked (the device's local
+map, which holds far more objects than it is asked about). Both give the same degrees.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -158,6 +163,7 @@ DENSE_DISTANCE_PAIRS = 12_000
 
 PairwiseKind = Literal["on", "in", "under", "above", "below", "near", "next_to"]
 PAIRWISE_KINDS: tuple[str, ...] = ("on", "in", "under", "above", "below", "near", "next_to")
+VIEWPOINT_KINDS: tuple[str, ...] = ("left_of", "right_of", "in_front_of", "behind")
 
 
 def snap_to_axis(vector: np.ndarray) -> np.ndarray:
@@ -617,10 +623,45 @@ def _arc_openings(centres: np.ndarray, half_widths: np.ndarray) -> np.ndarray:
 
 
 # -- between, viewpoint, superlatives -----------------------------------------------------
+#
+# These need only centroids (between, viewpoint, highest / lowest) or one number per thing
+# (distances, sizes): each has a form over arrays of many things (`*_degrees`), which the
+# functions on bodies call, so a question over thousands of things is one numpy pass.
 
 
-def _horizontal(vector: np.ndarray, up: np.ndarray) -> np.ndarray:
-    return vector - (vector @ up) * up
+def _horizontal(vectors: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """vectors (float [3] or [m, 3]) with their component along `up` removed."""
+    return vectors - (vectors @ up)[..., None] * up
+
+
+def _rise_many(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """`_rise` of each element of `x`."""
+    t = np.clip((np.asarray(x, np.float64) - lo) / (hi - lo), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _fall_many(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    return 1.0 - _rise_many(x, lo, hi)
+
+
+def between_degrees(
+    subjects: np.ndarray, b: np.ndarray, c: np.ndarray, up: np.ndarray = Z_UP
+) -> np.ndarray:
+    """float64 [m]: `between` for many things at once, from centroids (world frame, metres):
+    subjects float [m, 3], the anchors' b and c float [3]."""
+    axis_up = snap_to_axis(up)
+    subjects = np.asarray(subjects, np.float64).reshape(-1, 3)
+    b = np.asarray(b, np.float64)
+    segment = _horizontal(np.asarray(c, np.float64) - b, axis_up)
+    length = float(np.linalg.norm(segment))
+    if length < 1e-6:
+        return np.zeros(len(subjects))
+    offset = _horizontal(subjects - b, axis_up)
+    t = (offset @ segment) / length**2
+    lateral = np.linalg.norm(offset - t[:, None] * segment, axis=1)
+    allowed = max(BETWEEN_LATERAL_M, BETWEEN_LATERAL_SHARE * length)
+    along = _rise_many(t, 0.0, BETWEEN_END_SHARE) * _rise_many(1.0 - t, 0.0, BETWEEN_END_SHARE)
+    return along * _fall_many(lateral, allowed, 2.0 * allowed)
 
 
 def between(a: BodyLike, b: BodyLike, c: BodyLike, up=Z_UP) -> float:
@@ -628,89 +669,100 @@ def between(a: BodyLike, b: BodyLike, c: BodyLike, up=Z_UP) -> float:
     joining theirs (BETWEEN_LATERAL_M or BETWEEN_LATERAL_SHARE of its length) and inside it
     (BETWEEN_END_SHARE from either end). Symmetric in b and c."""
     a, b, c = _bodies(a, b, c, up=up)
-    axis_up = a.up
-    segment = _horizontal(c.centroid - b.centroid, axis_up)
-    length = float(np.linalg.norm(segment))
-    if length < 1e-6:
-        return 0.0
-    offset = _horizontal(a.centroid - b.centroid, axis_up)
-    t = float(offset @ segment) / length**2
-    lateral = float(np.linalg.norm(offset - t * segment))
-    allowed = max(BETWEEN_LATERAL_M, BETWEEN_LATERAL_SHARE * length)
-    along = _rise(t, 0.0, BETWEEN_END_SHARE) * _rise(1.0 - t, 0.0, BETWEEN_END_SHARE)
-    return along * _fall(lateral, allowed, 2.0 * allowed)
+    return float(between_degrees(a.centroid[None], b.centroid, c.centroid, a.up)[0])
 
 
-def _bearing(a: Body, b: Body, viewer: np.ndarray) -> tuple[float, float, float] | None:
-    """Seen from the viewer looking horizontally at b's centre: (a's bearing in radians,
-    positive to the left; b's depth minus a's along the view direction; a's distance from
-    the line of sight), or None with b at the viewer."""
-    axis_up = a.up
-    view = _horizontal(b.centroid - viewer, axis_up)
+def viewpoint_degrees(
+    kind: str, subjects: np.ndarray, anchor: np.ndarray, viewer: np.ndarray, up=Z_UP
+) -> np.ndarray:
+    """float64 [m]: a viewpoint relation (`left_of`, `right_of`, `in_front_of`, `behind`) of
+    many things to one anchor at once, from centroids (world frame, metres): subjects float
+    [m, 3], the anchor's float [3], the viewer's position float [3]. Seen from the viewer
+    looking horizontally at the anchor's centre; all 0 with the anchor at the viewer."""
+    if kind not in VIEWPOINT_KINDS:
+        raise ValueError(f"unknown viewpoint relation {kind!r}; one of {VIEWPOINT_KINDS}")
+    axis_up = snap_to_axis(up)
+    subjects = np.asarray(subjects, np.float64).reshape(-1, 3)
+    viewer = np.asarray(viewer, np.float64)
+    view = _horizontal(np.asarray(anchor, np.float64) - viewer, axis_up)
     reach = float(np.linalg.norm(view))
     if reach < 1e-6:
-        return None
+        return np.zeros(len(subjects))
     view /= reach
-    to_a = _horizontal(a.centroid - viewer, axis_up)
-    bearing = float(np.arctan2(np.cross(view, to_a) @ axis_up, view @ to_a))
-    depth_a = float(to_a @ view)
-    lateral = float(np.linalg.norm(to_a - depth_a * view))
-    return bearing, reach - depth_a, lateral
+    to_subject = _horizontal(subjects - viewer, axis_up)
+    depth = to_subject @ view
+    if kind in ("left_of", "right_of"):
+        # positive to the left: the subject's bearing from the line of sight to the anchor
+        bearing = np.degrees(np.arctan2(np.cross(view, to_subject) @ axis_up, depth))
+        return _rise_many(bearing if kind == "left_of" else -bearing, 0.0, LEFT_RIGHT_FULL_DEG)
+    nearer = reach - depth  # how much nearer to the viewer than the anchor
+    lateral = np.linalg.norm(to_subject - depth[:, None] * view, axis=1)
+    ahead = _rise_many(nearer if kind == "in_front_of" else -nearer, 0.0, FRONT_FULL_M)
+    return ahead * _fall_many(lateral, FRONT_LATERAL_FULL_M, FRONT_LATERAL_MAX_M)
+
+
+def _viewpoint(kind: str, a: BodyLike, b: BodyLike, viewer: np.ndarray, up) -> float:
+    a, b = _bodies(a, b, up=up)
+    return float(viewpoint_degrees(kind, a.centroid[None], b.centroid, viewer, a.up)[0])
 
 
 def left_of(a: BodyLike, b: BodyLike, viewer: np.ndarray, up=Z_UP) -> float:
     """Degree to which a is left of b seen from `viewer` (float [3], the asker's position):
     a's bearing left of b's by LEFT_RIGHT_FULL_DEG for degree 1."""
-    a, b = _bodies(a, b, up=up)
-    seen = _bearing(a, b, np.asarray(viewer, np.float64))
-    return 0.0 if seen is None else _rise(np.degrees(seen[0]), 0.0, LEFT_RIGHT_FULL_DEG)
+    return _viewpoint("left_of", a, b, viewer, up)
 
 
 def right_of(a: BodyLike, b: BodyLike, viewer: np.ndarray, up=Z_UP) -> float:
     """Degree to which a is right of b seen from `viewer` (mirror of `left_of`)."""
-    a, b = _bodies(a, b, up=up)
-    seen = _bearing(a, b, np.asarray(viewer, np.float64))
-    return 0.0 if seen is None else _rise(-np.degrees(seen[0]), 0.0, LEFT_RIGHT_FULL_DEG)
+    return _viewpoint("right_of", a, b, viewer, up)
 
 
 def in_front_of(a: BodyLike, b: BodyLike, viewer: np.ndarray, up=Z_UP) -> float:
     """Degree to which a is in front of b seen from `viewer`: nearer along the view direction
     from the viewer to b (FRONT_FULL_M for degree 1), near the line of sight to b."""
-    a, b = _bodies(a, b, up=up)
-    seen = _bearing(a, b, np.asarray(viewer, np.float64))
-    if seen is None:
-        return 0.0
-    _, nearer, lateral = seen
-    return _rise(nearer, 0.0, FRONT_FULL_M) * _fall(
-        lateral, FRONT_LATERAL_FULL_M, FRONT_LATERAL_MAX_M
-    )
+    return _viewpoint("in_front_of", a, b, viewer, up)
 
 
 def behind(a: BodyLike, b: BodyLike, viewer: np.ndarray, up=Z_UP) -> float:
     """Degree to which a is behind b seen from `viewer` (mirror of `in_front_of`)."""
-    a, b = _bodies(a, b, up=up)
-    seen = _bearing(a, b, np.asarray(viewer, np.float64))
-    if seen is None:
-        return 0.0
-    _, nearer, lateral = seen
-    return _rise(-nearer, 0.0, FRONT_FULL_M) * _fall(
-        lateral, FRONT_LATERAL_FULL_M, FRONT_LATERAL_MAX_M
-    )
+    return _viewpoint("behind", a, b, viewer, up)
+
+
+def distance_to(reference: BodyLike, body: Body) -> float:
+    """Metres from the reference (a world point float [3], or a thing: a body or its points
+    [N, 3]) to the body's closest point."""
+    if isinstance(reference, Body) or np.ndim(reference) == 2:
+        return _closest_distance(_body(reference, body.up), body, np.inf)
+    offsets = body.local - body.to_local(reference)[:, None]
+    return float(np.sqrt(np.einsum("ij,ij->j", offsets, offsets).min()))
 
 
 def _distances_from(reference: BodyLike, bodies: list[Body]) -> np.ndarray:
-    """float64 [n]: from the reference (a world point float [3], or a thing: a body or its
-    points [N, 3]) to each body's closest point."""
-    out = np.empty(len(bodies))
-    if isinstance(reference, Body) or np.ndim(reference) == 2:
-        thing = _body(reference, bodies[0].up) if bodies else None
-        for i, body in enumerate(bodies):
-            out[i] = _closest_distance(thing, body, np.inf)  # type: ignore[arg-type]
-        return out
-    for i, body in enumerate(bodies):
-        offsets = body.local - body.to_local(reference)[:, None]
-        out[i] = np.sqrt(np.einsum("ij,ij->j", offsets, offsets).min())
-    return out
+    """float64 [n]: from the reference (as `distance_to`) to each body's closest point."""
+    if bodies and not isinstance(reference, Body) and np.ndim(reference) == 2:
+        reference = Body(reference, bodies[0].up)  # prepared once
+    return np.array([distance_to(reference, body) for body in bodies], np.float64)
+
+
+def closest_degrees(distances: np.ndarray, shortest_m: float | None = None) -> np.ndarray:
+    """float64 [n]: `closest_to` from the candidates' distances (metres): 1 for the shortest
+    (`shortest_m`, the least of `distances` unless given: the least over a larger set),
+    exp(-extra distance / DISTANCE_SCALE_M) for the others."""
+    distances = np.asarray(distances, np.float64)
+    if len(distances) == 0:
+        return distances
+    shortest = distances.min() if shortest_m is None else shortest_m
+    return np.exp(-(distances - shortest) / DISTANCE_SCALE_M)
+
+
+def farthest_degrees(distances: np.ndarray, longest_m: float | None = None) -> np.ndarray:
+    """float64 [n]: `farthest_from` from the candidates' distances (mirror of
+    `closest_degrees`)."""
+    distances = np.asarray(distances, np.float64)
+    if len(distances) == 0:
+        return distances
+    longest = distances.max() if longest_m is None else longest_m
+    return np.exp(-(longest - distances) / DISTANCE_SCALE_M)
 
 
 def closest_to(reference: BodyLike, candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
@@ -718,19 +770,13 @@ def closest_to(reference: BodyLike, candidates: Sequence[BodyLike], up=Z_UP) -> 
     position float [3], or a thing: a body or its points [N, 3], "the lamp closest to the
     window") by closest points: 1 for the winner, exp(-extra distance / DISTANCE_SCALE_M)
     for the others."""
-    distances = _distances_from(reference, _bodies(*candidates, up=up))
-    if len(distances) == 0:
-        return distances
-    return np.exp(-(distances - distances.min()) / DISTANCE_SCALE_M)
+    return closest_degrees(_distances_from(reference, _bodies(*candidates, up=up)))
 
 
 def farthest_from(reference: BodyLike, candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
     """float64 [n]: degree to which each candidate is the farthest from `reference` (mirror
     of `closest_to`)."""
-    distances = _distances_from(reference, _bodies(*candidates, up=up))
-    if len(distances) == 0:
-        return distances
-    return np.exp(-(distances.max() - distances) / DISTANCE_SCALE_M)
+    return farthest_degrees(_distances_from(reference, _bodies(*candidates, up=up)))
 
 
 SizeMeasure = Literal["volume", "footprint"]
@@ -743,41 +789,100 @@ def _sizes(candidates: Sequence[BodyLike], by: SizeMeasure, up) -> np.ndarray:
     return np.array([b.footprint.area for b in bodies])
 
 
-def biggest(candidates: Sequence[BodyLike], by: SizeMeasure = "volume", up=Z_UP) -> np.ndarray:
-    """float64 [n]: each candidate's size over the largest (1 for the winner), by volume
-    (footprint area times height) or footprint area (m²)."""
-    sizes = _sizes(candidates, by, up)
+def biggest_degrees(sizes: np.ndarray, largest: float | None = None) -> np.ndarray:
+    """float64 [n]: `biggest` from the candidates' sizes: each over the largest (`largest`
+    when given: the largest over a larger set), all 1 when that is 0."""
+    sizes = np.asarray(sizes, np.float64)
     if len(sizes) == 0:
         return sizes
-    return sizes / sizes.max() if sizes.max() > 0 else np.ones(len(sizes))
+    top = sizes.max() if largest is None else largest
+    return sizes / top if top > 0 else np.ones(len(sizes))
 
 
-def smallest(candidates: Sequence[BodyLike], by: SizeMeasure = "volume", up=Z_UP) -> np.ndarray:
-    """float64 [n]: the smallest candidate's size over each one's (1 for the winner)."""
-    sizes = _sizes(candidates, by, up)
+def smallest_degrees(sizes: np.ndarray) -> np.ndarray:
+    """float64 [n]: `smallest` from the candidates' sizes: the smallest over each one's."""
+    sizes = np.asarray(sizes, np.float64)
     if len(sizes) == 0:
         return sizes
     smallest_size = sizes.min()
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(sizes > 0, smallest_size / sizes, 1.0)
-    return ratio
+        return np.where(sizes > 0, smallest_size / sizes, 1.0)
 
 
-def highest(candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
-    """float64 [n]: by centre height along up, 1 for the highest, exp(-drop / HEIGHT_SCALE_M)
-    for others."""
-    heights = np.array([b.centre_height for b in _bodies(*candidates, up=up)])
+def biggest(candidates: Sequence[BodyLike], by: SizeMeasure = "volume", up=Z_UP) -> np.ndarray:
+    """float64 [n]: each candidate's size over the largest (1 for the winner), by volume
+    (footprint area times height) or footprint area (m²)."""
+    return biggest_degrees(_sizes(candidates, by, up))
+
+
+def smallest(candidates: Sequence[BodyLike], by: SizeMeasure = "volume", up=Z_UP) -> np.ndarray:
+    """float64 [n]: the smallest candidate's size over each one's (1 for the winner)."""
+    return smallest_degrees(_sizes(candidates, by, up))
+
+
+def highest_degrees(heights: np.ndarray) -> np.ndarray:
+    """float64 [n]: `highest` from the candidates' centre heights along up (metres)."""
+    heights = np.asarray(heights, np.float64)
     if len(heights) == 0:
         return heights
     return np.exp(-(heights.max() - heights) / HEIGHT_SCALE_M)
 
 
-def lowest(candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
-    """float64 [n]: mirror of `highest`."""
-    heights = np.array([b.centre_height for b in _bodies(*candidates, up=up)])
+def lowest_degrees(heights: np.ndarray) -> np.ndarray:
+    """float64 [n]: `lowest` from the candidates' centre heights (mirror of
+    `highest_degrees`)."""
+    heights = np.asarray(heights, np.float64)
     if len(heights) == 0:
         return heights
     return np.exp(-(heights - heights.min()) / HEIGHT_SCALE_M)
+
+
+def highest(candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
+    """float64 [n]: by centre height along up, 1 for the highest, exp(-drop / HEIGHT_SCALE_M)
+    for others."""
+    return highest_degrees([b.centre_height for b in _bodies(*candidates, up=up)])
+
+
+def lowest(candidates: Sequence[BodyLike], up=Z_UP) -> np.ndarray:
+    """float64 [n]: mirror of `highest`."""
+    return lowest_degrees([b.centre_height for b in _bodies(*candidates, up=up)])
+
+
+def heights_along(centroids: np.ndarray, up=Z_UP) -> np.ndarray:
+    """float64 [m]: the height along up of each centroid (float [m, 3], world frame): what
+    `Body.centre_height` gives for a body with that centroid."""
+    axis, sign = _axis_of(up)
+    return sign * np.asarray(centroids, np.float64).reshape(-1, 3)[:, axis]
+
+
+# -- bounds from boxes (which things a question may skip) ----------------------------------
+
+
+def box_distance_bounds(
+    lo: np.ndarray, hi: np.ndarray, ref_lo: np.ndarray, ref_hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(lower float64 [m], upper float64 [m]) metres: bounds on the distance between any
+    point of each box (lo, hi float [m, 3]) and any point of the reference box (ref_lo,
+    ref_hi float [3]; a point is a box with lo = hi), so on the closest-points distance of
+    the things inside them. Any frame, as long as both are in it."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    gap = np.maximum(np.maximum(lo - ref_hi, ref_lo - hi), 0.0)
+    span = np.maximum(np.abs(hi - ref_lo), np.abs(ref_hi - lo))
+    return np.sqrt(np.einsum("ij,ij->i", gap, gap)), np.sqrt(np.einsum("ij,ij->i", span, span))
+
+
+_FOOTPRINT_IN_DISC = FOOTPRINT_DIRECTIONS * math.tan(math.pi / FOOTPRINT_DIRECTIONS)
+"""A `Footprint` of points within a disc of radius R lies inside the regular polygon
+circumscribed about that disc (each extent is at most the disc's): area <= this x R²."""
+
+
+def volume_upper_bounds(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """float64 [m] m³: bounds on `Body.volume_m3` of the things within each box (lo, hi float
+    [m, 3] in the up frame): the polygon about the disc holding the box seen from above, times
+    the box's height."""
+    size = np.asarray(hi, np.float64) - np.asarray(lo, np.float64)
+    radius_squared = 0.25 * (size[:, 0] ** 2 + size[:, 1] ** 2)
+    return _FOOTPRINT_IN_DISC * radius_squared * np.maximum(size[:, 2], 0.0) * (1 + 1e-9) + 1e-12
 
 
 PAIRWISE_RELATIONS: dict[str, Callable[..., float]] = {
@@ -842,6 +947,37 @@ def _in_column(gaps: tuple[float, float, float]) -> bool:
         and gaps[1] <= FOOTPRINT_MARGIN_M
         and gaps[2] <= VERTICAL_MAX_GAP_M
     )
+
+
+def within_reach(
+    lo: np.ndarray, hi: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray
+) -> np.ndarray:
+    """bool [m]: which boxes (lo, hi float [m, 3], up frame) pass `pair_degrees`'s
+    prefilters with the box (box_lo, box_hi float [3]; a point is a box with lo = hi): boxes
+    within NEAR_MAX_M, or over one another (`_in_column`). Every pairwise degree of things
+    whose boxes fail it is 0."""
+    gap = np.maximum(np.maximum(lo - box_hi, box_lo - hi), 0.0)
+    close = np.einsum("ij,ij->i", gap, gap) <= NEAR_MAX_M**2
+    column = (
+        (gap[:, 0] <= FOOTPRINT_MARGIN_M)
+        & (gap[:, 1] <= FOOTPRINT_MARGIN_M)
+        & (gap[:, 2] <= VERTICAL_MAX_GAP_M)
+    )
+    return close | column
+
+
+def boxes_in_up_frame(
+    lo: np.ndarray, hi: np.ndarray, up: np.ndarray = Z_UP
+) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) float64 [n, 3]: world-frame boxes (lo, hi float [n, 3]) in the up frame, as
+    `Body.lo` / `Body.hi` have them (the two axes across up, then the height)."""
+    axis, sign = _axis_of(up)
+    order = _frame_order(axis)
+    lo_up = np.asarray(lo, np.float64).reshape(-1, 3)[:, order]
+    hi_up = np.asarray(hi, np.float64).reshape(-1, 3)[:, order]
+    if sign < 0:  # heights flip: the box's top becomes its bottom
+        lo_up[:, 2], hi_up[:, 2] = -hi_up[:, 2], -lo_up[:, 2]
+    return lo_up, hi_up
 
 
 @dataclass(frozen=True)
@@ -965,14 +1101,9 @@ class RelationIndex:
 
     def _candidates(self, body: Body) -> np.ndarray:
         """Ids of the objects whose boxes pass `pair_degrees`'s prefilters with `body`."""
-        gap = np.maximum(np.maximum(self._lo - body.hi, body.lo - self._hi), 0.0)
-        close = np.einsum("ij,ij->i", gap, gap) <= NEAR_MAX_M**2
-        column = (
-            (gap[:, 0] <= FOOTPRINT_MARGIN_M)
-            & (gap[:, 1] <= FOOTPRINT_MARGIN_M)
-            & (gap[:, 2] <= VERTICAL_MAX_GAP_M)
-        )
-        return self._row_ids[(close | column) & (self._row_ids >= 0)]
+        return self._row_ids[
+            within_reach(self._lo, self._hi, body.lo, body.hi) & (self._row_ids >= 0)
+        ]
 
     def _remember(self, object_id: int, body: Body) -> None:
         self._bodies[object_id] = body
@@ -1017,6 +1148,30 @@ class RelationIndex:
             return 0.0
         directed = kind not in ("near", "next_to")
         return float(row[slot + 1 if directed and subject > anchor else slot])
+
+    def degrees(self, kind: str, anchor: int, subjects: np.ndarray) -> np.ndarray:
+        """float64 [m]: how much each of `subjects` (ids int [m]) stands in `kind` to `anchor`
+        (0 out of reach, for the anchor itself and for unknown ids); only the pairs within
+        reach of the anchor are computed."""
+        if kind != "below" and kind not in _SLOT:
+            raise ValueError(f"unknown relation {kind!r}; one of {PAIRWISE_KINDS}")
+        subjects = np.asarray(subjects, np.int64)
+        out = np.zeros(len(subjects))
+        reach = self._reach.get(anchor)
+        if reach:
+            within = np.isin(subjects, np.fromiter(reach, np.int64, len(reach)))
+            for i in np.flatnonzero(within).tolist():
+                out[i] = self.degree(kind, int(subjects[i]), anchor)  # type: ignore[arg-type]
+        return out
+
+    def centroids(self, ids: np.ndarray) -> np.ndarray:
+        """float64 [m, 3]: the bodies' centroids, world frame."""
+        return np.array([self._bodies[int(i)].centroid for i in ids], np.float64).reshape(-1, 3)
+
+    def boxes(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) float64 [m, 3]: the bodies' boxes in the up frame."""
+        rows = [self._row_of[int(i)] for i in ids]
+        return self._lo[rows].reshape(-1, 3), self._hi[rows].reshape(-1, 3)
 
     def relations_of(self, object_id: int) -> list[Relation]:
         """Every relation with a degree above 0 that `object_id` takes part in, as subject or
@@ -1065,3 +1220,103 @@ class RelationIndex:
             np.array([t for _, t, _ in found], np.int64),
             np.array([d for _, _, d in found], np.float64),
         )
+
+
+class RelationSource(Protocol):
+    """What a question reads of a map's geometry (`app.mapping.relational.answer`): kept up
+    to date as objects change (`RelationIndex`, the server) or measured when asked
+    (`OnDemandRelations`, the device's local map). Both give the same degrees for the same
+    points."""
+
+    up: np.ndarray
+    """The up axis, float64 [3]."""
+
+    def body(self, object_id: int) -> Body: ...
+
+    def degrees(self, kind: str, anchor: int, subjects: np.ndarray) -> np.ndarray:
+        """float64 [m]: a pairwise kind's degree of each subject (ids int [m]) to the anchor."""
+        ...
+
+    def centroids(self, ids: np.ndarray) -> np.ndarray:
+        """float64 [m, 3]: `Body.centroid` of each, world frame."""
+        ...
+
+    def boxes(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) float64 [m, 3]: boxes holding each one's points, up frame (the
+        prefilters and bounds; a wider box costs work, never a different answer)."""
+        ...
+
+
+class OnDemandRelations:
+    """A map's relations measured when a question reads them, for a map held elsewhere (the
+    device's local map, 10k objects or more): nothing is prepared ahead and nothing is kept,
+    so a question builds bodies only for the objects it touches (`body_of`, which may cache
+    them). The degrees are `RelationIndex`'s: the same relation functions on the same bodies;
+    the boxes only decide which pairs are worth measuring (`within_reach`), and a box wider
+    than its points changes no degree.
+    """
+
+    def __init__(
+        self,
+        ids: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        body_of: Callable[[int], Body],
+        centroids_of: Callable[[np.ndarray], np.ndarray] | None = None,
+        up: np.ndarray = Z_UP,
+    ):
+        """ids: int [n], unique; lo, hi: float [n, 3] world-frame boxes holding each object's
+        points (wider is fine); body_of: id -> its `Body` for `up`; centroids_of: rows (int
+        [m], into `ids`) -> float [m, 3], the bodies' centroids without building them
+        (default: from `body_of`)."""
+        self.up = snap_to_axis(up)
+        ids = np.asarray(ids, np.int64)
+        self._order = np.argsort(ids, kind="stable")
+        self._sorted_ids = ids[self._order]
+        self._lo, self._hi = boxes_in_up_frame(lo, hi, self.up)
+        self._body_of = body_of
+        self._centroids_of = centroids_of
+
+    def __len__(self) -> int:
+        return len(self._sorted_ids)
+
+    def _rows(self, ids: np.ndarray) -> np.ndarray:
+        ids = np.asarray(ids, np.int64).reshape(-1)
+        at = np.minimum(np.searchsorted(self._sorted_ids, ids), max(len(self) - 1, 0))
+        if len(ids) and (len(self) == 0 or (self._sorted_ids[at] != ids).any()):
+            raise KeyError(f"unknown object ids among {ids[:5].tolist()}")
+        return self._order[at]
+
+    def body(self, object_id: int) -> Body:
+        return self._body_of(int(object_id))
+
+    def degrees(self, kind: str, anchor: int, subjects: np.ndarray) -> np.ndarray:
+        """float64 [m]: as `RelationIndex.degrees`; bodies only for the subjects whose boxes
+        are within reach of the anchor's."""
+        relation = PAIRWISE_RELATIONS.get(kind)
+        if relation is None:
+            raise ValueError(f"unknown relation {kind!r}; one of {PAIRWISE_KINDS}")
+        subjects = np.asarray(subjects, np.int64).reshape(-1)
+        out = np.zeros(len(subjects))
+        if len(subjects) == 0:
+            return out
+        anchor_row = self._rows([anchor])[0]
+        rows = self._rows(subjects)
+        reach = within_reach(
+            self._lo[rows], self._hi[rows], self._lo[anchor_row], self._hi[anchor_row]
+        )
+        reach &= subjects != anchor
+        if reach.any():
+            anchor_body = self.body(anchor)
+            for i in np.flatnonzero(reach).tolist():
+                out[i] = relation(self.body(int(subjects[i])), anchor_body, up=self.up)
+        return out
+
+    def centroids(self, ids: np.ndarray) -> np.ndarray:
+        if self._centroids_of is None:
+            return np.array([self.body(i).centroid for i in ids], np.float64).reshape(-1, 3)
+        return np.asarray(self._centroids_of(self._rows(ids)), np.float64).reshape(-1, 3)
+
+    def boxes(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rows = self._rows(ids)
+        return self._lo[rows], self._hi[rows]

@@ -20,17 +20,11 @@ from hypothesis import strategies as st
 
 from app.codecs import float16_vector_to_bytes
 from app.mapping.deltas import Delta, DeltaLog
+from app.mapping.held import POINT_LEVELS, dequantise_points, quantise_points
 from app.mapping.object import MapObject
 from app.mapping.publish import delta_message
 from app.protocol import ChangeEntry, UpsertEntry, pack_delta
-from client_sim.local_map import (
-    BYTES_PER_MB,
-    POINT_LEVELS,
-    DeltaError,
-    LocalMap,
-    dequantise_points,
-    quantise_points,
-)
+from client_sim.local_map import BYTES_PER_MB, DeltaError, LocalMap
 from client_sim.querying import QueryAnswer, QueryRouter
 from client_sim.world.categories import CATEGORIES
 
