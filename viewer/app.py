@@ -33,6 +33,7 @@ import viser.transforms as vtf
 from app.client import ApiError, Disconnect, SessionApi, UpdatesSubscriber
 from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
+from app.mapping.relevance import CONFIDENT
 from app.protocol import SessionStats, unpack_update
 from viewer.scene import (
     ANCHORS_GROUP,
@@ -204,13 +205,16 @@ def _strength(hit: dict) -> float:
     return hit["relevance"] * (relation["degree"] if relation else 1.0)
 
 
-def _hit_line(hit: dict, held: set[int]) -> str:
+def _hit_line(hit: dict, held: set[int], answer: bool) -> str:
     """One hit of the GUI's list, markdown: "mug — on the desk (0.93) — relevance `0.91`,
     score `0.612` (#10)", the relation's degree in brackets ("mug — not on the desk (0.00)"
-    under CONFIDENT_DEGREE). Names are escaped (user data)."""
+    under CONFIDENT_DEGREE). The relation is said of what was asked about (a confident hit,
+    or `answer`: the best hit of a matching answer), not of the desk in "the mug on the desk"
+    nor of a weak hit. Names are escaped (user data)."""
     said = html.escape(hit["label"])
     relation = hit.get("relation")
-    if relation:
+    about = answer or hit["relevance"] >= CONFIDENT
+    if relation and about and all(a["id"] != hit["id"] for a in relation["anchors"]):
         anchors = relation["anchors"]
         words = relation_words(relation["kind"], [a["label"] for a in anchors])
         negation = "" if relation["degree"] >= CONFIDENT_DEGREE else "not "
@@ -432,7 +436,10 @@ class ViewerApp:
             held = set(self.model.objects)
         verdict = "" if self.last_match else " — **no confident match**"
         lines = [f"**{len(results)} hits** for *{html.escape(text)}*{verdict}:", ""]
-        lines += [f"{rank}. {_hit_line(r, held)}" for rank, r in enumerate(results, 1)]
+        lines += [
+            f"{rank}. {_hit_line(r, held, rank == 1 and self.last_match)}"
+            for rank, r in enumerate(results, 1)
+        ]
         self.gui.results.content = "\n".join(lines)
         return results
 

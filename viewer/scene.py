@@ -813,8 +813,12 @@ class SceneModel:
                 self._point_colors[oid] = color
 
     def _draw_hit_label(self, obj: ViewObject) -> None:
-        """A hit's label with its relevance, the target's with its relation in words (sent
-        only if its text or place changed)."""
+        """A hit's label with its relevance, the target's with its relation in words, none
+        for an anchor (its anchor label says it) (sent only if its text or place changed)."""
+        if self._relation is not None and obj.id in self._relation.anchors:
+            if self._hit_labels.pop(obj.id, None) is not None:
+                self.sink.remove(hit_label_node(obj.id))
+            return
         if self._relation is not None and obj.id == self._relation.target:
             drawn = (f"{obj.label} — {self._relation.words}", obj.center)
         else:

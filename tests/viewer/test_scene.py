@@ -642,6 +642,15 @@ def test_a_relational_answer_draws_target_and_anchor_in_two_colours_with_a_line_
     assert model.relation == chair_next_to_the_table()
 
 
+def test_an_anchor_among_the_hits_is_labelled_once_as_the_anchor(scene):
+    model, sink = scene
+    model.highlight([(2, 0.6)])  # a plain answer labels the table as a hit
+    model.highlight([(3, 0.9), (2, 0.1)], chair_next_to_the_table())
+    assert hit_label_node(2) not in sink.nodes
+    assert sink.nodes[anchor_label_node(2)]["text"] == "table"
+    assert sink.nodes[points_node(2)]["color"] == ANCHOR_RGB
+
+
 def test_between_draws_a_line_from_the_target_to_each_anchor(scene):
     model, sink = scene
     model.highlight([(2, 0.8)], RelationHighlight(2, (1, 3), "between the chair and the chair"))
