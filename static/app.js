@@ -11,6 +11,7 @@
   const QUERY_K = 5;
   const CHANGES_SHOWN = 20; // the newest changes the timeline lists
   const CONFIDENT_RELEVANCE = 0.5; // app.mapping.relevance.CONFIDENT: a confident match from here
+  const CONFIDENT_DEGREE = 0.5; // a hit stands in its relation from here (viewer/app.py says the same)
   const STORE_API_KEY = "semanticxr.apiKey";
   const STORE_TOKENS = "semanticxr.tokens"; // {session id: token}
 
@@ -156,6 +157,73 @@
     return parts.join(" · ");
   }
 
+  // --- relational answers in words (viewer/scene.py `relation_words` says the same) ---------
+
+  const RELATION_PHRASES = {
+    next_to: "next to",
+    left_of: "left of",
+    right_of: "right of",
+    in_front_of: "in front of",
+    closest: "closest to",
+    farthest: "farthest from",
+  };
+  const TO_THE_ASKER = { // measured from the asker: "the lamp closest to me"
+    near: "near you",
+    next_to: "next to you",
+    left_of: "on your left",
+    right_of: "on your right",
+    in_front_of: "in front of you",
+    behind: "behind you",
+    closest: "closest to you",
+    farthest: "farthest from you",
+  };
+  const SUPERLATIVES_WITHIN_CATEGORY = new Set(["biggest", "smallest", "highest", "lowest"]);
+
+  // "on the desk", "between the chair and the sofa", "closest to you", "the biggest"; a kind
+  // this page does not know is said with its name.
+  function relationWords(kind, anchorLabels) {
+    const name = String(kind);
+    if (SUPERLATIVES_WITHIN_CATEGORY.has(name)) return `the ${name}`;
+    if (anchorLabels.length === 0) return TO_THE_ASKER[name] || `${name.replaceAll("_", " ")} you`;
+    const names = anchorLabels.map((label) => `the ${label}`);
+    const listed = names.length === 1 ? names[0] : `${names.slice(0, -1).join(", ")} and ${names.at(-1)}`;
+    return `${RELATION_PHRASES[name] || name.replaceAll("_", " ")} ${listed}`;
+  }
+
+  // The relation a hit is in, null for a plain hit (or from a server without relations).
+  function relationOf(hit) {
+    const relation = hit && hit.relation;
+    if (!relation || typeof relation !== "object" || !Array.isArray(relation.anchors)) return null;
+    return relation;
+  }
+
+  // A hit's relation in words, "not ..." under CONFIDENT_DEGREE: "" for a plain hit.
+  function hitRelationWords(hit) {
+    const relation = relationOf(hit);
+    if (!relation) return "";
+    const words = relationWords(relation.kind, relation.anchors.map((a) => String(a.label)));
+    return relation.degree >= CONFIDENT_DEGREE ? words : `not ${words}`;
+  }
+
+  // How strongly a hit answers, in [0, 1]: its relevance, times its relation's degree in a
+  // relational answer (the mug on the shelf is no answer to "the mug on the desk").
+  function hitStrength(hit) {
+    const relation = relationOf(hit);
+    const strength = (hit.relevance ?? 1) * (relation ? relation.degree : 1);
+    return Math.min(Math.max(strength, 0), 1);
+  }
+
+  // The best hit as an answer: "mug — on the desk" (a relational answer), "laptop — on the
+  // dining table, 10 min ago" (where it is, or was last seen, and when), else its label.
+  function answerWords(hit, nowT) {
+    const relation = hitRelationWords(hit);
+    if (relation) return `${hit.label} — ${relation}`;
+    const where = placeWords(hit.place);
+    const when = isTime(nowT) && isTime(hit.last_seen_t) ? agoWords(nowT - hit.last_seen_t) : "";
+    const said = [where, when].filter(Boolean).join(", ");
+    return said ? `${hit.label} — ${said}` : hit.label;
+  }
+
   // The viewer's address: ?viewer=URL, else port 8080 on this page's host. Only http(s):
   // a javascript: URL in a crafted link must not become a clickable script.
   function viewerUrl() {
@@ -190,8 +258,10 @@
 
   // Objects' footprints (bbox x/y extents) and centroids seen from above (the synthetic world
   // and the mapping engine are z-up); query hits drawn on top, numbered by rank, each as
-  // strong as its relevance (a weak hit is a faint outline, a confident one a bold box).
-  function drawPlot(canvas, labelLayer, objects, hits) {
+  // strong as its relevance (a weak hit is a faint outline, a confident one a bold box). A
+  // relational answer ({target, anchors}: the target's id or null, the anchors' objects)
+  // also shows its anchors in a colour of their own, joined to the target by a line.
+  function drawPlot(canvas, labelLayer, objects, hits, relation = null) {
     const dpr = window.devicePixelRatio || 1;
     const widthPx = canvas.clientWidth || 320;
     const heightPx = canvas.clientHeight || widthPx;
@@ -206,11 +276,13 @@
       text: cssColor("--text"),
       hit: cssColor("--accent"),
       object: cssColor("--object"),
+      anchor: cssColor("--anchor"),
       surface: cssColor("--surface"),
     };
+    const anchors = relation ? relation.anchors : [];
     ctx.font = "12px system-ui, sans-serif";
 
-    const all = [...objects, ...hits];
+    const all = [...objects, ...hits, ...anchors];
     labelLayer.replaceChildren();
     if (all.length === 0) {
       ctx.fillStyle = colors.muted;
@@ -249,8 +321,9 @@
     ctx.stroke();
 
     const hitIds = new Set(hits.map((h) => h.id));
+    const anchorIds = new Set(anchors.map((a) => a.id));
     for (const o of objects) {
-      if (hitIds.has(o.id)) continue;
+      if (hitIds.has(o.id) || anchorIds.has(o.id)) continue;
       ctx.strokeStyle = colors.object;
       ctx.globalAlpha = 0.55;
       ctx.strokeRect(sx(o.bbox[0]), sy(o.bbox[4]), (o.bbox[3] - o.bbox[0]) * scale, (o.bbox[4] - o.bbox[1]) * scale);
@@ -260,12 +333,26 @@
       ctx.arc(sx(o.centroid[0]), sy(o.centroid[1]), 2.5, 0, 2 * Math.PI);
       ctx.fill();
     }
+    // The anchors under the hits: what the answer is measured against, teal, not a hit.
+    for (const a of anchors) {
+      const [left, top] = [sx(a.bbox[0]), sy(a.bbox[4])];
+      const [w, hgt] = [(a.bbox[3] - a.bbox[0]) * scale, (a.bbox[4] - a.bbox[1]) * scale];
+      ctx.globalAlpha = 0.18;
+      ctx.fillStyle = colors.anchor;
+      ctx.fillRect(left, top, w, hgt);
+      ctx.globalAlpha = 1;
+      ctx.strokeStyle = colors.anchor;
+      ctx.lineWidth = 2.5;
+      ctx.setLineDash([6, 3]);
+      ctx.strokeRect(left, top, w, hgt);
+      ctx.setLineDash([]);
+    }
     // Hits last, best last, so the best match is never hidden under a worse one.
     [...hits].reverse().forEach((h, reversedIndex) => {
       const rank = hits.length - reversedIndex;
       const [left, top] = [sx(h.bbox[0]), sy(h.bbox[4])];
       const [w, hgt] = [(h.bbox[3] - h.bbox[0]) * scale, (h.bbox[4] - h.bbox[1]) * scale];
-      const relevance = Math.min(Math.max(h.relevance ?? 1, 0), 1);
+      const relevance = hitStrength(h);
       ctx.globalAlpha = 0.04 + 0.3 * relevance;
       ctx.fillStyle = colors.hit;
       ctx.fillRect(left, top, w, hgt);
@@ -280,6 +367,24 @@
       ctx.fill();
       ctx.globalAlpha = 1;
     });
+    // The target joined to each anchor, centre to centre, from the hit colour to the anchor's.
+    const target = relation && relation.target !== null ? hits.find((h) => h.id === relation.target) : null;
+    for (const a of target ? anchors : []) {
+      const [tx, ty, ax, ay] = [sx(target.centroid[0]), sy(target.centroid[1]), sx(a.centroid[0]), sy(a.centroid[1])];
+      const gradient = ctx.createLinearGradient(tx, ty, ax, ay);
+      gradient.addColorStop(0, colors.hit);
+      gradient.addColorStop(1, colors.anchor);
+      ctx.strokeStyle = gradient;
+      ctx.lineWidth = 2.5;
+      ctx.beginPath();
+      ctx.moveTo(tx, ty);
+      ctx.lineTo(ax, ay);
+      ctx.stroke();
+      ctx.beginPath();
+      ctx.arc(ax, ay, 4, 0, 2 * Math.PI);
+      ctx.fillStyle = colors.anchor;
+      ctx.fill();
+    }
 
     // scale bar
     ctx.fillStyle = colors.muted;
@@ -292,17 +397,28 @@
     ctx.textAlign = "left";
     ctx.fillText("1 m", marginPx + scale + 6, heightPx - 4);
 
-    // The hits' labels, best first, where they overlap no other label.
+    // The hits' labels, best first (the anchors' right after the best), where they overlap
+    // no other label.
     const scaleBar = { left: 0, top: heightPx - 20, right: marginPx + scale + 40, bottom: heightPx };
-    const boxes = placeLabels(ctx, hits.map((h, i) => ({
+    const labels = hits.map((h, i) => ({
       text: `${i + 1} ${h.label}`,
       short: `${i + 1}`,
       x: sx(h.centroid[0]),
       y: sy(h.centroid[1]),
-    })), widthPx, heightPx, [scaleBar]);
+      kind: "hit",
+    })).filter((_, i) => !anchorIds.has(hits[i].id)); // an anchor's own label says it
+    const anchorLabels = anchors.map((a) => ({
+      text: String(a.label),
+      short: "",
+      x: sx(a.centroid[0]),
+      y: sy(a.centroid[1]),
+      kind: "anchor",
+    }));
+    labels.splice(Math.min(1, labels.length), 0, ...anchorLabels);
+    const boxes = placeLabels(ctx, labels, widthPx, heightPx, [scaleBar]);
     labelLayer.replaceChildren(...boxes.map((b) => {
       const span = document.createElement("span");
-      span.className = "plot-label";
+      span.className = `plot-label ${b.kind}`;
       span.textContent = b.text; // user data: text only
       span.style.left = `${b.left}px`;
       span.style.top = `${b.top}px`;
@@ -321,12 +437,13 @@
   // point (right, left, above, below, then farther out) that stays inside the plot and
   // overlaps no label placed before it nor an obstacle; when no spot fits, its short text
   // (the rank) is tried the same way, and when that fails too it is left out. Returns the
-  // placed boxes {text, left, top, right, bottom} in CSS pixels of the plot.
+  // placed boxes {text, kind, left, top, right, bottom} in CSS pixels of the plot (kind: the
+  // label's, "hit" or "anchor"). A label without a short text is left out when it does not fit.
   function placeLabels(ctx, labels, widthPx, heightPx, obstacles = []) {
     const placed = [];
     const h = LABEL_HEIGHT_PX;
     for (const label of labels) {
-      for (const text of [label.text, label.short]) {
+      for (const text of [label.text, label.short].filter(Boolean)) {
         const w = Math.ceil(ctx.measureText(text).width) + 2 * LABEL_PAD_PX + 2; // 2: font slack
         const [x, y] = [label.x, label.y];
         const spots = [];
@@ -345,7 +462,7 @@
           !placed.some((other) => overlaps(box, other)) &&
           !obstacles.some((other) => overlaps(box, other));
         const box = spots
-          .map(([left, top]) => ({ text, left: Math.round(left), top: Math.round(top) }))
+          .map(([left, top]) => ({ text, kind: label.kind, left: Math.round(left), top: Math.round(top) }))
           .map((b) => ({ ...b, right: b.left + w, bottom: b.top + h }))
           .find(fits);
         if (box) {
@@ -367,6 +484,7 @@
       $(".session-id", this.root).textContent = sid;
       this.objects = [];
       this.hits = [];
+      this.match = false; // the query answer's match
       this.nowT = null; // the query answer's now_t: what its hits' "last seen" counts from
       this.objectsSeq = null; // update_seq the plotted objects are from
       this.createdAt = 0;
@@ -479,6 +597,7 @@
       try {
         const answer = await api(this.path(`/query?${params}`), auth.forSession(this.sid));
         this.hits = answer.results;
+        this.match = Boolean(answer.match);
         this.nowT = answer.now_t;
         this.renderResults();
         const n = answer.results.length;
@@ -488,6 +607,7 @@
         meta.textContent = answer.match ? found : `no confident match · ${found}`;
       } catch (err) {
         this.hits = [];
+        this.match = false;
         this.renderResults();
         meta.classList.remove("no-match");
         meta.classList.add("error");
@@ -499,6 +619,10 @@
     }
 
     renderResults() {
+      // The best hit in words, when it is a confident answer ("mug — on the desk").
+      const said = $(".query-answer", this.root);
+      said.textContent = this.match && this.hits.length ? answerWords(this.hits[0], this.nowT) : "";
+      said.hidden = !said.textContent;
       const table = $(".results", this.root);
       const rows = this.hits.map((hit, i) => {
         const tr = document.createElement("tr");
@@ -515,7 +639,22 @@
           td.textContent = value;
           tr.append(td);
         }
-        tr.classList.toggle("weak", hit.relevance < CONFIDENT_RELEVANCE);
+        // "mug — on the desk", "mug — not on the desk": said of what was asked about (a
+        // confident hit, or the answer), not of the desk itself nor of a weak hit
+        const about = hit.relevance >= CONFIDENT_RELEVANCE || (i === 0 && this.match);
+        const anchor = relationOf(hit) !== null && relationOf(hit).anchors.some((a) => a.id === hit.id);
+        const relation = about && !anchor ? hitRelationWords(hit) : "";
+        if (relation) {
+          const span = document.createElement("span");
+          span.className = "relation";
+          span.textContent = ` — ${relation}`;
+          const label = $("td.label", tr);
+          label.append(span);
+          label.title = `degree ${relationOf(hit).degree.toFixed(2)}: how much it stands in the relation (0 to 1)`;
+        }
+        // weak: not what was asked for, or not in the relation asked about
+        const outOfRelation = relationOf(hit) !== null && relationOf(hit).degree < CONFIDENT_DEGREE;
+        tr.classList.toggle("weak", hit.relevance < CONFIDENT_RELEVANCE || outOfRelation);
         tr.classList.toggle("removed", hit.state === "removed");
         return tr;
       });
@@ -523,8 +662,20 @@
       table.hidden = rows.length === 0;
     }
 
+    // A relational answer as the plot draws it: the target (the best hit, when the answer is a
+    // confident match) and its anchors, from the objects held (else from the hits); null for a
+    // plain answer.
+    plotRelation() {
+      const relation = relationOf(this.hits[0]);
+      if (!relation) return null;
+      const known = new Map([...this.hits, ...this.objects].map((o) => [o.id, o]));
+      const anchors = relation.anchors.map((a) => known.get(a.id)).filter((o) => o && Array.isArray(o.bbox));
+      return { target: this.match ? this.hits[0].id : null, anchors };
+    }
+
     redraw() {
-      drawPlot($(".plot-canvas", this.root), $(".plot-labels", this.root), this.objects, this.hits);
+      const plot = [$(".plot-canvas", this.root), $(".plot-labels", this.root)];
+      drawPlot(...plot, this.objects, this.hits, this.plotRelation());
     }
   }
 

@@ -14,6 +14,8 @@ import pytest
 from analytic_world import Rect
 from devices import frame_message, stream_in_step
 from living_world import AFTER, BEFORE, KNOBS, WALK_2_T, walk
+from relation_scene import SCENE as RELATION_SCENE
+from relation_scene import scene_export
 
 from app.server.routes.pages import STATIC_DIR
 
@@ -370,7 +372,16 @@ def test_the_dashboard_tells_what_changed_where_and_when(live_server, page):
     expect(first.locator("td.seen")).to_have_text(
         re.compile(r"^\(removed\) · near the cardboard box · last seen 10 min ago$")
     )
+    # the answer in words: where it was last seen, and when
+    expect(card.locator(".query-answer")).to_have_text("book — near the cardboard box, 10 min ago")
     screenshot(page, "dashboard_removed_hit.png")
+
+    # a thing that moved: the place is the object it rests on
+    card.locator(".query-input").fill("where did I leave my mug")
+    card.locator(".query-button").click()
+    expect(card.locator(".query-answer")).to_have_text(
+        re.compile(r"^mug — on the dining table, (just now|\d+ s ago)$")
+    )
 
 
 @pytest.mark.slow
@@ -396,3 +407,42 @@ def test_against_a_server_without_the_living_map_the_page_leaves_it_out(live_ser
     expect(card.locator(".results td.seen").first).to_have_text("")
     expect(card.locator(".changes")).to_be_hidden()
     expect(card.locator(".card-error")).to_be_hidden()
+
+
+# --- relational answers on the page ------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_the_dashboard_says_a_relational_answer_in_words_and_plots_its_anchor(live_server, page):
+    server = live_server()
+    created = httpx.post(
+        f"{server.url}/v1/sessions/import", json=scene_export("office"), timeout=30
+    )
+    assert created.status_code == 201, created.text
+    sid = created.json()["session_id"]
+    page.goto(server.url)
+    card = page.locator(f'article[data-sid="{sid}"]')
+    expect(card.locator(".stat-objects")).to_have_text(str(len(RELATION_SCENE)))
+
+    card.locator(".query-input").fill("the mug on the desk")
+    card.locator(".query-button").click()
+    expect(card.locator(".query-answer")).to_have_text("mug — on the desk")
+    rows = card.locator(".results tbody tr")
+    expect(rows.first.locator("td.label")).to_have_text("mug — on the desk")
+    expect(rows.first.locator("td.num").nth(1)).to_have_text("10")  # the mug on desk 1
+    expect(rows.nth(1).locator("td.label")).to_have_text("mug — not on the desk")
+    expect(rows.nth(1)).to_have_class(re.compile(r"\bweak\b"))  # a mug, but not that one
+    expect(card.locator(".plot-label.anchor")).to_have_text("desk")
+    screenshot(page, "dashboard_relation.png")
+
+    card.locator(".query-input").fill("the mug under the sofa")  # no mug is
+    card.locator(".query-button").click()
+    expect(card.locator(".query-meta")).to_contain_text("no confident match")
+    expect(card.locator(".query-answer")).to_be_hidden()
+    expect(rows.first.locator("td.label")).to_have_text("mug — not under the sofa")
+
+    card.locator(".query-input").fill("where is the sofa")  # a plain question: no anchor left
+    card.locator(".query-button").click()
+    expect(rows.first.locator("td.label")).to_have_text("sofa")
+    expect(card.locator(".plot-label.anchor")).to_have_count(0)
