@@ -62,6 +62,7 @@ from app.mapping.engine import (
 )
 from app.mapping.export import imported_object, imported_stay
 from app.mapping.grammar import is_relational, parse
+from app.mapping.held import held_points
 from app.mapping.object import Change, MapObject
 from app.mapping.places import DEFAULT_UP, UpInference, up_vector
 from app.mapping.publish import client_points, update_message
@@ -436,15 +437,17 @@ class Session:
         self, objects: list[tuple[MapObject, int]], up: np.ndarray
     ) -> RelationIndex:
         """Under `_relations_lock`: the index brought up to the confirmed objects (id,
-        version), each by its client-capped points (what a device holds). Each query pays a
-        pass over the ids; only objects whose version changed get new bodies, and only their
-        pairs are recomputed, when read. A new up axis starts a new index."""
+        version), each by exactly the points a device's local map holds (its client-capped
+        points as the wire and the local map store them: `held_points`), so a relation's
+        degree is the same on the server and on the device. Each query pays a pass over the
+        ids; only objects whose version changed get new bodies, and only their pairs are
+        recomputed, when read. A new up axis starts a new index."""
         held = self._relations
         if held is None or not np.array_equal(held.index.up, up):
             held = self._relations = _Relations(RelationIndex(up), {})
         max_points = self.knobs.max_object_points_client
         upserts = {
-            o.id: ObjectGeometry(o.label, client_points(o, max_points))
+            o.id: ObjectGeometry(o.label, held_points(client_points(o, max_points)))
             for o, version in objects
             if held.versions.get(o.id) != version
         }
