@@ -10,6 +10,11 @@ from app.cli.common import scene_name, write_json
 from app.config import MODES
 from app.flags import add_knob_flags, knobs_from_args, positive_int
 
+DEFAULT_SEEDS = {"revisit": 5, "relations": 3}
+"""--seeds by scenario."""
+DEFAULT_FRAMES = {"walk": 400, "relations": 300}
+"""--frames by scenario (revisit walks --walk-frames twice)."""
+
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
@@ -27,10 +32,14 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument(
         "--scenario",
         default="walk",
-        choices=("walk", "revisit"),
+        choices=("walk", "revisit", "relations"),
         help="walk: one walk, semantic quality and speed; revisit: walk, change the room by a "
         "script, walk again 10 min later, and score how the map follows (changes, stale "
-        "answers, last-seen places, the cost of negative evidence) (default: %(default)s)",
+        "answers, last-seen places, the cost of negative evidence); relations: walk round "
+        "rooms of same-category duplicates in distinct relations (semanticxr mode; --scene "
+        "and --mode do not apply), then ask generated questions about how things stand "
+        "('the mug on the desk', 'what is on the desk'), negatives and plain paraphrases, "
+        "and score the answers against the rooms' geometry (default: %(default)s)",
     )
     parser.add_argument(
         "--seed",
@@ -41,9 +50,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument(
         "--seeds",
         type=positive_int,
-        default=5,
+        default=None,
         metavar="N",
-        help="revisit: seeds --seed .. --seed+N-1, results pooled (default: %(default)s)",
+        help="revisit and relations: seeds --seed .. --seed+N-1, results pooled (default: "
+        f"{DEFAULT_SEEDS['revisit']} for revisit, {DEFAULT_SEEDS['relations']} for relations)",
     )
     parser.add_argument(
         "--walk-frames",
@@ -54,8 +64,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument(
         "--frames",
         type=positive_int,
-        default=400,
-        help="input frames of the walk (default: %(default)s)",
+        default=None,
+        help="input frames of the walk (default: "
+        f"{DEFAULT_FRAMES['walk']}; {DEFAULT_FRAMES['relations']} per room for relations)",
     )
     parser.add_argument(
         "--width", type=positive_int, default=640, help="RGB width in pixels (default: %(default)s)"
@@ -110,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.scenario == "revisit":
         return run_revisit_scenario(args)
+    if args.scenario == "relations":
+        return run_relations_scenario(args)
 
     queries = None
     if args.queries:
@@ -121,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = EvalConfig(
         scene=args.scene,
         seed=args.seed,
-        frames=args.frames,
+        frames=args.frames or DEFAULT_FRAMES["walk"],
         width=args.width,
         height=args.height,
         noise=args.noise,
@@ -150,7 +163,7 @@ def run_revisit_scenario(args: argparse.Namespace) -> int:
 
     cfg = RevisitConfig(
         scene=args.scene,
-        seeds=tuple(range(args.seed, args.seed + args.seeds)),
+        seeds=tuple(range(args.seed, args.seed + (args.seeds or DEFAULT_SEEDS["revisit"]))),
         walk_frames=args.walk_frames,
         width=args.width,
         height=args.height,
@@ -168,6 +181,31 @@ def run_revisit_scenario(args: argparse.Namespace) -> int:
     if args.json:  # first: the hour of mapping is kept whatever printing does
         write_json(args.json, result)
     print(format_revisit_table(result))
+    return 0
+
+
+def run_relations_scenario(args: argparse.Namespace) -> int:
+    from app.cli.relations_eval import RelationsConfig, format_relations_table, run_relations
+    from app.semantics import get_text_encoder
+
+    seeds = args.seeds or DEFAULT_SEEDS["relations"]
+    cfg = RelationsConfig(
+        seeds=tuple(range(args.seed, args.seed + seeds)),
+        frames=args.frames or DEFAULT_FRAMES["relations"],
+        width=args.width,
+        height=args.height,
+        noise=args.noise,
+        knobs=knobs_from_args(args),
+    )
+    print(
+        f"[relations] relation rooms, seeds {list(cfg.seeds)}, {cfg.frames} frames each at "
+        f"{cfg.width}x{cfg.height}, noise {cfg.noise}",
+        file=sys.stderr,
+    )
+    result = run_relations(cfg, get_text_encoder())
+    if args.json:
+        write_json(args.json, result)
+    print(format_relations_table(result))
     return 0
 
 

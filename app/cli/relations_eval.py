@@ -1,0 +1,676 @@
+"""`semanticxr eval --scenario relations`: questions about how things stand, asked of a map.
+
+For each seed, a relation room (`client_sim.world.relation_scenes`: duplicates of a category
+in distinct relations) is walked round and mapped in process as `semanticxr eval` does it
+(render, encode, decode, map; the frames between keyframes as sightings), then every question
+of the generated set (`client_sim.world.relation_queries`: relational, "what is on ...",
+negatives and the categories' plain paraphrases, each with its ground truth from the scene's
+geometry) is asked of the map as the server answers it (`Session.relational_query`):
+
+- the grammar reads the question; a relational reading is answered by
+  `app.mapping.relational.answer` over the confirmed objects (`MapThing` per object) and a
+  `RelationIndex` of their client-capped points, up from the newest pose, the asker at the
+  walk's last camera; `match` is `relational.is_match`;
+- anything else (or an anchor the map cannot ground) by today's ranking, rated by
+  `app.mapping.relevance` (`match` as the plain REST answer's).
+
+Each map object's identity is the ground-truth instance most of its points lie on. A
+relational top-1 is right when its identity is the question's answer ("what is on the desk":
+any thing on it); a plain one when its identity's category is the one asked for. Failures are
+told apart by why: the grammar read another relation (parse), the answer or an anchor is not
+in the map, the anchor phrase grounded to no confident object (fallback to the plain ranking),
+the top-1 is of another category (target grounding), the answer was weighed against the wrong
+anchor (anchor grounding), or the geometry rated it lower (relation degree).
+
+The relation index is brought up to date after every keyframe with the objects it changed
+(as the server's is on a query: by object version, client-capped points) and timed: the
+update and computing every stale pair (`settle`), so the time is an upper bound of what a
+keyframe costs the index.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from app.cli.evaluation import _Sighting
+from app.config import Knobs
+from app.keyframes import is_keyframe
+from app.mapping.engine import MappingEngine
+from app.mapping.geometry import cap_points
+from app.mapping.grammar import Reading, is_relational, parse
+from app.mapping.places import infer_up
+from app.mapping.publish import MIN_CAP_RESOLUTION_M, client_points, update_message
+from app.mapping.relational import MapThing, RelationalHit, answer, is_match
+from app.mapping.relations import Z_UP, ObjectGeometry, RelationIndex
+from app.mapping.relevance import rate_hits
+from app.protocol import parse_frame
+from app.semantics import TextEncoder
+from client_sim.encoder import FrameEncoder, session_encoder_options
+from client_sim.local_map import LocalMap
+from client_sim.sources.synthetic import SyntheticSource
+from client_sim.world.gt import gt_point_cloud
+from client_sim.world.relation_queries import (
+    Question,
+    named,
+    plain_questions,
+    relational_questions,
+)
+from client_sim.world.relation_scenes import make_relation_scene, relation_walk
+from client_sim.world.render import default_camera
+
+Progress = Callable[[str], None]
+
+ANSWER_K = 5
+"""Hits per answer (the REST query's default k); `match` of a plain answer is over them."""
+IDENTITY_RADIUS_M = 0.05
+"""Map points farther than this from every ground-truth point vote for no instance."""
+GRAMMAR_KIND = {"closest_to": "closest"}
+"""A question kind the grammar names otherwise (a superlative from an anchor)."""
+SUPERLATIVE_KINDS = frozenset({"closest", "farthest", "biggest", "smallest", "highest", "lowest"})
+LQ_NOTE = (
+    "LocalMap.relational_query has not landed (client_sim/local_map.py): the device's "
+    "local map is fed the engine's updates but cannot answer relational questions yet"
+)
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+@dataclass
+class RelationsConfig:
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """One relation room per seed (scene, walk, detection noise and questions); pooled."""
+    frames: int = 300
+    """Frames of each walk round the room at 30 fps; every `knobs.keyframe_interval`-th is
+    mapped, the others are sightings."""
+    width: int = 640
+    height: int = 480
+    noise: str = "standard"
+    """Detection noise profile: none | standard."""
+    knobs: Knobs = field(default_factory=Knobs)
+    phrasings: int = 3
+    """Phrasings per ground truth (relation_queries.relational_questions)."""
+
+
+@dataclass
+class _Answer:
+    """One question's answer as the server gives it."""
+
+    relational: bool
+    """Answered by the relation path (else by today's ranking)."""
+    top_id: int | None
+    match: bool
+    hits: list[RelationalHit] | None = None
+    """The relation path's whole ranking (every confirmed object), best first."""
+
+
+@dataclass
+class _Mapped:
+    """A mapped walk and what answering questions of it needs."""
+
+    engine: MappingEngine
+    index: RelationIndex
+    local_map: LocalMap
+    viewer: np.ndarray
+    index_ms: list[float] = field(default_factory=list)
+    """Per keyframe that changed an object: update + settle."""
+    update_ms: list[float] = field(default_factory=list)
+    """Per such keyframe: the update alone (the stale pairs computed when read)."""
+    changed: list[int] = field(default_factory=list)
+    """Per such keyframe: how many objects changed."""
+    keyframes: int = 0
+
+
+def run_relations(cfg: RelationsConfig, encoder: TextEncoder, progress: Progress = _stderr) -> dict:
+    """The `eval --scenario relations` document (see DESIGN.md "Machine-readable outputs")."""
+    started = time.perf_counter()
+    records: list[dict] = []
+    per_seed = []
+    index_ms: list[float] = []
+    update_ms: list[float] = []
+    changed: list[int] = []
+    keyframes = 0
+    objects_at_end = []
+    for seed in cfg.seeds:
+        scene = make_relation_scene(seed)
+        progress(f"[relations] seed {seed}: walking and mapping {cfg.frames} frames")
+        mapped = _map_walk(cfg, scene, seed, encoder, progress)
+        index_ms += mapped.index_ms
+        update_ms += mapped.update_ms
+        changed += mapped.changed
+        keyframes += mapped.keyframes
+        gt = gt_point_cloud(scene)
+        identity = _identities(mapped.engine, gt)
+        max_points = cfg.knobs.max_object_points_client
+        view = _engine_view(mapped, identity, max_points)
+        perfect = _perfect_view(scene, gt, encoder, mapped.viewer, max_points)
+        questions = relational_questions(scene, mapped.viewer, seed, cfg.phrasings)
+        questions += plain_questions(scene)
+        category_of = {o.instance_id: o.category for o in scene.objects}
+        bboxes = {o.instance_id: o.bbox for o in scene.objects}
+        seed_records = [
+            _score(q, view, perfect, encoder, category_of, bboxes, seed) for q in questions
+        ]
+        records += seed_records
+        objects_at_end.append(len(mapped.engine.confirmed_objects()))
+        mapped_ids = set(identity.values())
+        per_seed.append(
+            {
+                "seed": seed,
+                "things": sum(not o.is_background for o in scene.objects),
+                "things_mapped": len(mapped_ids - {0}),
+                "objects": objects_at_end[-1],
+                "questions": len(questions),
+                "top1": _share(r["right"] for r in seed_records if r["family"] in _POSITIVE),
+                "top1_perfect_map": _share(
+                    r["perfect_map_right"] for r in seed_records if r["family"] in _POSITIVE
+                ),
+            }
+        )
+        progress(
+            f"[relations] seed {seed}: {per_seed[-1]['objects']} objects, "
+            f"{per_seed[-1]['things_mapped']}/{per_seed[-1]['things']} things mapped, "
+            f"{len(questions)} questions, relational top-1{_pct(per_seed[-1]['top1'])}"
+        )
+    return {
+        "scenario": "relations",
+        "scene": "relations",
+        "seeds": list(cfg.seeds),
+        "frames": cfg.frames,
+        "keyframes": keyframes,
+        "noise": cfg.noise,
+        "resolution": [cfg.width, cfg.height],
+        "per_seed": per_seed,
+        "relations": _summary(records, index_ms, update_ms, changed, objects_at_end),
+        "wall_s": time.perf_counter() - started,
+    }
+
+
+# --- mapping -----------------------------------------------------------------------------------
+
+
+def _map_walk(
+    cfg: RelationsConfig, scene, seed: int, encoder: TextEncoder, progress: Progress
+) -> _Mapped:
+    """Walk round the room, map it (keyframes and sightings) and keep the relation index and
+    the device's local map up to date keyframe by keyframe."""
+    source = SyntheticSource(
+        scene,
+        n_frames=cfg.frames,
+        camera=default_camera(cfg.width, cfg.height),
+        noise=cfg.noise,
+        seed=seed,
+    )
+    source.poses = relation_walk(scene, cfg.frames, seed)
+    knobs = cfg.knobs
+    ratio = knobs.depth_downsampling_ratio
+    device = FrameEncoder(ratio, **session_encoder_options(knobs))
+    engine = MappingEngine(encoder, knobs, "semanticxr")
+    local_map = LocalMap(dim=encoder.dim, max_points_per_object=knobs.max_object_points_client)
+    mapped = _Mapped(engine, RelationIndex(Z_UP), local_map, source.poses[-1][:3, 3].copy())
+    versions: dict[int, int] = {}
+    published = 0
+    for index in range(cfg.frames):
+        frame = source.frame(index)
+        if not is_keyframe(index, knobs.keyframe_interval):
+            engine.sight(*_Sighting.of(frame, {ratio: device}).decode(engine, ratio))
+            continue
+        message = device.encode_source_frame(frame).message
+        stats = engine.integrate(parse_frame(message, engine.backend.needs_rgb))
+        mapped.keyframes += 1
+        if stats.keyframe % knobs.local_map_update_frequency == 0:
+            update = update_message(engine, published)
+            local_map.apply_delta(update)
+            published = update["seq"]
+        _update_index(mapped, versions, knobs.max_object_points_client)
+        if mapped.keyframes % 20 == 0:
+            progress(
+                f"[relations] seed {seed}: mapped {mapped.keyframes} keyframes, "
+                f"{len(engine.confirmed_objects())} objects"
+            )
+    return mapped
+
+
+def _update_index(mapped: _Mapped, versions: dict[int, int], max_points: int) -> None:
+    """Bring the relation index up to the confirmed objects (as `Session._relation_index`
+    does on a query) and time it."""
+    engine = mapped.engine
+    up = Z_UP if engine.last_pose is None else infer_up(engine.last_pose)
+    if not np.array_equal(mapped.index.up, up):  # a new up axis starts a new index
+        mapped.index = RelationIndex(up)
+        versions.clear()
+    objects = engine.confirmed_objects()
+    upserts = {
+        o.id: ObjectGeometry(o.label, client_points(o, max_points))  # the delta's points
+        for o in objects
+        if versions.get(o.id) != o.version
+    }
+    present = {o.id for o in objects}
+    removed = [i for i in versions if i not in present]
+    if not upserts and not removed:
+        return
+    t0 = time.perf_counter()
+    mapped.index.update(upserts, removed)
+    t1 = time.perf_counter()
+    mapped.index.settle()
+    t2 = time.perf_counter()
+    mapped.update_ms.append((t1 - t0) * 1e3)
+    mapped.index_ms.append((t2 - t0) * 1e3)
+    mapped.changed.append(len(upserts) + len(removed))
+    for i in removed:
+        del versions[i]
+    versions.update({o.id: o.version for o in objects if o.id in upserts})
+
+
+def _identities(engine: MappingEngine, gt) -> dict[int, int]:
+    """Map object id -> the ground-truth instance most of its points lie on (0: none)."""
+    tree = cKDTree(gt.points)
+    out: dict[int, int] = {}
+    for obj in engine.confirmed_objects():
+        dist, nearest = tree.query(obj.points, distance_upper_bound=IDENTITY_RADIUS_M)
+        votes = gt.instance_ids[nearest[dist < np.inf]]
+        out[obj.id] = int(np.bincount(votes).argmax()) if len(votes) else 0
+    return out
+
+
+# --- asking ------------------------------------------------------------------------------------
+
+
+@dataclass
+class _MapView:
+    """A map as a question sees it: the things, their relation index, where the asker
+    stands, today's ranking, and which ground-truth instance each thing is."""
+
+    things: list[MapThing]
+    index: RelationIndex
+    viewer: np.ndarray
+    rank: Callable[[np.ndarray, int], list[MapThing]]
+    """Today's ranking: query embedding float [dim], k -> the top-k things, best first."""
+    identity: dict[int, int]
+    """Thing id -> ground-truth instance (0: none)."""
+    points: dict[int, np.ndarray]
+    """Thing id -> its points as the relation index holds them (float32 [N, 3])."""
+
+
+def _engine_view(mapped: _Mapped, identity: dict[int, int], max_points: int) -> _MapView:
+    """The mapped walk as the server answers from it (`Session.relational_query`)."""
+    objects = mapped.engine.confirmed_objects()
+    by_id = {o.id: MapThing(o.id, o.label, o.embedding) for o in objects}
+
+    def rank(embedding: np.ndarray, k: int) -> list[MapThing]:
+        return [by_id[h.object.id] for h in mapped.engine.query_embedding(embedding, k)]
+
+    return _MapView(
+        list(by_id.values()),
+        mapped.index,
+        mapped.viewer,
+        rank,
+        identity,
+        {o.id: client_points(o, max_points) for o in objects},
+    )
+
+
+def _perfect_view(scene, gt, encoder: TextEncoder, viewer: np.ndarray, max_points: int) -> _MapView:
+    """A perfect map of the scene: one thing per ground-truth instance, labelled with its
+    category, its embedding the category's text, its points the instance's visible surface
+    capped as the device's are. What the relation code makes of the questions with nothing
+    lost in mapping."""
+    things, points = [], {}
+    for obj in scene.objects:
+        if obj.is_background:
+            continue
+        mine = gt.points[gt.instance_ids == obj.instance_id]
+        if not len(mine):
+            continue
+        points[obj.instance_id], _ = cap_points(mine, max_points, MIN_CAP_RESOLUTION_M)
+        embedding = encoder.encode([obj.category])[0]
+        things.append(MapThing(obj.instance_id, obj.category, embedding))
+    index = RelationIndex(Z_UP)
+    index.update({t.id: ObjectGeometry(t.label, points[t.id]) for t in things})
+    matrix = np.stack([t.embedding for t in things]).astype(np.float32)
+
+    def rank(embedding: np.ndarray, k: int) -> list[MapThing]:
+        order = np.argsort(-(matrix @ embedding.astype(np.float32)), kind="stable")[:k]
+        return [things[i] for i in order]
+
+    return _MapView(things, index, viewer, rank, {t.id: t.id for t in things}, points)
+
+
+def _ask(text: str, view: _MapView, encoder: TextEncoder) -> _Answer:
+    """The server's answer (`Session.relational_query`, else `Session.rated_query`)."""
+    reading = parse(text)
+    if is_relational(reading):
+        k = max(len(view.things), 1)  # the whole ranking, to tell why an answer lost
+        hits = answer(reading, view.things, view.index, encoder, view.viewer, k)
+        if hits is not None:
+            return _Answer(True, hits[0].id if hits else None, is_match(hits[:ANSWER_K]), hits)
+    return _plain(text, view, encoder)
+
+
+def _plain(text: str, view: _MapView, encoder: TextEncoder) -> _Answer:
+    """Today's ranking and its rating (the plain path, whatever the question says)."""
+    embedding = encoder.encode_query(text)
+    hits = view.rank(embedding, ANSWER_K)
+    rating = rate_hits(encoder, embedding, [h.label for h in hits])
+    return _Answer(False, hits[0].id if hits else None, rating.match)
+
+
+_POSITIVE = ("relational", "any")
+
+
+def _right(q: Question, got: _Answer, view: _MapView, category_of: dict[int, str]) -> bool:
+    instance = view.identity.get(got.top_id, 0) if got.top_id is not None else 0
+    if q.family == "plain":
+        return category_of.get(instance) == q.category
+    if q.family == "negative":
+        return not got.match
+    return instance in q.acceptable
+
+
+def _score(
+    q: Question,
+    view: _MapView,
+    perfect: _MapView,
+    encoder: TextEncoder,
+    category_of: dict[int, str],
+    bboxes: dict[int, np.ndarray],
+    seed: int,
+) -> dict:
+    """One question asked of the map (and of a perfect map) and judged: right or not,
+    match, and why it failed."""
+    got = _ask(q.text, view, encoder)
+    got_instance = view.identity.get(got.top_id, 0) if got.top_id is not None else 0
+    record = {
+        "seed": seed,
+        "question": q.text,
+        "family": q.family,
+        "kind": q.kind,
+        "relational_path": got.relational,
+        "match": got.match,
+        "right": _right(q, got, view, category_of),
+        "perfect_map_right": _right(q, _ask(q.text, perfect, encoder), perfect, category_of),
+        "expected": _names(q.expected, category_of) if q.family != "plain" else q.category,
+        "got": _described(got_instance, got.top_id, view, category_of),
+    }
+    if q.family == "plain":
+        plain = _plain(q.text, view, encoder)
+        record["plain_path_right"] = _right(q, plain, view, category_of)
+        record["same_as_plain_path"] = plain.top_id == got.top_id
+    if not record["right"]:
+        reason, detail = _why(q, got, view, category_of, bboxes, record["perfect_map_right"])
+        record["reason"], record["detail"] = reason, detail
+    return record
+
+
+def _names(ids, category_of) -> str:
+    return ", ".join(f"{category_of[i]}#{i}" for i in ids) or "nothing"
+
+
+def _described(instance: int, thing_id: int | None, view: _MapView, category_of) -> str:
+    if thing_id is None:
+        return "no object"
+    label = next((t.label for t in view.things if t.id == thing_id), "?")
+    truth = f"{category_of[instance]}#{instance}" if instance else "no instance"
+    return f"{truth} (object {thing_id} '{label}')"
+
+
+def _why(
+    q: Question,
+    got: _Answer,
+    view: _MapView,
+    category_of: dict[int, str],
+    bboxes: dict[int, np.ndarray],
+    perfect_right: bool,
+) -> tuple[str, str]:
+    """(reason, detail) a question failed; the reasons in the module docstring."""
+    if q.family == "plain":
+        return "plain ranking", ""
+    identity = view.identity
+    parse_problem = _parse_problem(q, parse(q.text))
+    if parse_problem:
+        return "parse", parse_problem
+    if not got.relational:
+        return "fallback to plain", "an anchor phrase grounded to no confident object"
+    hits = got.hits or []
+    top = hits[0]
+    if q.family == "negative":
+        detail = _hit_detail(top, view, category_of, bboxes)
+        partial = _partial_parts(top, view, bboxes)
+        if perfect_right and partial:
+            return "partial geometry in the map", f"{partial}; {detail}"
+        return f"{top.relation.kind} degree", detail
+    by_instance: dict[int, list[int]] = {}
+    for thing_id, instance in identity.items():
+        by_instance.setdefault(instance, []).append(thing_id)
+    if not any(i in by_instance for i in q.acceptable):
+        return "answer not in the map", f"no map object is {_names(q.expected, category_of)}"
+    if q.anchors and not any(a in by_instance for a in q.anchors):
+        return "anchor not in the map", f"no map object is {_names(q.anchors, category_of)}"
+    if q.target and category_of.get(identity.get(top.id, 0)) not in named(q.target, loose=True):
+        return "target grounding", _hit_detail(top, view, category_of, bboxes)
+    mine = [h for h in hits if identity.get(h.id, 0) in q.acceptable]
+    best = mine[0]
+    detail = f"answer: {_hit_detail(best, view, category_of, bboxes)}; top-1: " + _hit_detail(
+        top, view, category_of, bboxes
+    )
+    anchors = {identity.get(a, 0) for a, _ in best.relation.anchors}
+    if q.anchors and not anchors & set(q.anchors):
+        return "anchor grounding", detail
+    partial = _partial_parts(best, view, bboxes) or _partial_parts(top, view, bboxes)
+    if perfect_right and partial:
+        return "partial geometry in the map", f"{partial}; {detail}"
+    if best.relevance < top.relevance - 1e-9:
+        return "target relevance", detail
+    return f"{q.kind} degree", detail
+
+
+PARTIAL_BOTTOM_M = 0.05
+"""A map object whose lowest point is this far above its instance's bottom misses its base."""
+PARTIAL_HEIGHT_SHARE = 0.7
+"""...or one spanning less than this share of its instance's height misses part of it."""
+
+
+def _partial(thing_id: int, view: _MapView, bboxes: dict[int, np.ndarray]) -> str:
+    """What a map object misses of its ground-truth instance ("" if it looks whole)."""
+    instance = view.identity.get(thing_id, 0)
+    points = view.points.get(thing_id)
+    if not instance or points is None or not len(points):
+        return ""
+    box = bboxes[instance]
+    lo, hi = float(points[:, 2].min()), float(points[:, 2].max())
+    height = max(box[5] - box[2], 1e-6)
+    if lo - box[2] > PARTIAL_BOTTOM_M:
+        return f"object {thing_id} starts {lo - box[2]:.2f} m above its bottom"
+    if (min(hi, box[5]) - max(lo, box[2])) / height < PARTIAL_HEIGHT_SHARE:
+        return f"object {thing_id} spans {(hi - lo) / height:.0%} of its height"
+    return ""
+
+
+def _partial_parts(hit: RelationalHit, view: _MapView, bboxes) -> str:
+    """The hit's or its anchors' missing parts ("" if all look whole)."""
+    parts = [_partial(hit.id, view, bboxes)] + [
+        _partial(a, view, bboxes) for a, _ in hit.relation.anchors
+    ]
+    return "; ".join(p for p in parts if p)
+
+
+def _parse_problem(q: Question, reading: Reading) -> str:
+    """What the grammar read otherwise than the question means ("" if nothing)."""
+    if not is_relational(reading):
+        return "read as a plain question"
+    kind = GRAMMAR_KIND.get(q.kind, q.kind)
+    if kind in SUPERLATIVE_KINDS:
+        sup = reading.superlative
+        if sup is None or sup.kind != kind or reading.relations:
+            return f"read as {_reading_text(reading)}"
+        if len(sup.anchors) != len(q.anchor_phrases):
+            return f"read as {_reading_text(reading)}"
+        return ""
+    clauses = reading.relations
+    if len(clauses) != 1 or clauses[0].kind != kind or reading.superlative is not None:
+        return f"read as {_reading_text(reading)}"
+    expected_anchors = 2 if kind == "between" else 1
+    if len(clauses[0].anchors) != expected_anchors:
+        return f"read as {_reading_text(reading)}"
+    return ""
+
+
+def _reading_text(reading: Reading) -> str:
+    parts = [f"target '{reading.target}'"]
+    parts += [f"{c.kind} {c.anchors}" for c in reading.relations]
+    if reading.superlative is not None:
+        parts.append(f"{reading.superlative.kind} {reading.superlative.anchors}")
+    return ", ".join(parts)
+
+
+def _hit_detail(hit: RelationalHit, view: _MapView, category_of, bboxes) -> str:
+    def named_instance(thing_id: int) -> str:
+        instance = view.identity.get(thing_id, 0)
+        return f"{category_of[instance]}#{instance}" if instance else "no instance"
+
+    anchors = ", ".join(
+        f"{label} {a} (is {named_instance(a)})" for a, label in hit.relation.anchors
+    )
+    return (
+        f"object {hit.id} '{hit.label}' (is {named_instance(hit.id)}) score {hit.score:.2f} "
+        f"relevance {hit.relevance:.2f} {hit.relation.kind} {hit.relation.degree:.2f}"
+        + (f" to {anchors}" if anchors else "")
+    )
+
+
+# --- the summary -------------------------------------------------------------------------------
+
+
+def _share(values) -> float | None:
+    """Percentage of true values (None when there are none)."""
+    values = list(values)
+    return 100.0 * sum(bool(v) for v in values) / len(values) if values else None
+
+
+def _pct(value: float | None, width: int = 6) -> str:
+    return f"{'n/a':>{width + 1}}" if value is None else f"{value:{width}.1f}%"
+
+
+def _percentiles(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    arr = np.asarray(values, np.float64)
+    return {
+        "p50": float(np.percentile(arr, 50)),
+        "p95": float(np.percentile(arr, 95)),
+        "mean": float(arr.mean()),
+    }
+
+
+def _summary(
+    records: list[dict],
+    index_ms: list[float],
+    update_ms: list[float],
+    changed: list[int],
+    objects_at_end: list[int],
+) -> dict:
+    positive = [r for r in records if r["family"] in _POSITIVE]
+    negative = [r for r in records if r["family"] == "negative"]
+    plain = [r for r in records if r["family"] == "plain"]
+    right = [r for r in positive + plain if r["right"]]
+    by_kind: dict[str, dict] = {}
+    for r in positive + negative:
+        key = f"{r['family']}:{r['kind']}"
+        slot = by_kind.setdefault(key, {"asked": 0, "right": 0})
+        slot["asked"] += 1
+        slot["right"] += bool(r["right"])
+        slot["perfect_map"] = slot.get("perfect_map", 0) + bool(r["perfect_map_right"])
+    for slot in by_kind.values():
+        slot["percent"] = 100.0 * slot["right"] / slot["asked"]
+        slot["perfect_map"] = 100.0 * slot["perfect_map"] / slot["asked"]
+    keys = ("seed", "question", "family", "kind", "expected", "got", "reason", "detail")
+    failed = [
+        {**{k: r[k] for k in keys}, "perfect_map_right": r["perfect_map_right"]}
+        for r in records
+        if not r["right"]
+    ]
+    unmatched = [
+        {k: r[k] for k in ("seed", "question", "family", "kind", "expected", "got")}
+        for r in right
+        if not r["match"]
+    ]
+    return {
+        "top1": _share(r["right"] for r in positive),
+        "top1_perfect_map": _share(r["perfect_map_right"] for r in positive),
+        "negatives_no_match": _share(r["right"] for r in negative),
+        "negatives_no_match_perfect_map": _share(r["perfect_map_right"] for r in negative),
+        "right_answers_match": _share(r["match"] for r in right),
+        "right_answers_match_relational": _share(
+            r["match"] for r in right if r["family"] in _POSITIVE
+        ),
+        "right_answers_match_plain": _share(r["match"] for r in right if r["family"] == "plain"),
+        "plain_top1": _share(r["right"] for r in plain),
+        "plain_path_top1": _share(r["plain_path_right"] for r in plain),
+        "plain_same_top1": _share(r["same_as_plain_path"] for r in plain),
+        "plain_read_as_relational": [r["question"] for r in plain if r["relational_path"]],
+        "lq_equals_sq": None,
+        "lq_note": LQ_NOTE,
+        "index_update_ms": _percentiles(index_ms),
+        "index_update_only_ms": _percentiles(update_ms),
+        "index_changed_per_keyframe": _percentiles([float(c) for c in changed]),
+        "index_objects_at_end": objects_at_end,
+        "questions": len(records),
+        "asked": {
+            "relational": sum(r["family"] == "relational" for r in records),
+            "any": sum(r["family"] == "any" for r in records),
+            "negative": len(negative),
+            "plain": len(plain),
+        },
+        "by_kind": dict(sorted(by_kind.items())),
+        "failure_reasons": dict(
+            Counter(
+                f"{f['family']}: {f['reason']}"
+                + ("" if f["perfect_map_right"] else " (also on a perfect map)")
+                for f in failed
+            ).most_common()
+        ),
+        "failures": failed,
+        "right_without_match": unmatched,
+    }
+
+
+def format_relations_table(result: dict) -> str:
+    """The stdout table of `eval --scenario relations`."""
+    rel = result["relations"]
+    index = rel["index_update_ms"] or {"p50": float("nan"), "p95": float("nan")}
+    asked = rel["asked"]
+    lq = "n/a" if rel["lq_equals_sq"] is None else f"{rel['lq_equals_sq']:.1f}%"
+    lines = [
+        f"relation rooms, seeds {result['seeds']}: {result['keyframes']} keyframes of "
+        f"{result['frames']} frames each, noise {result['noise']}; {rel['questions']} questions "
+        f"({asked['relational']} relational, {asked['any']} 'what is ...', "
+        f"{asked['negative']} negatives, {asked['plain']} plain)",
+        f"{'':<28} {'map':>7} {'perfect map':>12}",
+        f"{'relational top-1':<28} {_pct(rel['top1'])} {_pct(rel['top1_perfect_map'], 11)}",
+        f"{'negatives match=false':<28} {_pct(rel['negatives_no_match'])} "
+        f"{_pct(rel['negatives_no_match_perfect_map'], 11)}",
+        f"{'right answers match=true':<28} {_pct(rel['right_answers_match'])}",
+        f"{'plain top-1 (plain path)':<28} {_pct(rel['plain_top1'])} "
+        f"(plain path{_pct(rel['plain_path_top1'])}, same top-1{_pct(rel['plain_same_top1'])})",
+        f"{'LQ = SQ':<28} {lq:>7}",
+        f"{'index update p50 / p95':<28} {index['p50']:6.2f} / {index['p95']:.2f} ms",
+        f"{'kind':<22} {'asked':>6} {'right':>7} {'perfect map':>12}",
+    ]
+    for kind, slot in rel["by_kind"].items():
+        lines.append(
+            f"{kind:<22} {slot['asked']:6d} {_pct(slot['percent'])} {_pct(slot['perfect_map'], 11)}"
+        )
+    reasons = list(rel["failure_reasons"].items())
+    lines.append("failures by why:" + ("" if reasons else " none"))
+    lines += [f"  {count:4d}  {reason}" for reason, count in reasons]
+    if rel["lq_equals_sq"] is None:
+        lines.append(f"LQ = SQ not measured: {rel['lq_note']}")
+    return "\n".join(lines)
