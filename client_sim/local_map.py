@@ -42,6 +42,7 @@ from __future__ import annotations
 import logging
 import math
 import sys
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -49,8 +50,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from app.mapping.held import dequantise_points, quantise_points
+from app.mapping.grammar import Reading, is_relational, parse
+from app.mapping.held import POINT_LEVELS, dequantise_points, quantise_points
+from app.mapping.relational import MapThings, RelationalHit, answer, row_dots
+from app.mapping.relations import Z_UP, Body, OnDemandRelations, snap_to_axis
 from app.protocol import DEFAULT_EMBEDDING_DIM, DeltaError, parse_delta
+from app.semantics import TextEncoder
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +92,18 @@ _GROWTH = 16
 _SWAP_REMOVE_MAX = 32
 """Removing more rows than this at once compacts the arrays in one pass instead."""
 
+RELATION_CACHE_MB = 4.0
+"""Default bound on the relation bodies a local map keeps between questions (SI MB; ~1,200
+objects of 200 points), always within what the budget leaves free."""
+
+_BODY_OVERHEAD_BYTES = 2000
+"""Bytes of a cached relation `Body` besides its points (float32 [3, N]): its box, centres,
+footprint and the cache's entry. Checked against tracemalloc in the tests."""
+
+_BOX_MARGIN_M = 1e-3
+"""A held object's point box is widened this much for the relation prefilters (float32
+rounding of the stored points; a wider box only costs a pair measured to be 0)."""
+
 _UNSET: Any = object()
 """Default of `set_policy(distance_threshold_m=...)`: unchanged (None means "no threshold")."""
 
@@ -121,6 +138,7 @@ class _ParsedDelta:
     points_step: np.ndarray  # float32 [m, 3], metres per uint8 step
     bboxes: np.ndarray  # float32 [m, 6]
     centroids: np.ndarray  # float32 [m, 3], mean of the received points
+    held_centroids: np.ndarray  # float32 [m, 3], mean of the held (stored) points
     n_obs: np.ndarray  # int64 [m]
     last_seen_t: np.ndarray  # float64 [m], device-clock seconds, NaN where not sent
     removed: list[int]
@@ -177,6 +195,21 @@ def _seconds_or_none(value: float) -> float | None:
     return None if math.isnan(value) else float(value)
 
 
+def _held_centroid(
+    data: bytes, lo: np.ndarray, step: np.ndarray, fallback: np.ndarray
+) -> np.ndarray:
+    """float64 [3]: the mean of an object's held points (what its relation body's centroid
+    is), `fallback` when it has none."""
+    if not data:
+        return np.asarray(fallback, np.float64)
+    return dequantise_points(data, lo, step).mean(axis=0, dtype=np.float64)
+
+
+def _body_bytes(body: Body) -> int:
+    """Bytes a cached relation body holds (its points exactly, the rest estimated)."""
+    return body.local.nbytes + _BODY_OVERHEAD_BYTES
+
+
 def _entry_bytes(data: bytes) -> int:
     """Bytes of one object's point bytes as the allocator holds them (header included)."""
     return _BYTES_HEADER + len(data)
@@ -190,6 +223,8 @@ class LocalMap:
     budget_mb:             bound on `memory_bytes()`, in SI MB (`local_map_budget_mb`)
     priority_classes:      labels kept first when over budget (`priority_class`; any case)
     distance_threshold_m:  objects this close to the user are kept before farther ones
+    relation_cache_mb:     bound on the relation bodies kept between relational questions
+                           (`relational_query`), in SI MB; within the budget's free room
     """
 
     seq: int
@@ -204,6 +239,7 @@ class LocalMap:
         budget_mb: float = 500.0,
         priority_classes: Sequence[str] = (),
         distance_threshold_m: float | None = None,
+        relation_cache_mb: float = RELATION_CACHE_MB,
     ):
         if isinstance(dim, bool) or not isinstance(dim, int) or dim < 1:
             raise ValueError(f"dim must be a positive integer, got {dim!r}")
@@ -227,6 +263,17 @@ class LocalMap:
         self._points_nbytes = 0  # sum of _entry_bytes over _points
         self._index_ids = np.empty(0, np.int64)  # held ids, ascending
         self._index_rows = np.empty(0, np.int32)  # their rows
+        # What relational questions keep between them (`relational_query`), in
+        # `memory_bytes()`, dropped for objects that change, go or are evicted:
+        if not (_is_finite_number(relation_cache_mb) and relation_cache_mb >= 0):
+            raise ValueError(f"relation_cache_mb must be a number >= 0, got {relation_cache_mb!r}")
+        self._relation_cache_bytes = int(relation_cache_mb * BYTES_PER_MB)
+        # id -> ((version, up axis), Body, bytes), least recently used first
+        self._bodies: OrderedDict[int, tuple[tuple, Body, int]] = OrderedDict()
+        self._bodies_nbytes = 0
+        # (distinct labels, each row's label int32 [n], rows with points int32 [m] or None
+        # for all): rebuilt after rows change
+        self._label_table: tuple[list[str], np.ndarray, np.ndarray | None] | None = None
 
         self.set_policy(
             budget_mb=budget_mb,
@@ -270,6 +317,10 @@ class LocalMap:
             "last_seen_t": _seconds_or_none(float(rows["last_seen_t"][row])),
         }
 
+    def labels(self) -> list[str]:
+        """The distinct labels of the held objects."""
+        return list(self._labels_by_row()[0])
+
     def snapshot(self) -> dict[int, tuple[int, str]]:
         """id -> (version, label) of every held object (to compare with the server)."""
         versions = self._rows["version"]
@@ -280,11 +331,27 @@ class LocalMap:
 
     def memory_bytes(self) -> int:
         """Bytes held: the row arrays at their capacity (int8 embeddings, scales and metadata
-        columns), the id index, the point bytes with their headers, and
-        `PYTHON_BYTES_PER_OBJECT` per object for python-side metadata."""
+        columns), the id index, the point bytes with their headers,
+        `PYTHON_BYTES_PER_OBJECT` per object for python-side metadata, and what relational
+        questions keep between them (bodies, the label table)."""
+        return self._map_bytes() + self._relation_bytes()
+
+    def _map_bytes(self) -> int:
         columns = sum(column.nbytes for column in self._rows.values())
         index = self._index_ids.nbytes + self._index_rows.nbytes
         return columns + index + self._points_nbytes + self._n * PYTHON_BYTES_PER_OBJECT
+
+    def _relation_bytes(self) -> int:
+        table = 0
+        if self._label_table is not None:
+            labels, label_of, rows = self._label_table
+            table = label_of.nbytes + (0 if rows is None else rows.nbytes) + 8 * len(labels)
+        return self._bodies_nbytes + table
+
+    @property
+    def user_position(self) -> np.ndarray | None:
+        """The user's position float64 [3] in world metres (`set_user_position`), or None."""
+        return None if self._user_position is None else self._user_position.copy()
 
     # --- knobs ----------------------------------------------------------------------------
 
@@ -386,6 +453,7 @@ class LocalMap:
         embeddings = np.empty((m, self.dim), np.float16)
         bboxes = np.empty((m, 6), np.float32)
         centroids = np.empty((m, 3), np.float32)
+        held_centroids = np.empty((m, 3), np.float32)
         points_list: list[bytes] = []
         points_lo = np.empty((m, 3), np.float32)
         points_step = np.empty((m, 3), np.float32)
@@ -403,6 +471,7 @@ class LocalMap:
                 centroids[i] = (bboxes[i, :3] + bboxes[i, 3:]) / 2
             capped = _cap_points(points, self._max_points, upsert.id, upsert.version)
             data, points_lo[i], points_step[i] = quantise_points(capped)
+            held_centroids[i] = _held_centroid(data, points_lo[i], points_step[i], centroids[i])
             points_list.append(data)
         quantised, scales = quantise_embeddings(embeddings)
         return _ParsedDelta(
@@ -418,6 +487,7 @@ class LocalMap:
             points_step=points_step,
             bboxes=bboxes,
             centroids=centroids,
+            held_centroids=held_centroids,
             n_obs=n_obs,
             last_seen_t=last_seen_t,
             removed=delta.removed,
@@ -455,10 +525,12 @@ class LocalMap:
         columns["points_step"][target] = delta.points_step[take]
         columns["bbox"][target] = delta.bboxes[take]
         columns["centroid"][target] = delta.centroids[take]
+        columns["held_centroid"][target] = delta.held_centroids[take]
         columns["n_obs"][target] = delta.n_obs[take]
         columns["last_seen_t"][target] = delta.last_seen_t[take]
         columns["updated"][target] = self._clock + np.arange(1, len(take) + 1)
         self._clock += len(take)
+        self._forget_relations(delta.ids[take].tolist())
         for i, row in zip(take.tolist(), target.tolist(), strict=True):
             points = delta.points[i]
             if row < self._n:
@@ -474,6 +546,7 @@ class LocalMap:
             self._rebuild_index()
 
     def _clear(self) -> None:
+        self._forget_relations()
         self._n = 0
         self._labels = []
         self._points = []
@@ -482,6 +555,7 @@ class LocalMap:
 
     def _remove_ids(self, ids: Sequence[int]) -> None:
         """Drop the held ones of `ids` (unknown ids may have been evicted: not an error)."""
+        self._forget_relations(list(ids))
         held = self._rows_of(np.fromiter(set(ids), np.int64))
         rows = set(held[held >= 0].tolist())
         if len(rows) < len(set(ids)):
@@ -524,6 +598,11 @@ class LocalMap:
                 ).tobytes()
                 self._points_nbytes += _entry_bytes(capped) - _entry_bytes(data)
                 self._points[row] = capped
+                lo, step = self._rows["points_lo"][row], self._rows["points_step"][row]
+                self._rows["held_centroid"][row] = _held_centroid(
+                    capped, lo, step, self._rows["held_centroid"][row]
+                )
+                self._forget_relations([int(ids[row])])
 
     # --- row storage ----------------------------------------------------------------------
 
@@ -542,6 +621,7 @@ class LocalMap:
             "version": np.zeros(capacity, np.int64),
             "bbox": np.zeros((capacity, 6), np.float32),
             "centroid": np.zeros((capacity, 3), np.float32),
+            "held_centroid": np.zeros((capacity, 3), np.float32),  # the relations' centroid
             "n_obs": np.zeros(capacity, np.int64),
             "last_seen_t": np.full(capacity, np.nan, np.float64),
             "updated": np.zeros(capacity, np.int64),
@@ -578,6 +658,7 @@ class LocalMap:
         self._points_nbytes = sum(_entry_bytes(data) for data in self._points)
         self._n = m
         self._rebuild_index()
+        self._forget_relations([oid for oid in self._bodies if self._row(oid) is None])
 
     # --- id index -------------------------------------------------------------------------
 
@@ -632,6 +713,9 @@ class LocalMap:
         """Evict (and shrink the columns) until `memory_bytes()` is within the budget."""
         if self.memory_bytes() <= self._budget_bytes:
             return
+        self._forget_relations()  # a cache goes before any object
+        if self.memory_bytes() <= self._budget_bytes:
+            return
         n = self._n
         order = self._eviction_order()
         row_bytes = self._row_bytes()
@@ -683,6 +767,132 @@ class LocalMap:
                 )
             )
         return hits
+
+    def relational_query(
+        self,
+        question: str | Reading,
+        encoder: TextEncoder,
+        viewer: Sequence[float] | np.ndarray | None = None,
+        up: Sequence[float] | np.ndarray | None = None,
+        k: int = 5,
+    ) -> list[RelationalHit] | None:
+        """The k held objects best answering a question about how things stand ("the mug on
+        the desk", "the lamp closest to me"), best first, as the server answers it: the same
+        `app.mapping.relational.answer` on the same points (the server measures relations
+        on the points a device holds, app.mapping.held). None: a plain question, or one to
+        answer as plain (an anchor the map holds nothing confident of, a question seen from
+        the asker with no position): answer it with `query_embedding`.
+
+        encoder: the session's text encoder; viewer: the asker's position, world metres
+        (None: the user's position, `set_user_position`, if any); up: the world axis that is
+        up, float [3] (None: Z, app.mapping.relations.Z_UP).
+
+        Cheap at 10k objects: nothing is prepared ahead. A question builds relation bodies
+        only for the objects it touches (anchors, what is within reach of them, the target
+        category's extremes), keeps up to `relation_cache_mb` of them for the next one
+        (dropped when their object changes, goes or is evicted, and before any object when
+        over budget), and reads centroids from a column.
+        """
+        reading = parse(question) if isinstance(question, str) else question
+        if not is_relational(reading) or self._n == 0:
+            return None
+        up_axis = Z_UP if up is None else snap_to_axis(np.asarray(up, np.float64))
+        position = self._user_position if viewer is None else np.asarray(viewer, np.float64)
+        labels, label_of, rows = self._labels_by_row()
+        if len(rows) == 0:
+            return None
+        columns = self._rows
+        lo = columns["points_lo"][rows].astype(np.float64)
+        hi = lo + POINT_LEVELS * columns["points_step"][rows].astype(np.float64)
+        relations = OnDemandRelations(
+            columns["id"][rows],
+            lo - _BOX_MARGIN_M,
+            hi + _BOX_MARGIN_M,
+            body_of=lambda oid: self._held_body(oid, up_axis),
+            centroids_of=lambda positions: columns["held_centroid"][rows[positions]],
+            up=up_axis,
+        )
+        things = MapThings(
+            ids=columns["id"][rows],
+            labels=labels,
+            label_of=label_of[rows],
+            cosines=lambda positions, query: self._row_cosines(rows[positions], query),
+        )
+        return answer(reading, things, relations, encoder, position, k)
+
+    def _row_cosines(self, rows: np.ndarray, query: np.ndarray) -> np.ndarray:
+        """float32 [m]: cosines of `rows` with the unit `query`, each row on its own
+        (relational.row_dots: copies with one embedding tie exactly)."""
+        columns = self._rows
+        embeddings = columns["embedding"][rows].astype(np.float32)
+        return row_dots(embeddings, np.asarray(query, np.float32)) * columns["scale"][rows]
+
+    def _labels_by_row(self) -> tuple[list[str], np.ndarray, np.ndarray]:
+        """(distinct labels, each row's label int32 [n], the rows with points int [m]): kept
+        until rows change, when the budget leaves room for it."""
+        table = self._label_table
+        if table is None:
+            codes: dict[str, int] = {}
+            label_of = np.fromiter(
+                (codes.setdefault(label, len(codes)) for label in self._labels), np.int32, self._n
+            )
+            with_points = np.fromiter((len(data) > 0 for data in self._points), bool, self._n)
+            rows = None if with_points.all() else np.flatnonzero(with_points).astype(np.int32)
+            table = (list(codes), label_of, rows)
+            self._label_table = table
+            if self.memory_bytes() > self._budget_bytes:
+                self._label_table = None  # no room to keep it: made again next time
+        labels, label_of, rows = table
+        return labels, label_of, np.arange(self._n) if rows is None else rows
+
+    def _held_body(self, oid: int, up: np.ndarray) -> Body:
+        """The relation body of a held object's points for `up`, from the cache if there."""
+        row = self._row(oid)
+        if row is None:
+            raise KeyError(oid)
+        columns = self._rows
+        key = (int(columns["version"][row]), tuple(up.tolist()))
+        cached = self._bodies.get(oid)
+        if cached is not None and cached[0] == key:
+            self._bodies.move_to_end(oid)
+            return cached[1]
+        points = dequantise_points(
+            self._points[row], columns["points_lo"][row], columns["points_step"][row]
+        )
+        body = Body(points, up)
+        self._keep_body(oid, key, body)
+        return body
+
+    def _keep_body(self, oid: int, key: tuple, body: Body) -> None:
+        """Cache a body, least recently used ones out, within `relation_cache_mb` and the
+        budget's free room."""
+        self._forget_body(oid)
+        nbytes = _body_bytes(body)
+        room = min(self._relation_cache_bytes, self._budget_bytes - self._map_bytes())
+        room -= self._relation_bytes() - self._bodies_nbytes  # the label table's share
+        if nbytes > room:
+            return
+        while self._bodies_nbytes + nbytes > room:
+            _, (_, _, dropped) = self._bodies.popitem(last=False)
+            self._bodies_nbytes -= dropped
+        self._bodies[oid] = (key, body, nbytes)
+        self._bodies_nbytes += nbytes
+
+    def _forget_body(self, oid: int) -> None:
+        entry = self._bodies.pop(oid, None)
+        if entry is not None:
+            self._bodies_nbytes -= entry[2]
+
+    def _forget_relations(self, ids: Sequence[int] | None = None) -> None:
+        """Drop the relation bodies of these ids (every one when None) and the label table
+        (rows moved or labels changed)."""
+        self._label_table = None
+        if ids is None:
+            self._bodies.clear()
+            self._bodies_nbytes = 0
+            return
+        for oid in ids:
+            self._forget_body(int(oid))
 
     def _exact_scores(self, rows: np.ndarray, query: np.ndarray) -> np.ndarray:
         """float32 cosines of `rows` (int [m]) with the unit float32 `query`."""

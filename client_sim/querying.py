@@ -16,6 +16,15 @@ network call. When it is unknown (None: nothing streamed or followed yet, or jus
 reconnecting), one `GET /healthz` is timed and that round trip is the RTT for this query;
 a probe that fails or takes longer than `server_timeout_s` means LQ.
 
+Questions about how things stand ("the mug on the desk", "the lamp closest to me") are
+answered alike both ways (issue 27, DESIGN "LQ = SQ"): SQ sends the device's position
+(`from`, the local map's user position, which the streaming client sets to its newest pose),
+and LQ asks the local map (`LocalMap.relational_query`: the server's own
+`app.mapping.relational.answer` on the same points) from that position, along the session's
+up axis (the session record's `up`, learnt while online; Z until it says). Each relational hit
+carries `relation` {"kind", "anchors": [{"id", "label"}], "degree"} and the answer's `match` is
+the relational one (best score >= relational.MATCH_MIN_SCORE) both ways.
+
 LQ needs the session's own text encoder: the model and dimension the session announces in
 `embedding` (MiniLM, packaged, or CLIP's text tower on the `models` backend, read from
 `--models-dir`; `session_encoder_loader`). An encoder that differs is refused
@@ -32,14 +41,25 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from app.client import SessionApi
-from app.mapping.relevance import is_match, rate_hits
+from app.mapping import relational
+from app.mapping.grammar import Reading, is_relational, parse
+from app.mapping.places import up_vector
+from app.mapping.relations import Z_UP
+from app.mapping.relevance import is_match, rate_hits, rater_for
 from app.semantics import DEFAULT_MODEL_ID, TextEncoder
 from client_sim.local_map import LocalMap
 
 SQ, LQ, NONE = "SQ", "LQ", "none"
 PRESENT = "present"
 """A hit's `state` (living map): the object is in the map now (not removed)."""
+UP_REFRESH_S = 30.0
+"""While the session's up axis is not settled (neither set at creation nor inferred from
+the poses yet), the router reads the session record again after an SQ at most this often."""
+SETTLED_UP = ("set", "inferred")
+"""`up_source` values after which a session's up axis no longer changes."""
 
 
 class LocalQueriesOff(Exception):
@@ -132,10 +152,12 @@ class QueryAnswer:
     and the server did not answer)."""
     results: list[dict]
     """Best first: {"id", "label", "score", "relevance", "bbox": [x0, y0, z0, x1, y1, z1],
-    "centroid", "last_seen_t", "state"}; relevance in [0, 1] as app.mapping.relevance rates
-    it; last_seen_t in device-clock seconds as the server holds it (the same by SQ and LQ;
-    None from a server that does not send it); state "present" (the local map holds only
-    present objects, and SQ does not ask for removed ones)."""
+    "centroid", "last_seen_t", "state", "relation"}; relevance in [0, 1] as
+    app.mapping.relevance rates it (of the target phrase, for a relational question);
+    last_seen_t in device-clock seconds as the server holds it (the same by SQ and LQ; None
+    from a server that does not send it); state "present" (the local map holds only present
+    objects, and SQ does not ask for removed ones); relation {"kind", "anchors": [{"id",
+    "label"}], "degree"} for a question about how things stand, else None."""
     latency_ms: float
     """End to end for the mode that answered: the HTTP round trip of SQ, or embedding plus
     search of LQ."""
@@ -145,10 +167,17 @@ class QueryAnswer:
     """The whole call, including an RTT probe or a failed SQ before the fallback."""
     rtt_ms: float | None = field(default=None)
     """The RTT the decision used (None: unknown, inf: link down)."""
+    verdict: bool | None = None
+    """The answer's own `match` where it has one: the server's (SQ), or a relational LQ's
+    (its best score >= relational.MATCH_MIN_SCORE); None: from the hits' relevance."""
 
     @property
     def match(self) -> bool:
-        """Whether a hit is a confident match (False: "no confident match", hits listed)."""
+        """Whether the answer is a confident match (False: "no confident match", hits
+        listed): a relational answer's best hit stands in the relation; a plain one's hit
+        is confidently what was asked for."""
+        if self.verdict is not None:
+            return self.verdict
         return is_match([hit["relevance"] for hit in self.results])
 
 
@@ -160,7 +189,9 @@ class QueryRouter:
     query to the server. embedding: the session's announcement ({"model", "dim"}); when
     given, an encoder that differs is refused (EncoderMismatchError). rtt_ms: the streaming
     client's smoothed RTT in ms (None unknown, inf down). server_timeout_s: longest wait for
-    the server (probe or SQ) before LQ.
+    the server (probe or SQ) before LQ. up: the session's up axis ("+z", "+y", ...) if the
+    caller knows it (the session record's `up`); otherwise it is read from the record after
+    an SQ, and Z until then.
     """
 
     def __init__(
@@ -175,6 +206,7 @@ class QueryRouter:
         server_timeout_s: float = 1.0,
         embedding: dict | None = None,
         local_off_reason: str = "no text encoder on this device",
+        up: str | None = None,
     ):
         if encoder is not None and embedding is not None:
             check_encoder(encoder, embedding)
@@ -185,6 +217,10 @@ class QueryRouter:
         self.threshold_ms = float(threshold_ms)
         self.rtt_ms = rtt_ms
         self.server_timeout_s = float(server_timeout_s)
+        self.up: str | None = up
+        """The session's up axis as the router knows it ("+z", ...; None: not known, Z)."""
+        self._up_settled = up is not None  # given by the caller: taken as settled
+        self._up_read_s = -math.inf  # time.monotonic() of the last read of the record
 
     def planned_mode(self) -> str:
         """The mode a query would take now from the streaming RTT alone ("?" if unknown)."""
@@ -234,18 +270,41 @@ class QueryRouter:
     ) -> QueryAnswer:
         """SQ: the server's answer (raises whatever the server path raises)."""
         sq_start_s = time.perf_counter()
-        # Parsed by the protocol (QueryHit): last_seen_t None, state "present" from an older server.
-        results = await self.api.query(text, k)
+        # Parsed by the protocol (QueryHit): last_seen_t None, state "present" from an older
+        # server. The asker stands where the device is: questions seen from them ("closest
+        # to me") are answered from where LQ would answer them.
+        answer = await self.api.query_result(text, k, from_xyz=self.local_map.user_position)
         now_s = time.perf_counter()
+        if is_relational(parse(text)):
+            await self._read_up()  # LQ will need it once the network is gone
         return QueryAnswer(
             text=text,
             mode=SQ,
-            results=results,
+            results=answer["results"],
             latency_ms=(now_s - sq_start_s) * 1e3,
             reason=reason,
-            total_ms=(now_s - start_s) * 1e3,
+            total_ms=(time.perf_counter() - start_s) * 1e3,
             rtt_ms=rtt,
+            verdict=answer["match"],
         )
+
+    async def _read_up(self) -> None:
+        """The session's up axis from its record, while it is not settled (at most every
+        UP_REFRESH_S); a failed read changes nothing."""
+        if self._up_settled or time.monotonic() - self._up_read_s < UP_REFRESH_S:
+            return
+        self._up_read_s = time.monotonic()
+        try:
+            record = await self.api.fetch()
+        except Exception:  # the answer came; the axis can wait for the next one
+            return
+        if record.up is not None:
+            self.up = record.up
+            self._up_settled = record.up_source in SETTLED_UP
+
+    def up_axis(self) -> np.ndarray:
+        """The up axis LQ measures relations along, float64 [3]: the session's, else Z."""
+        return Z_UP if self.up is None else up_vector(self.up)
 
     async def _server_only(
         self, text: str, k: int, start_s: float, rtt: float | None
@@ -283,6 +342,11 @@ class QueryRouter:
     async def _local_query(
         self, text: str, k: int, reason: str, start_s: float, rtt: float | None
     ) -> QueryAnswer:
+        reading = parse(text)
+        if is_relational(reading):
+            answer = await self._local_relational_query(text, reading, k, reason, start_s, rtt)
+            if answer is not None:
+                return answer
         lq_start_s = time.perf_counter()
         # Embedding is the slow part (~15 ms): off the loop, so deltas and acks keep flowing.
         # The search runs on the loop, the only place the local map is touched.
@@ -305,6 +369,7 @@ class QueryRouter:
                     "centroid": hit.centroid,
                     "last_seen_t": hit.last_seen_t,  # as the server sent it: SQ's value
                     "state": PRESENT,
+                    "relation": None,
                 }
                 for hit, relevance in zip(hits, rating.relevance, strict=True)
             ],
@@ -313,3 +378,63 @@ class QueryRouter:
             total_ms=(now_s - start_s) * 1e3,
             rtt_ms=rtt,
         )
+
+    async def _local_relational_query(
+        self,
+        text: str,
+        reading: Reading,
+        k: int,
+        reason: str,
+        start_s: float,
+        rtt: float | None,
+    ) -> QueryAnswer | None:
+        """LQ of a question about how things stand, as SQ answers it; None: answer it as a
+        plain question (the map lacks its anchor, or it is seen from an unknown position)."""
+        lq_start_s = time.perf_counter()
+        # The slow parts off the loop: embedding the phrases (into the encoder's cache, where
+        # the answer finds them) and, once, the rater's vocabulary. The map is read on the
+        # loop, the only place it is touched.
+        labels = self.local_map.labels()
+        await asyncio.to_thread(_prepare, self.encoder, relational.phrases_of(reading), labels)
+        hits = self.local_map.relational_query(reading, self.encoder, up=self.up_axis(), k=k)
+        if hits is None:
+            return None
+        results = []
+        for hit in hits:
+            held = self.local_map.get(hit.id)
+            results.append(
+                {
+                    "id": hit.id,
+                    "label": hit.label,
+                    "score": hit.cosine,  # as the server reports a relational hit
+                    "relevance": hit.relevance,
+                    "bbox": held["bbox"],
+                    "centroid": held["centroid"],
+                    "last_seen_t": held["last_seen_t"],
+                    "state": PRESENT,
+                    "relation": {
+                        "kind": hit.relation.kind,
+                        "anchors": [{"id": i, "label": name} for i, name in hit.relation.anchors],
+                        "degree": hit.relation.degree,
+                    },
+                }
+            )
+        now_s = time.perf_counter()
+        return QueryAnswer(
+            text=text,
+            mode=LQ,
+            results=results,
+            latency_ms=(now_s - lq_start_s) * 1e3,
+            reason=reason,
+            total_ms=(now_s - start_s) * 1e3,
+            rtt_ms=rtt,
+            verdict=relational.is_match(hits),
+        )
+
+
+def _prepare(encoder: TextEncoder, phrases: list[str], labels: list[str]) -> None:
+    """In a worker thread: what a relational answer embeds, into the encoder's caches (the
+    phrases, the map's labels, the rater's vocabulary)."""
+    encoder.encode(phrases)
+    encoder.encode(labels)
+    rater_for(encoder)

@@ -4,6 +4,7 @@ change their knobs, query them."""
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -209,17 +210,33 @@ class SessionApi:
         """PATCH /v1/sessions/{sid}/knobs -> the knobs now in force."""
         return await self._call("PATCH", f"{self.session_url}/knobs", json=changes)
 
-    async def query(self, text: str, k: int = 5, *, include: str | None = None) -> list[dict]:
+    async def query(
+        self,
+        text: str,
+        k: int = 5,
+        *,
+        include: str | None = None,
+        from_xyz: Sequence[float] | None = None,
+    ) -> list[dict]:
         """GET /v1/sessions/{sid}/query: the k best hits, best first, without their points
-        ({"id", "label", "score", "bbox", "centroid"}). include="removed" ranks the living
-        map's removed objects too (where a thing was last seen)."""
-        return (await self.query_result(text, k, include=include))["results"]
+        ({"id", "label", "score", "bbox", "centroid"}; "relation" for a question about how
+        things stand). include="removed" ranks the living map's removed objects too (where a
+        thing was last seen); from_xyz: where the asker stands, world metres, for questions
+        seen from them ("the lamp closest to me"; default: the session's newest pose)."""
+        return (await self.query_result(text, k, include=include, from_xyz=from_xyz))["results"]
 
-    async def query_result(self, text: str, k: int = 5, *, include: str | None = None) -> dict:
+    async def query_result(
+        self,
+        text: str,
+        k: int = 5,
+        *,
+        include: str | None = None,
+        from_xyz: Sequence[float] | None = None,
+    ) -> dict:
         """`query`'s whole answer: {"text", "match", "results" (as `query` gives them),
         "latency_ms", "now_t"} (now_t: the session's newest frame t, what "last seen ... ago"
         counts from; None from a server without the living map)."""
-        params = _query_params(text, k, include)
+        params = _query_params(text, k, include, from_xyz)
         answer = await self._call("GET", f"{self.session_url}/query", params=params)
         return _result(answer)
 
@@ -294,11 +311,17 @@ def parsed_answer(model: type[R], answer: Any, call: str) -> R:
         raise ApiError(f"{call}: a malformed answer: {exc}") from exc
 
 
-def _query_params(text: str, k: int, include: str | None = None) -> dict[str, Any]:
+def _query_params(
+    text: str, k: int, include: str | None = None, from_xyz: Sequence[float] | None = None
+) -> dict[str, Any]:
     # Points left out: the device and the viewer already hold the geometry they need.
     params: dict[str, Any] = {"text": text, "k": k, "points": "false"}
     if include is not None:
         params["include"] = include
+    if from_xyz is not None:
+        # repr: the shortest text that reads back as the same float, so the server places
+        # the asker exactly where the device's own answer does
+        params["from"] = ",".join(repr(float(v)) for v in from_xyz)
     return params
 
 

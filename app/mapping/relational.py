@@ -214,7 +214,9 @@ class _Question:
 
     def ground(self, phrase: str) -> _Grounding:
         if phrase not in self._groundings:
-            self._groundings[phrase] = _Grounding(self._rater, phrase, self.embedding(phrase), self.things)
+            self._groundings[phrase] = _Grounding(
+                self._rater, phrase, self.embedding(phrase), self.things
+            )
         return self._groundings[phrase]
 
     def ids(self, positions) -> np.ndarray:
@@ -549,12 +551,9 @@ def answer(
     if not isinstance(things, MapThings):
         things = MapThings.of(things)
     sup = reading.superlative
-    anchor_phrases = [a for c in reading.relations for a in c.anchors]
-    if sup is not None:
-        anchor_phrases += sup.anchors
-    # the target phrase, or for an unspecified target the question's words (its cosine)
-    target_phrase = _question(reading) if reading.any_target else reading.target
-    phrases = list(dict.fromkeys([*anchor_phrases, target_phrase]))
+    anchor_phrases = _anchor_phrases(reading)
+    target_phrase = _target_phrase(reading)
+    phrases = phrases_of(reading)
     embedded = encoder.encode(phrases).astype(np.float32)  # one call; labels are cached
     q = _Question(
         things, index, rater_for(encoder), dict(zip(phrases, embedded, strict=True)), viewer
@@ -649,6 +648,24 @@ def same_head(phrase: str, label: str) -> bool:
     """Whether a phrase and a label end in the same noun ("the table" and "dining table")."""
     head = head_noun(phrase)
     return bool(head) and head == head_noun(label)
+
+
+def phrases_of(reading: Reading) -> list[str]:
+    """The phrases `answer` embeds for a reading, in one `encoder.encode` call: the anchors,
+    then the target (a device encodes them ahead, off its loop, into the encoder's cache)."""
+    return list(dict.fromkeys([*_anchor_phrases(reading), _target_phrase(reading)]))
+
+
+def _anchor_phrases(reading: Reading) -> list[str]:
+    phrases = [a for c in reading.relations for a in c.anchors]
+    if reading.superlative is not None:
+        phrases += reading.superlative.anchors
+    return phrases
+
+
+def _target_phrase(reading: Reading) -> str:
+    """The target phrase, or for an unspecified target the question's words (its cosine)."""
+    return _question(reading) if reading.any_target else reading.target
 
 
 def _question(reading: Reading) -> str:
