@@ -56,3 +56,33 @@ QUESTIONS = [
 """Relational questions, a few of them satisfied by nothing (NEGATIVES)."""
 NEGATIVES = {"the mug under the sofa", "the bag on the desk", "the mug near me"}
 """The questions nothing in ROOM satisfies (`match` false): no mug within reach of VIEWER."""
+
+
+def room_export() -> dict:
+    """ROOM as a `semanticxr-map` export for POST /v1/sessions/import (ids kept, points to
+    0.1 mm as the export format keeps them). No pose: up is Z."""
+    objects = []
+    for i, (label, points) in ROOM.items():
+        pts = points.round(4)
+        objects.append(
+            {
+                "id": i,
+                "version": 1,
+                "label": label,
+                "bbox": [*pts.min(0).tolist(), *pts.max(0).tolist()],
+                "centroid": pts.mean(0).tolist(),
+                "n_obs": 3,
+                "points": pts.tolist(),
+            }
+        )
+    return {
+        "format": "semanticxr-map",
+        "version": 1,
+        "session": {
+            "name": "device room",
+            "mode": "semanticxr",
+            "knobs": {},
+            "embedding": {"model": "all-MiniLM-L6-v2", "dim": 384},
+        },
+        "objects": objects,
+    }
