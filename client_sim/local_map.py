@@ -271,9 +271,10 @@ class LocalMap:
         # id -> ((version, up axis), Body, bytes), least recently used first
         self._bodies: OrderedDict[int, tuple[tuple, Body, int]] = OrderedDict()
         self._bodies_nbytes = 0
-        # (distinct labels, each row's label int32 [n], rows with points int32 [m] or None
-        # for all): rebuilt after rows change
-        self._label_table: tuple[list[str], np.ndarray, np.ndarray | None] | None = None
+        # label -> code (the "label_code" column) and back, so a question reads each row's
+        # label as an int; compacted when labels no longer held pile up
+        self._label_codes: dict[str, int] = {}
+        self._code_labels: list[str] = []
 
         self.set_policy(
             budget_mb=budget_mb,
@@ -319,7 +320,7 @@ class LocalMap:
 
     def labels(self) -> list[str]:
         """The distinct labels of the held objects."""
-        return list(self._labels_by_row()[0])
+        return self._labels_by_row()[0]
 
     def snapshot(self) -> dict[int, tuple[int, str]]:
         """id -> (version, label) of every held object (to compare with the server)."""
@@ -333,7 +334,7 @@ class LocalMap:
         """Bytes held: the row arrays at their capacity (int8 embeddings, scales and metadata
         columns), the id index, the point bytes with their headers,
         `PYTHON_BYTES_PER_OBJECT` per object for python-side metadata, and what relational
-        questions keep between them (bodies, the label table)."""
+        questions keep between them (relation bodies)."""
         return self._map_bytes() + self._relation_bytes()
 
     def _map_bytes(self) -> int:
@@ -342,11 +343,7 @@ class LocalMap:
         return columns + index + self._points_nbytes + self._n * PYTHON_BYTES_PER_OBJECT
 
     def _relation_bytes(self) -> int:
-        table = 0
-        if self._label_table is not None:
-            labels, label_of, rows = self._label_table
-            table = label_of.nbytes + (0 if rows is None else rows.nbytes) + 8 * len(labels)
-        return self._bodies_nbytes + table
+        return self._bodies_nbytes
 
     @property
     def user_position(self) -> np.ndarray | None:
@@ -528,6 +525,8 @@ class LocalMap:
         columns["held_centroid"][target] = delta.held_centroids[take]
         columns["n_obs"][target] = delta.n_obs[take]
         columns["last_seen_t"][target] = delta.last_seen_t[take]
+        columns["label_code"][target] = [self._label_code(delta.labels[i]) for i in take.tolist()]
+        columns["n_points"][target] = [len(delta.points[i]) // 3 for i in take.tolist()]
         columns["updated"][target] = self._clock + np.arange(1, len(take) + 1)
         self._clock += len(take)
         self._forget_relations(delta.ids[take].tolist())
@@ -544,9 +543,24 @@ class LocalMap:
         self._n += n_new
         if n_new:
             self._rebuild_index()
+        if len(self._code_labels) > 2 * self._n + 1024:
+            self._recode_labels()
+
+    def _label_code(self, label: str) -> int:
+        code = self._label_codes.get(label)
+        if code is None:
+            code = self._label_codes[label] = len(self._code_labels)
+            self._code_labels.append(label)
+        return code
+
+    def _recode_labels(self) -> None:
+        """Codes for the held labels only (labels of objects gone no longer kept)."""
+        self._label_codes, self._code_labels = {}, []
+        self._rows["label_code"][: self._n] = [self._label_code(label) for label in self._labels]
 
     def _clear(self) -> None:
         self._forget_relations()
+        self._label_codes, self._code_labels = {}, []
         self._n = 0
         self._labels = []
         self._points = []
@@ -598,6 +612,7 @@ class LocalMap:
                 ).tobytes()
                 self._points_nbytes += _entry_bytes(capped) - _entry_bytes(data)
                 self._points[row] = capped
+                self._rows["n_points"][row] = len(capped) // 3
                 lo, step = self._rows["points_lo"][row], self._rows["points_step"][row]
                 self._rows["held_centroid"][row] = _held_centroid(
                     capped, lo, step, self._rows["held_centroid"][row]
@@ -625,6 +640,8 @@ class LocalMap:
             "n_obs": np.zeros(capacity, np.int64),
             "last_seen_t": np.full(capacity, np.nan, np.float64),
             "updated": np.zeros(capacity, np.int64),
+            "label_code": np.zeros(capacity, np.int32),  # into _code_labels
+            "n_points": np.zeros(capacity, np.int32),  # held points
         }
 
     def _reallocate(self, capacity: int) -> None:
@@ -791,7 +808,7 @@ class LocalMap:
         only for the objects it touches (anchors, what is within reach of them, the target
         category's extremes), keeps up to `relation_cache_mb` of them for the next one
         (dropped when their object changes, goes or is evicted, and before any object when
-        over budget), and reads centroids from a column.
+        over budget), and reads labels and centroids from columns.
         """
         reading = parse(question) if isinstance(question, str) else question
         if not is_relational(reading) or self._n == 0:
@@ -808,7 +825,7 @@ class LocalMap:
             columns["id"][rows],
             lo - _BOX_MARGIN_M,
             hi + _BOX_MARGIN_M,
-            body_of=lambda oid: self._held_body(oid, up_axis),
+            bodies_of=lambda ids: self._held_bodies(ids, up_axis),
             centroids_of=lambda positions: columns["held_centroid"][rows[positions]],
             up=up_axis,
         )
@@ -828,40 +845,38 @@ class LocalMap:
         return row_dots(embeddings, np.asarray(query, np.float32)) * columns["scale"][rows]
 
     def _labels_by_row(self) -> tuple[list[str], np.ndarray, np.ndarray]:
-        """(distinct labels, each row's label int32 [n], the rows with points int [m]): kept
-        until rows change, when the budget leaves room for it."""
-        table = self._label_table
-        if table is None:
-            codes: dict[str, int] = {}
-            label_of = np.fromiter(
-                (codes.setdefault(label, len(codes)) for label in self._labels), np.int32, self._n
-            )
-            with_points = np.fromiter((len(data) > 0 for data in self._points), bool, self._n)
-            rows = None if with_points.all() else np.flatnonzero(with_points).astype(np.int32)
-            table = (list(codes), label_of, rows)
-            self._label_table = table
-            if self.memory_bytes() > self._budget_bytes:
-                self._label_table = None  # no room to keep it: made again next time
-        labels, label_of, rows = table
-        return labels, label_of, np.arange(self._n) if rows is None else rows
+        """(the distinct labels held, each row's label int [n] as an index into them, the
+        rows with points int [m]), from the label and point-count columns."""
+        n = self._n
+        codes, label_of = np.unique(self._rows["label_code"][:n], return_inverse=True)
+        with_points = self._rows["n_points"][:n] > 0
+        rows = np.arange(n) if with_points.all() else np.flatnonzero(with_points)
+        return [self._code_labels[code] for code in codes.tolist()], label_of, rows
 
-    def _held_body(self, oid: int, up: np.ndarray) -> Body:
-        """The relation body of a held object's points for `up`, from the cache if there."""
-        row = self._row(oid)
-        if row is None:
-            raise KeyError(oid)
+    def _held_bodies(self, ids: np.ndarray, up: np.ndarray) -> list[Body]:
+        """The relation bodies of held objects' points for `up`, from the cache where there."""
+        rows = self._rows_of(ids)
+        if (rows < 0).any():
+            raise KeyError(f"not held: {np.asarray(ids)[rows < 0][:5].tolist()}")
         columns = self._rows
-        key = (int(columns["version"][row]), tuple(up.tolist()))
-        cached = self._bodies.get(oid)
-        if cached is not None and cached[0] == key:
-            self._bodies.move_to_end(oid)
-            return cached[1]
-        points = dequantise_points(
-            self._points[row], columns["points_lo"][row], columns["points_step"][row]
-        )
-        body = Body(points, up)
-        self._keep_body(oid, key, body)
-        return body
+        axis = tuple(up.tolist())
+        bodies = []
+        for oid, row, version in zip(
+            np.asarray(ids).tolist(), rows.tolist(), columns["version"][rows].tolist(), strict=True
+        ):
+            key = (version, axis)
+            cached = self._bodies.get(oid)
+            if cached is not None and cached[0] == key:
+                self._bodies.move_to_end(oid)
+                bodies.append(cached[1])
+                continue
+            points = dequantise_points(
+                self._points[row], columns["points_lo"][row], columns["points_step"][row]
+            )
+            body = Body(points, up)
+            self._keep_body(oid, key, body)
+            bodies.append(body)
+        return bodies
 
     def _keep_body(self, oid: int, key: tuple, body: Body) -> None:
         """Cache a body, least recently used ones out, within `relation_cache_mb` and the
@@ -869,7 +884,6 @@ class LocalMap:
         self._forget_body(oid)
         nbytes = _body_bytes(body)
         room = min(self._relation_cache_bytes, self._budget_bytes - self._map_bytes())
-        room -= self._relation_bytes() - self._bodies_nbytes  # the label table's share
         if nbytes > room:
             return
         while self._bodies_nbytes + nbytes > room:
@@ -884,9 +898,7 @@ class LocalMap:
             self._bodies_nbytes -= entry[2]
 
     def _forget_relations(self, ids: Sequence[int] | None = None) -> None:
-        """Drop the relation bodies of these ids (every one when None) and the label table
-        (rows moved or labels changed)."""
-        self._label_table = None
+        """Drop the relation bodies of these ids (every one when None)."""
         if ids is None:
             self._bodies.clear()
             self._bodies_nbytes = 0

@@ -278,7 +278,7 @@ class _Clause(_Part):
         degrees = np.zeros(len(positions))
         ids = q.ids(positions)
         lo, hi = q.index.boxes(ids)
-        for i in np.flatnonzero(within_reach(lo, hi, here.lo, here.hi)).tolist():
+        for i in np.flatnonzero(within_reach(lo, hi, here.lo, here.hi, self.kind)).tolist():
             degrees[i] = relation(q.index.body(int(ids[i])), here, up=q.up)
         return degrees, np.full((len(positions), 2), _NONE, np.int64)
 
@@ -335,10 +335,45 @@ class _Measure:
     from a number per member (a distance, a size) computed when asked, with an upper bound
     on every member's degree once `settle` has found the extreme exactly."""
 
-    def settle(self) -> None:
-        """Compute the members that may hold the extreme, and so the extreme itself."""
+    def __init__(self, members: np.ndarray, q: _Question):
+        self.members, self.q = members, q
+        self.exact = np.full(len(members), np.nan)
+        """float64 [m]: the number of each member, NaN where not computed yet."""
 
-    def degree(self, j: int) -> float:
+    def _compute(self, bodies: list[Body]) -> list[float]:
+        raise NotImplementedError
+
+    def compute(self, js: np.ndarray) -> None:
+        """The numbers of these members (their bodies fetched at once)."""
+        js = js[np.isnan(self.exact[js])]
+        if len(js):
+            self.exact[js] = self._compute(self.q.index.bodies(self.q.ids(self.members[js])))
+
+    _largest = False
+    """Whether the extreme `_settle` looks for is the largest number (else the smallest)."""
+
+    def _settle(
+        self, order: np.ndarray, bound: np.ndarray, beyond: Callable[[float, float], bool]
+    ) -> float:
+        """Compute members in `order` (a chunk at a time) until the next one's bound cannot
+        pass the extreme found so far (`beyond(bound, extreme)` false); the extreme, exact."""
+        extreme = np.nan
+        for start in range(0, len(order), _CHUNK):
+            if not np.isnan(extreme) and not beyond(float(bound[order[start]]), extreme):
+                break
+            chunk = order[start : start + _CHUNK]
+            self.compute(chunk)
+            found = self.exact[chunk]
+            best = float(found.max() if self._largest else found.min())
+            if np.isnan(extreme) or beyond(best, extreme):
+                extreme = best
+        return extreme
+
+    def settle(self) -> None:
+        raise NotImplementedError
+
+    def degrees(self, js: np.ndarray) -> np.ndarray:
+        """float64 [len(js)]: the exact degrees of these members (after `settle`)."""
         raise NotImplementedError
 
     def upper(self) -> np.ndarray:
@@ -346,81 +381,66 @@ class _Measure:
         raise NotImplementedError
 
 
+_CHUNK = 32
+"""Category members measured at a time while a superlative looks for its extreme."""
+
+
 class _Distances(_Measure):
     """Closest (farthest) from a reference: the asker's position or an anchor's body."""
 
     def __init__(self, reference, ref_lo, ref_hi, members: np.ndarray, q: _Question, far: bool):
-        self.reference, self.members, self.q, self.far = reference, members, q, far
+        super().__init__(members, q)
+        self.reference, self.far, self._largest = reference, far, far
         lo, hi = q.index.boxes(q.ids(members))
         self.lower, self.longer = box_distance_bounds(lo, hi, ref_lo, ref_hi)
-        self.exact = np.full(len(members), np.nan)
         self.extreme = np.nan
 
-    def distance(self, j: int) -> float:
-        if np.isnan(self.exact[j]):
-            body = self.q.index.body(int(self.q.things.ids[self.members[j]]))
-            self.exact[j] = distance_to(self.reference, body)
-        return float(self.exact[j])
+    def _compute(self, bodies: list[Body]) -> list[float]:
+        return [distance_to(self.reference, body) for body in bodies]
 
     def settle(self) -> None:
-        if self.far:  # the farthest: from the farthest box on, until no box may be farther
-            longest = -np.inf
-            for j in np.argsort(-self.longer, kind="stable").tolist():
-                if self.longer[j] <= longest:
-                    break
-                longest = max(longest, self.distance(j))
-            self.extreme = longest
-            return
-        shortest = np.inf
-        for j in np.argsort(self.lower, kind="stable").tolist():
-            if self.lower[j] >= shortest:
-                break
-            shortest = min(shortest, self.distance(j))
-        self.extreme = shortest
+        if self.far:  # from the farthest box on, until no box may be farther
+            order = np.argsort(-self.longer, kind="stable")
+            self.extreme = self._settle(order, self.longer, lambda bound, x: bound > x)
+        else:  # from the nearest box on, until no box may be nearer
+            order = np.argsort(self.lower, kind="stable")
+            self.extreme = self._settle(order, self.lower, lambda bound, x: bound < x)
 
-    def degree(self, j: int) -> float:
-        distance = np.array([self.distance(j)])
+    def degrees(self, js: np.ndarray) -> np.ndarray:
+        self.compute(js)
         if self.far:
-            return float(farthest_degrees(distance, self.extreme)[0])
-        return float(closest_degrees(distance, self.extreme)[0])
+            return farthest_degrees(self.exact[js], self.extreme)
+        return closest_degrees(self.exact[js], self.extreme)
 
     def upper(self) -> np.ndarray:
+        known = ~np.isnan(self.exact)
         if self.far:
-            bound = farthest_degrees(
-                np.where(np.isnan(self.exact), self.longer, self.exact), self.extreme
-            )
+            bound = farthest_degrees(np.where(known, self.exact, self.longer), self.extreme)
         else:
-            bound = closest_degrees(
-                np.where(np.isnan(self.exact), self.lower, self.exact), self.extreme
-            )
+            bound = closest_degrees(np.where(known, self.exact, self.lower), self.extreme)
         return np.minimum(bound, 1.0)
 
 
 class _Sizes(_Measure):
     """Biggest by volume: members from the largest box bound on, until none may be bigger."""
 
+    _largest = True
+
     def __init__(self, members: np.ndarray, q: _Question):
-        self.members, self.q = members, q
+        super().__init__(members, q)
         self.bound = volume_upper_bounds(*q.index.boxes(q.ids(members)))
-        self.exact = np.full(len(members), np.nan)
         self.largest = np.nan
 
-    def size(self, j: int) -> float:
-        if np.isnan(self.exact[j]):
-            body = self.q.index.body(int(self.q.things.ids[self.members[j]]))
-            self.exact[j] = body.volume_m3()
-        return float(self.exact[j])
+    def _compute(self, bodies: list[Body]) -> list[float]:
+        return [body.volume_m3() for body in bodies]
 
     def settle(self) -> None:
-        largest = -np.inf
-        for j in np.argsort(-self.bound, kind="stable").tolist():
-            if self.bound[j] <= largest:
-                break
-            largest = max(largest, self.size(j))
-        self.largest = largest
+        order = np.argsort(-self.bound, kind="stable")
+        self.largest = self._settle(order, self.bound, lambda bound, x: bound > x)
 
-    def degree(self, j: int) -> float:
-        return float(biggest_degrees(np.array([self.size(j)]), self.largest)[0])
+    def degrees(self, js: np.ndarray) -> np.ndarray:
+        self.compute(js)
+        return biggest_degrees(self.exact[js], self.largest)
 
     def upper(self) -> np.ndarray:
         sizes = np.where(np.isnan(self.exact), self.bound, self.exact)
@@ -446,8 +466,7 @@ class _Superlative(_Part):
         ids = q.ids(self.category)
         if self.kind in ("highest", "lowest", "smallest"):  # every member, at once
             if self.kind == "smallest":
-                sizes = [q.index.body(int(i)).volume_m3() for i in ids]
-                self.degrees = smallest_degrees(sizes)
+                self.degrees = smallest_degrees([b.volume_m3() for b in q.index.bodies(ids)])
             else:
                 heights = heights_along(q.index.centroids(ids), q.up)
                 of = highest_degrees if self.kind == "highest" else lowest_degrees
@@ -477,13 +496,16 @@ class _Superlative(_Part):
         for _, _, measure in self.measures:
             measure.settle()
 
-    def _measure_member(self, j: int) -> None:
-        best, anchor = 0.0, _NONE
+    def _measure_members(self, js: np.ndarray) -> None:
+        """The exact degrees of these members: the best weighted measure, the first anchor
+        on a tie."""
+        best = np.zeros(len(js))
+        anchors = np.full(len(js), _NONE, np.int64)
         for a, weight, measure in self.measures:
-            value = weight * measure.degree(j)
-            if value > best:
-                best, anchor = value, a
-        self.degrees[j], self.anchors[j] = best, anchor
+            values = weight * measure.degrees(js)
+            better = values > best
+            best[better], anchors[better] = values[better], a
+        self.degrees[js], self.anchors[js] = best, anchors
 
     def apply(self, score: np.ndarray, k: int) -> np.ndarray:
         """The scores times the degrees; a member whose bound keeps it out of the top k is
@@ -496,21 +518,26 @@ class _Superlative(_Part):
         if not self.measures:
             out[category] = base * self.degrees
             return out
+        # members every measure has computed already (finding the extremes) score at once
+        known = np.all([~np.isnan(measure.exact) for _, _, measure in self.measures], axis=0)
+        self._measure_members(np.flatnonzero(known))
         bound = base * np.max([w * measure.upper() for _, w, measure in self.measures], axis=0)
-        pending = np.flatnonzero(bound > 0)
+        pending = np.flatnonzero((bound > 0) & ~known)
         pending = pending[np.argsort(-bound[pending], kind="stable")]
-        best_k: list[float] = []  # a min-heap of the k best measured scores
-        measured = []
-        for j in pending.tolist():
-            if len(best_k) >= k and best_k[0] > bound[j]:
-                break  # this one and every one after it score below k measured ones
-            self._measure_member(j)
-            value = base[j] * self.degrees[j]
-            if len(best_k) < k:
-                heapq.heappush(best_k, value)
-            else:
-                heapq.heappushpop(best_k, value)
-            measured.append(j)
+        best_k = heapq.nlargest(k, (base[known] * self.degrees[known]).tolist())
+        heapq.heapify(best_k)  # a min-heap of the k best measured scores
+        measured = np.flatnonzero(known).tolist()
+        for start in range(0, len(pending), _CHUNK):
+            if len(best_k) >= k and best_k[0] > bound[pending[start]]:
+                break  # these and every one after them score below k measured ones
+            chunk = pending[start : start + _CHUNK]
+            self._measure_members(chunk)
+            for value in (base[chunk] * self.degrees[chunk]).tolist():
+                if len(best_k) < k:
+                    heapq.heappush(best_k, value)
+                else:
+                    heapq.heappushpop(best_k, value)
+            measured += chunk.tolist()
         skipped = np.setdiff1d(pending, measured)
         out[category] = 0.0  # members with a 0 bound score 0 whatever their degree
         out[category[measured]] = base[measured] * self.degrees[measured]
@@ -520,12 +547,12 @@ class _Superlative(_Part):
     def measure(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         degrees = np.zeros(len(positions))
         anchors = np.full((len(positions), 2), _NONE, np.int64)
-        for i, j in enumerate(self.member[positions].tolist()):
-            if j == _NONE:
-                continue
-            if np.isnan(self.degrees[j]):
-                self._measure_member(j)
-            degrees[i], anchors[i, 0] = self.degrees[j], self.anchors[j]
+        js = self.member[positions]
+        inside = js != _NONE
+        missing = js[inside][np.isnan(self.degrees[js[inside]])]
+        if len(missing):
+            self._measure_members(missing)
+        degrees[inside], anchors[inside, 0] = self.degrees[js[inside]], self.anchors[js[inside]]
         return degrees, anchors
 
     explain = measure

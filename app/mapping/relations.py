@@ -950,20 +950,27 @@ def _in_column(gaps: tuple[float, float, float]) -> bool:
 
 
 def within_reach(
-    lo: np.ndarray, hi: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray
+    lo: np.ndarray,
+    hi: np.ndarray,
+    box_lo: np.ndarray,
+    box_hi: np.ndarray,
+    kind: str | None = None,
 ) -> np.ndarray:
     """bool [m]: which boxes (lo, hi float [m, 3], up frame) pass `pair_degrees`'s
     prefilters with the box (box_lo, box_hi float [3]; a point is a box with lo = hi): boxes
     within NEAR_MAX_M, or over one another (`_in_column`). Every pairwise degree of things
-    whose boxes fail it is 0."""
+    whose boxes fail it is 0. With a pairwise `kind`, only that relation's: near and next_to
+    within NEAR_MAX_M, the others (on, in, under, above, below) over one another."""
     gap = np.maximum(np.maximum(lo - box_hi, box_lo - hi), 0.0)
     close = np.einsum("ij,ij->i", gap, gap) <= NEAR_MAX_M**2
+    if kind in ("near", "next_to"):
+        return close
     column = (
         (gap[:, 0] <= FOOTPRINT_MARGIN_M)
         & (gap[:, 1] <= FOOTPRINT_MARGIN_M)
         & (gap[:, 2] <= VERTICAL_MAX_GAP_M)
     )
-    return close | column
+    return column if kind in PAIRWISE_KINDS else close | column
 
 
 def boxes_in_up_frame(
@@ -1164,6 +1171,9 @@ class RelationIndex:
                 out[i] = self.degree(kind, int(subjects[i]), anchor)  # type: ignore[arg-type]
         return out
 
+    def bodies(self, ids: np.ndarray) -> list[Body]:
+        return [self._bodies[int(i)] for i in ids]
+
     def centroids(self, ids: np.ndarray) -> np.ndarray:
         """float64 [m, 3]: the bodies' centroids, world frame."""
         return np.array([self._bodies[int(i)].centroid for i in ids], np.float64).reshape(-1, 3)
@@ -1233,6 +1243,10 @@ class RelationSource(Protocol):
 
     def body(self, object_id: int) -> Body: ...
 
+    def bodies(self, ids: np.ndarray) -> list[Body]:
+        """The bodies of these ids (int [m]), at once."""
+        ...
+
     def degrees(self, kind: str, anchor: int, subjects: np.ndarray) -> np.ndarray:
         """float64 [m]: a pairwise kind's degree of each subject (ids int [m]) to the anchor."""
         ...
@@ -1250,7 +1264,7 @@ class RelationSource(Protocol):
 class OnDemandRelations:
     """A map's relations measured when a question reads them, for a map held elsewhere (the
     device's local map, 10k objects or more): nothing is prepared ahead and nothing is kept,
-    so a question builds bodies only for the objects it touches (`body_of`, which may cache
+    so a question builds bodies only for the objects it touches (`bodies_of`, which may cache
     them). The degrees are `RelationIndex`'s: the same relation functions on the same bodies;
     the boxes only decide which pairs are worth measuring (`within_reach`), and a box wider
     than its points changes no degree.
@@ -1261,20 +1275,20 @@ class OnDemandRelations:
         ids: np.ndarray,
         lo: np.ndarray,
         hi: np.ndarray,
-        body_of: Callable[[int], Body],
+        bodies_of: Callable[[np.ndarray], list[Body]],
         centroids_of: Callable[[np.ndarray], np.ndarray] | None = None,
         up: np.ndarray = Z_UP,
     ):
         """ids: int [n], unique; lo, hi: float [n, 3] world-frame boxes holding each object's
-        points (wider is fine); body_of: id -> its `Body` for `up`; centroids_of: rows (int
-        [m], into `ids`) -> float [m, 3], the bodies' centroids without building them
-        (default: from `body_of`)."""
+        points (wider is fine); bodies_of: ids (int [m]) -> their `Body`s for `up`;
+        centroids_of: rows (int [m], into `ids`) -> float [m, 3], the bodies' centroids
+        without building them (default: from `bodies_of`)."""
         self.up = snap_to_axis(up)
         ids = np.asarray(ids, np.int64)
         self._order = np.argsort(ids, kind="stable")
         self._sorted_ids = ids[self._order]
         self._lo, self._hi = boxes_in_up_frame(lo, hi, self.up)
-        self._body_of = body_of
+        self._bodies_of = bodies_of
         self._centroids_of = centroids_of
 
     def __len__(self) -> int:
@@ -1288,7 +1302,10 @@ class OnDemandRelations:
         return self._order[at]
 
     def body(self, object_id: int) -> Body:
-        return self._body_of(int(object_id))
+        return self._bodies_of(np.array([object_id], np.int64))[0]
+
+    def bodies(self, ids: np.ndarray) -> list[Body]:
+        return self._bodies_of(np.asarray(ids, np.int64).reshape(-1))
 
     def degrees(self, kind: str, anchor: int, subjects: np.ndarray) -> np.ndarray:
         """float64 [m]: as `RelationIndex.degrees`; bodies only for the subjects whose boxes
@@ -1303,18 +1320,19 @@ class OnDemandRelations:
         anchor_row = self._rows([anchor])[0]
         rows = self._rows(subjects)
         reach = within_reach(
-            self._lo[rows], self._hi[rows], self._lo[anchor_row], self._hi[anchor_row]
+            self._lo[rows], self._hi[rows], self._lo[anchor_row], self._hi[anchor_row], kind
         )
         reach &= subjects != anchor
-        if reach.any():
+        within = np.flatnonzero(reach)
+        if len(within):
             anchor_body = self.body(anchor)
-            for i in np.flatnonzero(reach).tolist():
-                out[i] = relation(self.body(int(subjects[i])), anchor_body, up=self.up)
+            for i, body in zip(within.tolist(), self.bodies(subjects[within]), strict=True):
+                out[i] = relation(body, anchor_body, up=self.up)
         return out
 
     def centroids(self, ids: np.ndarray) -> np.ndarray:
         if self._centroids_of is None:
-            return np.array([self.body(i).centroid for i in ids], np.float64).reshape(-1, 3)
+            return np.array([b.centroid for b in self.bodies(ids)], np.float64).reshape(-1, 3)
         return np.asarray(self._centroids_of(self._rows(ids)), np.float64).reshape(-1, 3)
 
     def boxes(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
