@@ -58,12 +58,17 @@ NEGATIVES = {"the mug under the sofa", "the bag on the desk", "the mug near me"}
 """The questions nothing in ROOM satisfies (`match` false): no mug within reach of VIEWER."""
 
 
-def room_export() -> dict:
+TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+"""(x, y, z) Z-up -> (x, z, -y) Y-up: the same room in an XR runtime's frame."""
+
+
+def room_export(y_up: bool = False) -> dict:
     """ROOM as a `semanticxr-map` export for POST /v1/sessions/import (ids kept, points to
-    0.1 mm as the export format keeps them). No pose: up is Z."""
+    0.1 mm as the export format keeps them). No pose: up is Z, or with `y_up` the room turned
+    into a Y-up frame (TO_Y_UP) with the session's up set to "+y"."""
     objects = []
     for i, (label, points) in ROOM.items():
-        pts = points.round(4)
+        pts = (points @ TO_Y_UP.T if y_up else points).round(4)
         objects.append(
             {
                 "id": i,
@@ -83,6 +88,7 @@ def room_export() -> dict:
             "mode": "semanticxr",
             "knobs": {},
             "embedding": {"model": "all-MiniLM-L6-v2", "dim": 384},
+            **({"up": "+y", "up_source": "set"} if y_up else {}),
         },
         "objects": objects,
     }

@@ -12,7 +12,7 @@ import json
 import math
 
 import pytest
-from device_room import NEGATIVES, QUESTIONS, VIEWER, room_export
+from device_room import NEGATIVES, QUESTIONS, TO_Y_UP, VIEWER, room_export
 
 from app.client import SessionApi
 from app.client.rest import import_map
@@ -25,13 +25,16 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 DEGREE_TOLERANCE = 0.02
 
 
+@pytest.mark.parametrize("y_up", [False, True], ids=["z-up", "y-up session"])
 def test_relational_questions_get_the_same_answer_from_the_server_and_the_local_map(
-    live_server, encoder
+    live_server, encoder, y_up
 ):
     server = live_server()
+    export = room_export(y_up)
+    where = TO_Y_UP @ VIEWER if y_up else VIEWER
 
     async def scenario():
-        created = await import_map(server.url, json.dumps(room_export()).encode())
+        created = await import_map(server.url, json.dumps(export).encode())
         sid, token = created["session_id"], created["token"]
         knobs = updated_knobs(Knobs(), created["knobs"])
         device = DeviceClient(server.url, sid, token, knobs=knobs)
@@ -40,20 +43,22 @@ def test_relational_questions_get_the_same_answer_from_the_server_and_the_local_
             async with SessionApi(server.url, sid, token) as api:
                 seq = (await api.fetch()).update_seq
             assert await device.wait_synced(seq, 30), f"local seq {device.local_map.seq} < {seq}"
-            assert len(device.local_map) == len(room_export()["objects"])
-            device.local_map.set_user_position(VIEWER)  # where the device stands
-            online = QueryRouter(
+            assert len(device.local_map) == len(export["objects"])
+            device.local_map.set_user_position(where)  # where the device stands
+            link = {"rtt_ms": 1.0}
+            router = QueryRouter(
                 server.url, sid, token, device.local_map, encoder,
-                rtt_ms=lambda: 1.0, server_timeout_s=30.0,
+                rtt_ms=lambda: link["rtt_ms"], server_timeout_s=30.0,
             )  # fmt: skip
-            offline = QueryRouter(
-                server.url, sid, token, device.local_map, encoder, rtt_ms=lambda: math.inf
-            )
-            async with online, offline:
-                return [
-                    (text, await online.query(text, k=5), await offline.query(text, k=5))
-                    for text in QUESTIONS
-                ]
+            answers = []
+            async with router:
+                for text in QUESTIONS:  # the same router, its link up, then down
+                    link["rtt_ms"] = 1.0
+                    server_answer = await router.query(text, k=5)
+                    link["rtt_ms"] = math.inf
+                    answers.append((text, server_answer, await router.query(text, k=5)))
+            assert router.up == ("+y" if y_up else "+z")  # the record's, read while online
+            return answers
         finally:
             await device.stop()
             await asyncio.wait_for(following, 15)
