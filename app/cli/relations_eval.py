@@ -2,30 +2,38 @@
 
 For each seed, a relation room (`client_sim.world.relation_scenes`: duplicates of a category
 in distinct relations) is walked round and mapped in process as `semanticxr eval` does it
-(render, encode, decode, map; the frames between keyframes as sightings), then every question
-of the generated set (`client_sim.world.relation_queries`: relational, "what is on ...",
-negatives and the categories' plain paraphrases, each with its ground truth from the scene's
-geometry) is asked of the map as the server answers it (`Session.relational_query`):
+(render, encode, decode, map; the frames between keyframes as sightings; semanticxr mode),
+the device's local map following the engine's update messages. Then every question of the
+generated set (`client_sim.world.relation_queries`: relational, "what is on ...", negatives
+and the categories' plain paraphrases, each with its ground truth from the scene's geometry)
+is asked three ways:
 
-- the grammar reads the question; a relational reading is answered by
-  `app.mapping.relational.answer` over the confirmed objects (`MapThing` per object) and a
-  `RelationIndex` of their client-capped points, up from the newest pose, the asker at the
-  walk's last camera; `match` is `relational.is_match`;
-- anything else (or an anchor the map cannot ground) by today's ranking, rated by
-  `app.mapping.relevance` (`match` as the plain REST answer's).
+- of the map as the server answers it (`Session.relational_query`): the grammar reads the
+  question; a relational reading is answered by `app.mapping.relational.answer` over the
+  confirmed objects and a `RelationIndex` of the points a device holds of them
+  (`held_points` of the client-capped points), up as the session infers it, the asker at the
+  walk's last camera, `match` by `relational.is_match`; anything else (or an anchor the map
+  cannot ground) by today's ranking, rated by `app.mapping.relevance`;
+- of the device's local map (`LocalMap.relational_query`, LQ), compared with the server's
+  answer (LQ = SQ: the same top-1, relation kind, anchors and match, degrees within 0.02);
+- of a perfect map of the room (one object per instance, labelled with its category, its
+  visible surface as points): what the relation code makes of the question with nothing
+  lost in mapping, so a failure can be put down to the map or to the question's reading.
 
 Each map object's identity is the ground-truth instance most of its points lie on. A
 relational top-1 is right when its identity is the question's answer ("what is on the desk":
-any thing on it); a plain one when its identity's category is the one asked for. Failures are
-told apart by why: the grammar read another relation (parse), the answer or an anchor is not
-in the map, the anchor phrase grounded to no confident object (fallback to the plain ranking),
-the top-1 is of another category (target grounding), the answer was weighed against the wrong
-anchor (anchor grounding), or the geometry rated it lower (relation degree).
+any thing on it); a plain one when its identity's category is the one asked for; a negative
+when `match` is false. Failures are told apart by why: the grammar read another relation
+(parse), the answer or an anchor is not in the map, an anchor phrase grounded to no
+confident object (fallback to the plain ranking), the top-1 is of another category (target
+grounding), the answer was weighed against the wrong anchor (anchor grounding), the target
+phrase rates the answer's label below confident (weakly grounded), the map holds only part
+of the answer or its anchor (partial geometry, when the perfect map answers right), or the
+geometry rated it lower (relation degree).
 
 The relation index is brought up to date after every keyframe with the objects it changed
-(as the server's is on a query: by object version, client-capped points) and timed: the
-update and computing every stale pair (`settle`), so the time is an upper bound of what a
-keyframe costs the index.
+(as the server's is on a query: by object version) and timed: the update and computing every
+stale pair (`settle`), so the time is an upper bound of what a keyframe costs the index.
 """
 
 from __future__ import annotations
@@ -45,11 +53,12 @@ from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
 from app.mapping.geometry import cap_points
 from app.mapping.grammar import Reading, is_relational, parse
-from app.mapping.places import infer_up
+from app.mapping.held import held_points
+from app.mapping.places import DEFAULT_UP, UpInference, up_vector
 from app.mapping.publish import MIN_CAP_RESOLUTION_M, client_points, update_message
 from app.mapping.relational import MapThing, RelationalHit, answer, is_match
 from app.mapping.relations import Z_UP, ObjectGeometry, RelationIndex
-from app.mapping.relevance import rate_hits
+from app.mapping.relevance import CONFIDENT, rate_hits
 from app.protocol import parse_frame
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
@@ -74,10 +83,6 @@ IDENTITY_RADIUS_M = 0.05
 GRAMMAR_KIND = {"closest_to": "closest"}
 """A question kind the grammar names otherwise (a superlative from an anchor)."""
 SUPERLATIVE_KINDS = frozenset({"closest", "farthest", "biggest", "smallest", "highest", "lowest"})
-LQ_NOTE = (
-    "LocalMap.relational_query has not landed (client_sim/local_map.py): the device's "
-    "local map is fed the engine's updates but cannot answer relational questions yet"
-)
 
 
 def _stderr(message: str) -> None:
@@ -120,6 +125,9 @@ class _Mapped:
     index: RelationIndex
     local_map: LocalMap
     viewer: np.ndarray
+    """Where the asker stands: the walk's last camera, world metres."""
+    up_inference: UpInference = field(default_factory=UpInference)
+    """The session's up (`Session.up`): inferred from the keyframes' poses once settled."""
     index_ms: list[float] = field(default_factory=list)
     """Per keyframe that changed an object: update + settle."""
     update_ms: list[float] = field(default_factory=list)
@@ -127,6 +135,10 @@ class _Mapped:
     changed: list[int] = field(default_factory=list)
     """Per such keyframe: how many objects changed."""
     keyframes: int = 0
+
+    @property
+    def up(self) -> np.ndarray:
+        return up_vector(self.up_inference.settled or DEFAULT_UP)
 
 
 def run_relations(cfg: RelationsConfig, encoder: TextEncoder, progress: Progress = _stderr) -> dict:
@@ -226,30 +238,37 @@ def _map_walk(
         message = device.encode_source_frame(frame).message
         stats = engine.integrate(parse_frame(message, engine.backend.needs_rgb))
         mapped.keyframes += 1
+        mapped.up_inference.observe(frame.pose)
         if stats.keyframe % knobs.local_map_update_frequency == 0:
-            update = update_message(engine, published)
-            local_map.apply_delta(update)
-            published = update["seq"]
+            published = _publish(engine, local_map, published)
         _update_index(mapped, versions, knobs.max_object_points_client)
         if mapped.keyframes % 20 == 0:
             progress(
                 f"[relations] seed {seed}: mapped {mapped.keyframes} keyframes, "
                 f"{len(engine.confirmed_objects())} objects"
             )
+    _publish(engine, local_map, published)  # what the last keyframes changed (the flush)
     return mapped
+
+
+def _publish(engine: MappingEngine, local_map: LocalMap, since: int) -> int:
+    """Hand the device the engine's update since `since`; the new seq."""
+    update = update_message(engine, since)
+    local_map.apply_delta(update)
+    return update["seq"]
 
 
 def _update_index(mapped: _Mapped, versions: dict[int, int], max_points: int) -> None:
     """Bring the relation index up to the confirmed objects (as `Session._relation_index`
     does on a query) and time it."""
     engine = mapped.engine
-    up = Z_UP if engine.last_pose is None else infer_up(engine.last_pose)
+    up = mapped.up
     if not np.array_equal(mapped.index.up, up):  # a new up axis starts a new index
         mapped.index = RelationIndex(up)
         versions.clear()
     objects = engine.confirmed_objects()
     upserts = {
-        o.id: ObjectGeometry(o.label, client_points(o, max_points))  # the delta's points
+        o.id: ObjectGeometry(o.label, held_points(client_points(o, max_points)))
         for o in objects
         if versions.get(o.id) != o.version
     }
@@ -298,6 +317,10 @@ class _MapView:
     """Thing id -> ground-truth instance (0: none)."""
     points: dict[int, np.ndarray]
     """Thing id -> its points as the relation index holds them (float32 [N, 3])."""
+    local_map: LocalMap | None = None
+    """The device's local map of the same map (LQ), if any."""
+    up: np.ndarray = field(default_factory=lambda: Z_UP.copy())
+    """The session's up, which the device is told."""
 
 
 def _engine_view(mapped: _Mapped, identity: dict[int, int], max_points: int) -> _MapView:
@@ -314,7 +337,9 @@ def _engine_view(mapped: _Mapped, identity: dict[int, int], max_points: int) -> 
         mapped.viewer,
         rank,
         identity,
-        {o.id: client_points(o, max_points) for o in objects},
+        {o.id: held_points(client_points(o, max_points)) for o in objects},
+        mapped.local_map,
+        mapped.up,
     )
 
 
@@ -330,7 +355,7 @@ def _perfect_view(scene, gt, encoder: TextEncoder, viewer: np.ndarray, max_point
         mine = gt.points[gt.instance_ids == obj.instance_id]
         if not len(mine):
             continue
-        points[obj.instance_id], _ = cap_points(mine, max_points, MIN_CAP_RESOLUTION_M)
+        points[obj.instance_id] = held_points(cap_points(mine, max_points, MIN_CAP_RESOLUTION_M)[0])
         embedding = encoder.encode([obj.category])[0]
         things.append(MapThing(obj.instance_id, obj.category, embedding))
     index = RelationIndex(Z_UP)
@@ -404,10 +429,43 @@ def _score(
         plain = _plain(q.text, view, encoder)
         record["plain_path_right"] = _right(q, plain, view, category_of)
         record["same_as_plain_path"] = plain.top_id == got.top_id
+    elif view.local_map is not None:
+        record["lq_equals_sq"], record["lq_detail"] = _lq_equals_sq(q.text, got, view, encoder)
     if not record["right"]:
         reason, detail = _why(q, got, view, category_of, bboxes, record["perfect_map_right"])
         record["reason"], record["detail"] = reason, detail
     return record
+
+
+LQ_DEGREE_TOLERANCE = 0.02
+"""LQ = SQ: degrees may differ by this much (DESIGN.md "Relations: settled")."""
+
+
+def _lq_equals_sq(text: str, sq: _Answer, view: _MapView, encoder: TextEncoder) -> tuple[bool, str]:
+    """Whether the device's local map answers a question as the server does: the same
+    top-1, relation kind, anchors and match, degrees within LQ_DEGREE_TOLERANCE (both plain
+    counts as the same); and how they differ."""
+    assert view.local_map is not None
+    lq = view.local_map.relational_query(text, encoder, view.viewer, view.up, ANSWER_K)
+    if sq.hits is None or lq is None:
+        if (sq.hits is None) == (lq is None):
+            return True, ""
+        return False, "SQ answered as plain, LQ relational" if lq else "LQ answered as plain"
+    if not sq.hits or not lq:
+        return (not sq.hits and not lq), "no hits on one side"
+    a, b = sq.hits[0], lq[0]
+    differences = []
+    if a.id != b.id:
+        differences.append(f"top-1 {a.id} vs {b.id}")
+    if a.relation.kind != b.relation.kind:
+        differences.append(f"kind {a.relation.kind} vs {b.relation.kind}")
+    if [i for i, _ in a.relation.anchors] != [i for i, _ in b.relation.anchors]:
+        differences.append(f"anchors {a.relation.anchors} vs {b.relation.anchors}")
+    if is_match(sq.hits) != is_match(lq):
+        differences.append(f"match {is_match(sq.hits)} vs {is_match(lq)}")
+    if abs(a.relation.degree - b.relation.degree) > LQ_DEGREE_TOLERANCE:
+        differences.append(f"degree {a.relation.degree:.3f} vs {b.relation.degree:.3f}")
+    return not differences, "; ".join(differences)
 
 
 def _names(ids, category_of) -> str:
@@ -464,6 +522,9 @@ def _why(
     anchors = {identity.get(a, 0) for a, _ in best.relation.anchors}
     if q.anchors and not anchors & set(q.anchors):
         return "anchor grounding", detail
+    if q.target and best.relevance < CONFIDENT:
+        # a superlative weighs only confident targets; any score is relevance x degree
+        return "target phrase weakly grounded", detail
     partial = _partial_parts(best, view, bboxes) or _partial_parts(top, view, bboxes)
     if perfect_right and partial:
         return "partial geometry in the map", f"{partial}; {detail}"
@@ -578,6 +639,7 @@ def _summary(
     objects_at_end: list[int],
 ) -> dict:
     positive = [r for r in records if r["family"] in _POSITIVE]
+    lq_asked = [r for r in records if "lq_equals_sq" in r]
     negative = [r for r in records if r["family"] == "negative"]
     plain = [r for r in records if r["family"] == "plain"]
     right = [r for r in positive + plain if r["right"]]
@@ -616,8 +678,13 @@ def _summary(
         "plain_path_top1": _share(r["plain_path_right"] for r in plain),
         "plain_same_top1": _share(r["same_as_plain_path"] for r in plain),
         "plain_read_as_relational": [r["question"] for r in plain if r["relational_path"]],
-        "lq_equals_sq": None,
-        "lq_note": LQ_NOTE,
+        "lq_equals_sq": _share(r["lq_equals_sq"] for r in lq_asked) if lq_asked else None,
+        "lq_asked": len(lq_asked),
+        "lq_differences": [
+            {k: r[k] for k in ("seed", "question", "family", "kind", "lq_detail")}
+            for r in lq_asked
+            if not r["lq_equals_sq"]
+        ],
         "index_update_ms": _percentiles(index_ms),
         "index_update_only_ms": _percentiles(update_ms),
         "index_changed_per_keyframe": _percentiles([float(c) for c in changed]),
@@ -647,7 +714,7 @@ def format_relations_table(result: dict) -> str:
     rel = result["relations"]
     index = rel["index_update_ms"] or {"p50": float("nan"), "p95": float("nan")}
     asked = rel["asked"]
-    lq = "n/a" if rel["lq_equals_sq"] is None else f"{rel['lq_equals_sq']:.1f}%"
+    lq = _pct(rel["lq_equals_sq"])
     lines = [
         f"relation rooms, seeds {result['seeds']}: {result['keyframes']} keyframes of "
         f"{result['frames']} frames each, noise {result['noise']}; {rel['questions']} questions "
@@ -660,7 +727,7 @@ def format_relations_table(result: dict) -> str:
         f"{'right answers match=true':<28} {_pct(rel['right_answers_match'])}",
         f"{'plain top-1 (plain path)':<28} {_pct(rel['plain_top1'])} "
         f"(plain path{_pct(rel['plain_path_top1'])}, same top-1{_pct(rel['plain_same_top1'])})",
-        f"{'LQ = SQ':<28} {lq:>7}",
+        f"{'LQ = SQ':<28} {lq} of {rel['lq_asked']} relational, 'what is' and negatives",
         f"{'index update p50 / p95':<28} {index['p50']:6.2f} / {index['p95']:.2f} ms",
         f"{'kind':<22} {'asked':>6} {'right':>7} {'perfect map':>12}",
     ]
@@ -671,6 +738,6 @@ def format_relations_table(result: dict) -> str:
     reasons = list(rel["failure_reasons"].items())
     lines.append("failures by why:" + ("" if reasons else " none"))
     lines += [f"  {count:4d}  {reason}" for reason, count in reasons]
-    if rel["lq_equals_sq"] is None:
-        lines.append(f"LQ = SQ not measured: {rel['lq_note']}")
+    for diff in rel["lq_differences"][:10]:
+        lines.append(f"LQ != SQ: {diff['question']!r}: {diff['lq_detail']}")
     return "\n".join(lines)
