@@ -34,6 +34,12 @@ the user, last those of a priority class. Inside a group the farthest centroid f
 goes first (with no user position, the least recently updated). The ranking is computed
 once and the number to keep is found in closed form, so enforcement cannot loop.
 
+Questions about how things stand (`relational_query`, issue 27) are answered by the server's
+own `app.mapping.relational.answer` on the held points, measured when asked
+(`OnDemandRelations`): labels as codes, held-point centroids and point counts are columns (16
+bytes an object); the relation bodies a question builds are kept for the next one within
+`relation_cache_mb`, counted in `memory_bytes()` and dropped first when over budget.
+
 Not thread-safe: the device applies deltas and answers queries from one loop.
 """
 

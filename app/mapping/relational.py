@@ -643,9 +643,8 @@ def _top(
         tied = tied[target[tied] >= kth_target]
     candidates = np.concatenate([ahead, tied])
     cosine = np.asarray(things.cosines(candidates, query), np.float32)
-    order = np.lexsort((things.ids[candidates], -cosine, -target[candidates], -score[candidates]))[
-        :k
-    ]
+    keys = (things.ids[candidates], -cosine, -target[candidates], -score[candidates])
+    order = np.lexsort(keys)[:k]  # the last key first
     return candidates[order], cosine[order]
 
 
