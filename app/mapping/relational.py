@@ -19,6 +19,11 @@ object (relevance >= app.mapping.relevance.CONFIDENT: "keys on a ring" with no r
 viewpoint relation or a superlative from the asker has no asker's position, or when a
 relation to the asker ("on my left") needs an anchor the map cannot supply.
 
+The floor is an implicit surface: "the bag on the floor" (or "on the ground") is measured
+against the lowest bottom of the map's objects (`relations.floor_height`) when no object is
+named floor; a hit names it FLOOR_ANCHOR, id 0. Only `on` reads it; any other relation to
+the floor answers plain.
+
 What a question costs (a device asks it of 10k objects): the phrases are embedded in one
 encoder call (labels come from its cache); relevance is rated per label; a clause is
 measured only for the objects its target may be (relevance above 0), pairwise relations only
@@ -38,6 +43,8 @@ import numpy as np
 
 from app.mapping.grammar import Reading, RelationClause, Superlative, is_relational
 from app.mapping.relations import (
+    FLOOR_WORDS,
+    ON_MAX_GAP_M,
     PAIRWISE_RELATIONS,
     VIEWPOINT_RELATIONS,
     Body,
@@ -49,9 +56,11 @@ from app.mapping.relations import (
     closest_degrees,
     distance_to,
     farthest_degrees,
+    floor_height,
     heights_along,
     highest_degrees,
     lowest_degrees,
+    on_floor_degrees,
     smallest_degrees,
     viewpoint_degrees,
     volume_upper_bounds,
@@ -223,12 +232,31 @@ class _Question:
         return self.things.ids[positions]
 
     def named(self, position: int) -> tuple[int, str]:
+        if position == _FLOOR:
+            return FLOOR_ANCHOR
         things = self.things
         return int(things.ids[position]), things.labels[int(things.label_of[position])]
+
+    def is_floor(self, phrase: str) -> bool:
+        """Whether the phrase means the implicit floor: its head noun is "floor" or "ground"
+        and no object of the map is named so (a map holding a floor object answers by it)."""
+        return head_noun(phrase) in FLOOR_WORDS and not any(
+            same_head(phrase, label) for label in self.things.labels
+        )
+
+    def floor(self) -> float | None:
+        """The floor's height along up (`relations.floor_height` over the whole map)."""
+        if not hasattr(self, "_floor"):
+            self._floor = floor_height(self.index, self.things.ids)
+        return self._floor
 
 
 _NONE = -1
 """No anchor (in the int64 [m, 2] anchor positions a part measures)."""
+_FLOOR = -2
+"""The implicit floor as an anchor position."""
+FLOOR_ANCHOR = (0, "floor")
+"""How a hit names the implicit floor: id 0 (no map object has it), label "floor"."""
 
 
 class _Part:
@@ -286,6 +314,8 @@ class _Clause(_Part):
         """Best over the anchor candidates of degree x anchor relevance; an object no
         candidate satisfies names the best candidate it was weighed against."""
         q = self.q
+        if q.is_floor(self.phrases[0]):
+            return self._on_floor(positions)
         grounding = q.ground(self.phrases[0])
         ids = q.ids(positions)
         best = np.zeros(len(positions))
@@ -307,6 +337,23 @@ class _Clause(_Part):
         if top:  # unsatisfied: name the best anchor it was weighed against
             anchors[anchors[:, 0] == _NONE, 0] = top[0]
         return best, anchors
+
+    def _on_floor(self, positions):
+        """On the implicit floor (`answer` lets only `on` reach it): the gap of each thing's
+        bottom above the floor; boxes rule out (exactly) what starts too high to rest on it."""
+        q = self.q
+        degrees = np.zeros(len(positions))
+        anchors = np.full((len(positions), 2), _NONE, np.int64)
+        anchors[:, 0] = _FLOOR
+        floor = q.floor()
+        if floor is None:
+            return degrees, anchors
+        ids = q.ids(positions)
+        lo, _ = q.index.boxes(ids)
+        low = np.flatnonzero(lo[:, 2] - floor < ON_MAX_GAP_M)
+        bottoms = [body.bottom for body in q.index.bodies(ids[low])]
+        degrees[low] = on_floor_degrees(np.array(bottoms, np.float64), floor)
+        return degrees, anchors
 
     def _between(self, positions):
         q = self.q
@@ -585,8 +632,10 @@ def answer(
     q = _Question(
         things, index, rater_for(encoder), dict(zip(phrases, embedded, strict=True)), viewer
     )
-    if not all(q.ground(a).confident for a in anchor_phrases):
+    if not all(q.is_floor(a) or q.ground(a).confident for a in anchor_phrases):
         return None
+    if _floor_elsewhere(reading, q):
+        return None  # only "on the floor" is read: "under the floor", "closest to the ground"
     needs_viewer = any(c.kind in VIEWPOINT_RELATIONS or not c.anchors for c in reading.relations)
     needs_viewer |= sup is not None and sup.kind in ("closest", "farthest") and not sup.anchors
     if needs_viewer and viewer is None:
@@ -625,6 +674,16 @@ def answer(
             )
         )
     return hits
+
+
+def _floor_elsewhere(reading: Reading, q: _Question) -> bool:
+    """Whether the implicit floor is named anywhere but as the one anchor of `on`."""
+    for clause in reading.relations:
+        floors = [q.is_floor(a) for a in clause.anchors]
+        if any(floors) and (clause.kind != "on" or len(floors) != 1):
+            return True
+    sup = reading.superlative
+    return sup is not None and any(q.is_floor(a) for a in sup.anchors)
 
 
 def _top(

@@ -644,6 +644,35 @@ def _fall_many(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return 1.0 - _rise_many(x, lo, hi)
 
 
+FLOOR_WORDS = frozenset({"floor", "ground"})
+"""Head nouns of the floor: an implicit surface when the map holds no object named so."""
+
+
+def floor_height(source: RelationSource, ids: np.ndarray) -> float | None:
+    """The floor's height along up: the lowest `Body.bottom` of these objects (None for
+    none). Exact and cheap: boxes hold their points, so an object whose box starts above
+    the lowest bottom found so far cannot be lower, and only the lowest few bodies are built
+    (the same floor on the server and the device, whatever their boxes' slack)."""
+    if len(ids) == 0:
+        return None
+    lo, _ = source.boxes(ids)
+    order = np.argsort(lo[:, 2], kind="stable")
+    best = np.inf
+    for start in range(0, len(order), 8):
+        chunk = order[start : start + 8]
+        if lo[chunk[0], 2] >= best:
+            break
+        for body in source.bodies(ids[chunk]):
+            best = min(best, body.bottom)
+    return float(best)
+
+
+def on_floor_degrees(bottoms: np.ndarray, floor: float) -> np.ndarray:
+    """float64 [m]: how much things with these bottoms (heights along up) rest on the floor
+    at `floor`: `on`'s gap ramp (1 within ON_FULL_GAP_M of it, 0 from ON_MAX_GAP_M)."""
+    return _fall_many(np.asarray(bottoms, np.float64) - floor, ON_FULL_GAP_M, ON_MAX_GAP_M)
+
+
 def between_degrees(
     subjects: np.ndarray, b: np.ndarray, c: np.ndarray, up: np.ndarray = Z_UP
 ) -> np.ndarray:

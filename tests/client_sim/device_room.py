@@ -52,9 +52,16 @@ QUESTIONS = [
     "the chair closest to the sofa",
     "the mug under the sofa",
     "the bag on the desk",
+    "the bag on the floor",
+    "the mug on the floor",
 ]
 """Relational questions, a few of them satisfied by nothing (NEGATIVES)."""
-NEGATIVES = {"the mug under the sofa", "the bag on the desk", "the mug near me"}
+NEGATIVES = {
+    "the mug under the sofa",
+    "the bag on the desk",
+    "the mug near me",
+    "the mug on the floor",
+}
 """The questions nothing in ROOM satisfies (`match` false): no mug within reach of VIEWER."""
 
 

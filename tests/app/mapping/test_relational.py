@@ -9,7 +9,14 @@ import pytest
 from relation_scene import SCENE
 
 from app.mapping.grammar import parse
-from app.mapping.relational import MapThing, answer, head_noun, is_match, same_head
+from app.mapping.relational import (
+    FLOOR_ANCHOR,
+    MapThing,
+    answer,
+    head_noun,
+    is_match,
+    same_head,
+)
 from app.mapping.relations import ObjectGeometry, RelationIndex
 
 Z_UP = np.array([0.0, 0.0, 1.0])
@@ -112,3 +119,28 @@ def test_an_anchor_named_by_its_head_noun_grounds_to_the_longer_label(encoder):
         assert hits[0].relation.anchors == [(anchor, renamed[anchor])]
         assert is_match(hits)
     assert same_head("the table", "dining table") and not same_head("table", "table lamp")
+
+
+def test_the_floor_is_an_implicit_surface(scene):
+    hits = ask(scene, "the bag on the floor")
+    assert hits is not None and hits[0].id == 30 and is_match(hits)
+    assert hits[0].relation.kind == "on" and hits[0].relation.anchors == [FLOOR_ANCHOR]
+    on_ground = ask(scene, "the chair on the ground")
+    assert on_ground is not None and {h.id for h in on_ground[:2]} == {20, 21}
+    mugs = ask(scene, "the mug on the floor")  # every mug stands on furniture
+    assert mugs is not None and mugs[0].label == "mug" and not is_match(mugs)
+    assert ask(scene, "the bag under the floor") is None  # only "on the floor" is read
+
+
+def test_a_map_holding_a_floor_object_answers_by_it(encoder):
+    floor = np.stack(
+        [*np.meshgrid(np.linspace(-1, 6, 30), np.linspace(-1, 6, 30)), np.zeros((30, 30))], -1
+    ).reshape(-1, 3)
+    room = {**SCENE, 99: ("floor", floor)}
+    labels = sorted({label for label, _ in room.values()})
+    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
+    things = [MapThing(i, label, embedding[label]) for i, (label, _) in room.items()]
+    index = RelationIndex(Z_UP)
+    index.update({i: ObjectGeometry(label, pts) for i, (label, pts) in room.items()})
+    hits = answer(parse("what is under the floor"), things, index, encoder)
+    assert hits is not None and hits[0].relation.anchors == [(99, "floor")]
