@@ -368,8 +368,11 @@ class _Clause(_Part):
                 if b == c:
                     continue
                 ends = q.index.centroids(q.ids([b, c]))
+                bodies = q.index.bodies(q.ids([b, c]))
                 weight = first.relevance[b] * second.relevance[c]
-                values = weight * between_degrees(centroids, ends[0], ends[1], q.up)
+                values = weight * between_degrees(
+                    centroids, ends[0], ends[1], q.up, (bodies[0], bodies[1])
+                )
                 values[(positions == b) | (positions == c)] = 0.0
                 better = values > best
                 best[better] = values[better]

@@ -132,6 +132,9 @@ BETWEEN_LATERAL_M = 0.3
 BETWEEN_LATERAL_SHARE = 0.25
 """...or within this share of the anchors' distance, whichever is wider, for degree 1; 0 at
 twice that."""
+BETWEEN_CLEAR_M = 0.05
+"""Between: the thing's centre at least this far outside either anchor's footprint for degree
+1, 0 over it."""
 BETWEEN_END_SHARE = 0.15
 """Between: along the line, degree 1 from this share of the way from either anchor; 0 at
 the anchors' centres."""
@@ -674,10 +677,16 @@ def on_floor_degrees(bottoms: np.ndarray, floor: float) -> np.ndarray:
 
 
 def between_degrees(
-    subjects: np.ndarray, b: np.ndarray, c: np.ndarray, up: np.ndarray = Z_UP
+    subjects: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    up: np.ndarray = Z_UP,
+    anchors: tuple[Body, Body] | None = None,
 ) -> np.ndarray:
     """float64 [m]: `between` for many things at once, from centroids (world frame, metres):
-    subjects float [m, 3], the anchors' b and c float [3]."""
+    subjects float [m, 3], the anchors' b and c float [3]; with the anchors' bodies, a
+    subject whose centre stands over either one's footprint is not between them (the bin
+    under the desk is not between the desk and the table)."""
     axis_up = snap_to_axis(up)
     subjects = np.asarray(subjects, np.float64).reshape(-1, 3)
     b = np.asarray(b, np.float64)
@@ -690,7 +699,13 @@ def between_degrees(
     lateral = np.linalg.norm(offset - t[:, None] * segment, axis=1)
     allowed = max(BETWEEN_LATERAL_M, BETWEEN_LATERAL_SHARE * length)
     along = _rise_many(t, 0.0, BETWEEN_END_SHARE) * _rise_many(1.0 - t, 0.0, BETWEEN_END_SHARE)
-    return along * _fall_many(lateral, allowed, 2.0 * allowed)
+    degrees = along * _fall_many(lateral, allowed, 2.0 * allowed)
+    for body in anchors or ():
+        order = _frame_order(body.axis)
+        plane = subjects[:, order[:2]].T  # seen from above, as the body's footprint is
+        outside = body.footprint.outside_m(plane)
+        degrees *= _rise_many(outside, 0.0, BETWEEN_CLEAR_M)
+    return degrees
 
 
 def between(a: BodyLike, b: BodyLike, c: BodyLike, up=Z_UP) -> float:
@@ -698,7 +713,7 @@ def between(a: BodyLike, b: BodyLike, c: BodyLike, up=Z_UP) -> float:
     joining theirs (BETWEEN_LATERAL_M or BETWEEN_LATERAL_SHARE of its length) and inside it
     (BETWEEN_END_SHARE from either end). Symmetric in b and c."""
     a, b, c = _bodies(a, b, c, up=up)
-    return float(between_degrees(a.centroid[None], b.centroid, c.centroid, a.up)[0])
+    return float(between_degrees(a.centroid[None], b.centroid, c.centroid, a.up, (b, c))[0])
 
 
 def viewpoint_degrees(

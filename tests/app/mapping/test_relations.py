@@ -155,6 +155,14 @@ def test_a_lamp_between_two_chairs_is_between_them():
     assert rel.between(left, lamp, right) == 0.0  # the chair is at the end, not between
 
 
+def test_a_thing_under_one_anchor_is_not_between_the_two():
+    desk, dining = table(0.0, 0.0, seed=1), table(3.0, 0.0, seed=2)  # x 0-1.6 and 3-4.6
+    bin_under_desk = block(1.2, 0.3, 0.0, 0.3, 0.3, 0.4, 60)  # inside the desk's footprint
+    box_in_the_gap = block(2.15, 0.3, 0.0, 0.3, 0.3, 0.4, 60)
+    assert rel.between(bin_under_desk, desk, dining) == 0.0
+    assert rel.between(box_in_the_gap, desk, dining) == 1.0
+
+
 def test_left_and_right_depend_on_where_the_asker_stands():
     mug, laptop = (
         block(0.2, 0.4, 0.75, 0.08, 0.08, 0.1, 60),
