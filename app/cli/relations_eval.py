@@ -413,6 +413,7 @@ def _score(
     """One question asked of the map (and of a perfect map) and judged: right or not,
     match, and why it failed."""
     got = _ask(q.text, view, encoder)
+    perfect_got = _ask(q.text, perfect, encoder)
     got_instance = view.identity.get(got.top_id, 0) if got.top_id is not None else 0
     record = {
         "seed": seed,
@@ -422,7 +423,7 @@ def _score(
         "relational_path": got.relational,
         "match": got.match,
         "right": _right(q, got, view, category_of),
-        "perfect_map_right": _right(q, _ask(q.text, perfect, encoder), perfect, category_of),
+        "perfect_map_right": _right(q, perfect_got, perfect, category_of),
         "expected": _names(q.expected, category_of) if q.family != "plain" else q.category,
         "got": _described(got_instance, got.top_id, view, category_of),
     }
@@ -440,6 +441,9 @@ def _score(
     if not record["right"]:
         reason, detail = _why(q, got, view, category_of, bboxes, record["perfect_map_right"])
         record["reason"], record["detail"] = reason, detail
+    if not record["perfect_map_right"]:
+        reason, detail = _why(q, perfect_got, perfect, category_of, bboxes, False)
+        record["perfect_map_reason"], record["perfect_map_detail"] = reason, detail
     return record
 
 
@@ -522,7 +526,7 @@ def _why(
         return "fallback to plain", "an anchor phrase grounded to no confident object"
     hits = got.hits or []
     top = hits[0]
-    if identity.get(top.id, 0) in q.anchors:  # the anchor, mapped as several objects
+    if top.score > 0 and identity.get(top.id, 0) in q.anchors:  # the anchor, mapped twice
         return "anchor split in the map", _hit_detail(top, view, category_of, bboxes)
     if q.family == "negative":
         detail = _hit_detail(top, view, category_of, bboxes)
@@ -684,6 +688,15 @@ def _summary(
         for r in records
         if not r["right"]
     ]
+    perfect_failed = [
+        {
+            **{k: r[k] for k in ("seed", "question", "family", "kind", "expected")},
+            "reason": r["perfect_map_reason"],
+            "detail": r["perfect_map_detail"],
+        }
+        for r in records
+        if not r["perfect_map_right"]
+    ]
     unmatched = [
         {k: r[k] for k in ("seed", "question", "family", "kind", "expected", "got")}
         for r in right
@@ -743,6 +756,10 @@ def _summary(
             ).most_common()
         ),
         "failures": failed,
+        "perfect_map_failure_reasons": dict(
+            Counter(f"{f['family']}: {f['reason']}" for f in perfect_failed).most_common()
+        ),
+        "perfect_map_failures": perfect_failed,
         "right_without_match": unmatched,
     }
 
