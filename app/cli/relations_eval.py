@@ -29,8 +29,9 @@ confident object (fallback to the plain ranking), the top-1 is a piece of the an
 (the anchor split into several map objects), the top-1 is of another category (target
 grounding), the answer was weighed against the wrong anchor (anchor grounding), the target
 phrase rates the answer's label below confident (weakly grounded), the map holds only part
-of the answer or its anchor (partial geometry, when the perfect map answers right), or the
-geometry rated it lower (relation degree).
+of the answer or its anchor (partial geometry) or points well outside the thing (stray
+points: the floor round it, through dilated masks), both only when the perfect map answers
+right, or the geometry rated it lower (relation degree).
 
 The relation index is brought up to date after every keyframe with the objects it changed
 (as the server's is on a query: by object version) and timed: the update and computing every
@@ -530,9 +531,9 @@ def _why(
         return "anchor split in the map", _hit_detail(top, view, category_of, bboxes)
     if q.family == "negative":
         detail = _hit_detail(top, view, category_of, bboxes)
-        partial = _partial_parts(top, view, bboxes)
-        if perfect_right and partial:
-            return "partial geometry in the map", f"{partial}; {detail}"
+        fault, what = _geometry_faults(top, view, bboxes)
+        if perfect_right and fault:
+            return fault, f"{what}; {detail}"
         return f"{top.relation.kind} degree", detail
     by_instance: dict[int, list[int]] = {}
     for thing_id, instance in identity.items():
@@ -541,22 +542,23 @@ def _why(
         return "answer not in the map", f"no map object is {_names(q.expected, category_of)}"
     if q.anchors and not any(a in by_instance for a in q.anchors):
         return "anchor not in the map", f"no map object is {_names(q.anchors, category_of)}"
-    if q.target and category_of.get(identity.get(top.id, 0)) not in named(q.target, loose=True):
-        return "target grounding", _hit_detail(top, view, category_of, bboxes)
-    mine = [h for h in hits if identity.get(h.id, 0) in q.acceptable]
-    best = mine[0]
+    best = next(h for h in hits if identity.get(h.id, 0) in q.acceptable)
     detail = f"answer: {_hit_detail(best, view, category_of, bboxes)}; top-1: " + _hit_detail(
         top, view, category_of, bboxes
     )
+    if q.target and best.relevance < CONFIDENT and best.score <= top.score:
+        # a superlative weighs only confident targets; any score is relevance x degree
+        return "target phrase weakly grounded", detail
+    if q.target and category_of.get(identity.get(top.id, 0)) not in named(q.target, loose=True):
+        return "target grounding", detail
     anchors = {identity.get(a, 0) for a, _ in best.relation.anchors}
     if q.anchors and not anchors & set(q.anchors):
         return "anchor grounding", detail
-    if q.target and best.relevance < CONFIDENT:
-        # a superlative weighs only confident targets; any score is relevance x degree
-        return "target phrase weakly grounded", detail
-    partial = _partial_parts(best, view, bboxes) or _partial_parts(top, view, bboxes)
-    if perfect_right and partial:
-        return "partial geometry in the map", f"{partial}; {detail}"
+    fault, what = _geometry_faults(best, view, bboxes)
+    if not fault:
+        fault, what = _geometry_faults(top, view, bboxes)
+    if perfect_right and fault:
+        return fault, f"{what}; {detail}"
     if best.relevance < top.relevance - 1e-9:
         return "target relevance", detail
     return f"{q.kind} degree", detail
@@ -584,12 +586,40 @@ def _partial(thing_id: int, view: _MapView, bboxes: dict[int, np.ndarray]) -> st
     return ""
 
 
-def _partial_parts(hit: RelationalHit, view: _MapView, bboxes) -> str:
-    """The hit's or its anchors' missing parts ("" if all look whole)."""
-    parts = [_partial(hit.id, view, bboxes)] + [
-        _partial(a, view, bboxes) for a, _ in hit.relation.anchors
-    ]
-    return "; ".join(p for p in parts if p)
+STRAY_M = 0.3
+"""A map object holding a point this far outside its instance's box carries stray points
+(the floor round it through dilated masks, another thing's edge): closest-point relations
+(near, next to, closest) read them."""
+
+
+def _stray(thing_id: int, view: _MapView, bboxes: dict[int, np.ndarray]) -> str:
+    """How far a map object reaches beyond its ground-truth instance ("" if it does not)."""
+    instance = view.identity.get(thing_id, 0)
+    points = view.points.get(thing_id)
+    if not instance or points is None or not len(points):
+        return ""
+    box = bboxes[instance]
+    outside = np.linalg.norm(np.maximum(np.maximum(box[:3] - points, points - box[3:]), 0), axis=1)
+    far = outside > STRAY_M
+    if not far.any():
+        return ""
+    return (
+        f"object {thing_id} reaches {outside.max():.2f} m beyond its instance "
+        f"({far.sum()} of {len(points)} points over {STRAY_M} m out)"
+    )
+
+
+def _geometry_faults(hit: RelationalHit, view: _MapView, bboxes) -> tuple[str, str]:
+    """(reason, what) of the first fault of the hit's or its anchors' geometry in the map:
+    stray points or missing parts; ("", "") when they look like their instances."""
+    for thing_id in [hit.id, *(a for a, _ in hit.relation.anchors)]:
+        stray = _stray(thing_id, view, bboxes)
+        if stray:
+            return "stray points in the map", stray
+        partial = _partial(thing_id, view, bboxes)
+        if partial:
+            return "partial geometry in the map", partial
+    return "", ""
 
 
 def _parse_problem(q: Question, reading: Reading) -> str:
