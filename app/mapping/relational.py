@@ -79,6 +79,9 @@ HEAD_NOUN_RELEVANCE = 0.75
 table and the side table, "counter" the kitchen counter, "lamp" the floor lamp. The text
 encoder rates such a label low when the vocabulary holds the bare word ("table" beats "dining
 table" for the phrase "table"), yet in a question about a map the phrase means them."""
+CATEGORY_MIN_RELEVANCE = 0.25
+"""Least relevance of the best-rated object for a weakly named target to have a category
+("bag" rates backpacks 0.35 with MiniLM; below this nothing is what the phrase names)."""
 MATCH_MIN_SCORE = 0.25
 """Least score (target relevance x degrees x anchor relevances) of a best hit that answers
 the question: `match` true. A mug fully on the desk scores ~1, a mug under no sofa 0."""
@@ -498,12 +501,12 @@ class _Sizes(_Measure):
 
 
 class _Superlative(_Part):
-    """The target's extreme copy within its category (objects rated as confident targets;
-    every object when the target is unspecified); degree 0 outside it."""
+    """The target's extreme copy within its category (`category_of`; every object when the
+    target is unspecified); degree 0 outside it."""
 
     def __init__(self, superlative: Superlative, target: np.ndarray, q: _Question):
         self.kind, self.q = superlative.kind, q
-        self.category = np.flatnonzero(target >= CONFIDENT)
+        self.category = category_of(target)
         self.member = np.full(len(target), _NONE, np.int64)  # position -> index in category
         self.member[self.category] = np.arange(len(self.category))
         m = len(self.category)
@@ -647,7 +650,11 @@ def answer(
         return None  # "on my left": left of what? not read yet
 
     n = len(things)
-    target = np.ones(n) if reading.any_target else q.ground(reading.target).relevance
+    if reading.any_target:  # "what is on the table": anything but the anchors' like
+        target = np.ones(n)
+        target[np.isin(things.label_of, _anchor_labels(q, anchor_phrases))] = 0.0
+    else:
+        target = q.ground(reading.target).relevance
     score = target.copy()
     live = np.flatnonzero(target > 0)  # an object the target cannot be scores 0 whatever
     clauses = [_Clause(c, q) for c in reading.relations]
@@ -660,7 +667,9 @@ def answer(
         superlative = _Superlative(sup, target, q)
         score = superlative.apply(score, min(k, n))
 
-    top, cosine = _top(score, target, things, q.embedding(target_phrase), k)
+    query = q.embedding(target_phrase)
+    label_cosine = np.asarray(encoder.encode(list(things.labels)), np.float32) @ query
+    top, cosine = _top(score, target, things, query, label_cosine, k)
     explaining: _Clause | _Superlative = clauses[0] if clauses else superlative  # type: ignore[assignment]
     degrees, anchors = explaining.explain(top)
     hits = []
@@ -679,6 +688,30 @@ def answer(
     return hits
 
 
+def category_of(target: np.ndarray) -> np.ndarray:
+    """Positions of the target's category, within which a superlative ranks: the objects
+    rated as confident targets; when none is, those rated as the best one is, if at least
+    CATEGORY_MIN_RELEVANCE ("the lowest bag" on a map of backpacks, rated 0.35)."""
+    if len(target) == 0:
+        return np.zeros(0, np.int64)
+    best = float(target.max())
+    if best < CATEGORY_MIN_RELEVANCE:
+        return np.zeros(0, np.int64)
+    return np.flatnonzero(target >= min(CONFIDENT, best))
+
+
+def _anchor_labels(q: _Question, anchor_phrases: list[str]) -> np.ndarray:
+    """Label codes of the anchor phrases' candidates: a thing of the anchor's own label is a
+    piece of it (a bookcase mapped as two objects), not what stands on or in it."""
+    codes = {
+        int(q.things.label_of[a])
+        for phrase in anchor_phrases
+        if not q.is_floor(phrase)
+        for a in q.ground(phrase).candidates()
+    }
+    return np.array(sorted(codes), np.int64)
+
+
 def _floor_elsewhere(reading: Reading, q: _Question) -> bool:
     """Whether the implicit floor is named anywhere but as the one anchor of `on`."""
     for clause in reading.relations:
@@ -689,11 +722,23 @@ def _floor_elsewhere(reading: Reading, q: _Question) -> bool:
     return sup is not None and any(q.is_floor(a) for a in sup.anchors)
 
 
+TIE_COSINE_DECIMALS = 2
+"""Copies tied in score and relevance go by their own embedding's cosine to these decimals,
+then by id: finer differences are float noise on the server and 8-bit rounding on the
+device (up to ~0.002), and must not order the same answer differently on the two ends."""
+
+
 def _top(
-    score: np.ndarray, target: np.ndarray, things: MapThings, query: np.ndarray, k: int
+    score: np.ndarray,
+    target: np.ndarray,
+    things: MapThings,
+    query: np.ndarray,
+    label_cosine: np.ndarray,
+    k: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(positions int64 [<= k], their cosines): the k best by score, then target relevance,
-    then cosine, then id; cosines only for the objects tied near the top."""
+    then the cosine of their label's text (the same on every end), then their own cosine
+    (TIE_COSINE_DECIMALS), then id; own cosines only for the objects tied near the top."""
     n = len(score)
     k = min(k, n)
     kth_score = np.partition(score, n - k)[n - k]
@@ -705,7 +750,9 @@ def _top(
         tied = tied[target[tied] >= kth_target]
     candidates = np.concatenate([ahead, tied])
     cosine = np.asarray(things.cosines(candidates, query), np.float32)
-    keys = (things.ids[candidates], -cosine, -target[candidates], -score[candidates])
+    own = np.round(cosine.astype(np.float64), TIE_COSINE_DECIMALS)
+    by_label = label_cosine[things.label_of[candidates]]
+    keys = (things.ids[candidates], -own, -by_label, -target[candidates], -score[candidates])
     order = np.lexsort(keys)[:k]  # the last key first
     return candidates[order], cosine[order]
 
@@ -720,9 +767,10 @@ def head_noun(phrase: str) -> str:
     """The last word of a phrase, lower case, a plural's s dropped ("dining tables" ->
     "table"; "glass" and "bus" keep theirs)."""
     words = phrase.lower().split()
-    if not words:
-        return ""
-    word = words[-1]
+    return _singular(words[-1]) if words else ""
+
+
+def _singular(word: str) -> str:
     if word in _IRREGULAR_PLURALS:
         return _IRREGULAR_PLURALS[word]
     if word.endswith("ies") and len(word) > 4:
@@ -732,10 +780,27 @@ def head_noun(phrase: str) -> str:
     return word
 
 
+_ARTICLES = frozenset({"the", "a", "an", "my", "our", "your", "this", "that"})
+COMPOUND_HEAD_MIN_LETTERS = 5
+"""A head noun of at least this many letters also names a one-word compound ending in it:
+"shelf" a bookshelf, "case" no bookcase."""
+
+
 def same_head(phrase: str, label: str) -> bool:
-    """Whether a phrase and a label end in the same noun ("the table" and "dining table")."""
-    head = head_noun(phrase)
-    return bool(head) and head == head_noun(label)
+    """Whether a phrase names a label by its head noun: the label ends in the same noun ("the
+    table" and "dining table"), or in a compound of it ("the shelf" and "bookshelf"), and
+    every other word of the phrase is in the label ("side table" does not name the dining
+    table; "dining table" does)."""
+    words = [_singular(w) for w in phrase.lower().split() if w not in _ARTICLES]
+    label_words = [_singular(w) for w in label.lower().split()]
+    if not words or not label_words:
+        return False
+    head, label_head = words[-1], label_words[-1]
+    if head != label_head and not (
+        len(head) >= COMPOUND_HEAD_MIN_LETTERS and label_head.endswith(head)
+    ):
+        return False
+    return all(w in label_words for w in words[:-1])
 
 
 def phrases_of(reading: Reading) -> list[str]:

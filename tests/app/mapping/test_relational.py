@@ -144,3 +144,20 @@ def test_a_map_holding_a_floor_object_answers_by_it(encoder):
     index.update({i: ObjectGeometry(label, pts) for i, (label, pts) in room.items()})
     hits = answer(parse("what is under the floor"), things, index, encoder)
     assert hits is not None and hits[0].relation.anchors == [(99, "floor")]
+
+
+@pytest.mark.parametrize(
+    ("phrase", "label", "names"),
+    [
+        ("the table", "dining table", True),
+        ("dining table", "dining table", True),
+        ("the shelf", "bookshelf", True),
+        ("counter", "kitchen counter", True),
+        ("side table", "dining table", False),  # a modifier the label lacks
+        ("table", "table lamp", False),
+        ("case", "bookcase", False),  # too short a head for a compound
+        ("floor", "floor lamp", False),
+    ],
+)
+def test_a_phrase_names_a_label_by_its_head_noun_and_its_modifiers(phrase, label, names):
+    assert same_head(phrase, label) is names
