@@ -13,6 +13,7 @@ from app.mapping.relational import (
     FLOOR_ANCHOR,
     MapThing,
     answer,
+    category_of,
     head_noun,
     is_match,
     same_head,
@@ -161,3 +162,28 @@ def test_a_map_holding_a_floor_object_answers_by_it(encoder):
 )
 def test_a_phrase_names_a_label_by_its_head_noun_and_its_modifiers(phrase, label, names):
     assert same_head(phrase, label) is names
+
+
+@pytest.mark.parametrize(
+    ("relevance", "members"),
+    [
+        ([0.9, 0.4, 0.6], [0, 2]),  # the confident ones
+        ([0.35, 0.35, 0.1], [0, 1]),  # none confident: those rated as the best one is
+        ([0.2, 0.1], []),  # nothing is what the phrase names
+        ([], []),
+    ],
+)
+def test_a_superlatives_category(relevance, members):
+    assert category_of(np.array(relevance, np.float64)).tolist() == members
+
+
+def test_what_stands_on_a_thing_is_not_a_piece_of_it(encoder):
+    """A shelf mapped as two objects: the second piece is not "what is on the shelf"."""
+    room = {**SCENE, 77: ("shelf", SCENE[2][1] + np.array([0.0, 0.0, 0.2]))}
+    labels = sorted({label for label, _ in room.values()})
+    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
+    things = [MapThing(i, label, embedding[label]) for i, (label, _) in room.items()]
+    index = RelationIndex(Z_UP)
+    index.update({i: ObjectGeometry(label, pts) for i, (label, pts) in room.items()})
+    hits = answer(parse("what is on the shelf"), things, index, encoder)
+    assert hits is not None and hits[0].id == 11 and "shelf" not in {h.label for h in hits[:1]}
