@@ -66,6 +66,7 @@ from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.local_map import LocalMap
 from client_sim.sources.synthetic import SyntheticSource
+from client_sim.world.categories import CATEGORIES
 from client_sim.world.gt import gt_point_cloud
 from client_sim.world.relation_queries import (
     Question,
@@ -421,6 +422,7 @@ def _score(
         "question": q.text,
         "family": q.family,
         "kind": q.kind,
+        "wording": _wording(q),
         "relational_path": got.relational,
         "match": got.match,
         "right": _right(q, got, view, category_of),
@@ -494,6 +496,13 @@ def _differences(a: RelationalHit, b: RelationalHit, sq_hits, lq_hits) -> list[s
     if abs(a.relation.degree - b.relation.degree) > LQ_DEGREE_TOLERANCE:
         differences.append(f"degree {a.relation.degree:.3f} vs {b.relation.degree:.3f}")
     return differences
+
+
+def _wording(q: Question) -> str:
+    """Whether a question names its target and anchors by their categories' own names (the
+    labels a perfect map carries) or by other names ("cup", "bag", "side table")."""
+    phrases = [q.target, *q.anchor_phrases] if q.target else list(q.anchor_phrases)
+    return "category names" if all(p in CATEGORIES for p in phrases) else "other names"
 
 
 def _names(ids, category_of) -> str:
@@ -702,6 +711,15 @@ def _summary(
     negative = [r for r in records if r["family"] == "negative"]
     plain = [r for r in records if r["family"] == "plain"]
     right = [r for r in positive + plain if r["right"]]
+    by_wording = {
+        wording: {
+            "asked": len(group),
+            "top1": _share(r["right"] for r in group),
+            "top1_perfect_map": _share(r["perfect_map_right"] for r in group),
+        }
+        for wording in ("category names", "other names")
+        for group in [[r for r in positive if r["wording"] == wording]]
+    }
     by_kind: dict[str, dict] = {}
     for r in positive + negative:
         key = f"{r['family']}:{r['kind']}"
@@ -778,6 +796,7 @@ def _summary(
             "plain": len(plain),
         },
         "by_kind": dict(sorted(by_kind.items())),
+        "top1_by_wording": by_wording,
         "failure_reasons": dict(
             Counter(
                 f"{f['family']}: {f['reason']}"
@@ -815,6 +834,11 @@ def format_relations_table(result: dict) -> str:
         f"{'LQ = SQ':<28} {lq} of {rel['lq_asked']} relational, 'what is' and negatives "
         f"({_pct(rel['lq_equals_sq_up_to_ties']).strip()} up to exact ties)",
         f"{'index update p50 / p95':<28} {index['p50']:6.2f} / {index['p95']:.2f} ms",
+        *(
+            f"{'  named by ' + wording:<28} {_pct(slot['top1'])} "
+            f"{_pct(slot['top1_perfect_map'], 11)}  ({slot['asked']} questions)"
+            for wording, slot in rel["top1_by_wording"].items()
+        ),
         f"{'kind':<22} {'asked':>6} {'right':>7} {'perfect map':>12}",
     ]
     for kind, slot in rel["by_kind"].items():

@@ -4,11 +4,11 @@ relation room, scored against the room's geometry."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
 
+from app import semantics
+from app.cli import main
 from app.cli.relations_eval import _ask, _perfect_view
 from client_sim.world.gt import gt_point_cloud
 from client_sim.world.relation_scenes import make_relation_scene, relation_walk
@@ -31,20 +31,19 @@ def test_a_perfect_map_of_a_relation_room_tells_the_duplicates_apart(encoder):
 
 
 @pytest.mark.slow
-def test_the_relations_scenario_writes_the_documented_json(tmp_path):
+def test_the_relations_scenario_writes_the_documented_json(tmp_path, encoder, monkeypatch, capsys):
+    monkeypatch.setattr(semantics, "get_text_encoder", lambda: encoder)  # loaded once per session
     out = tmp_path / "relations.json"
-    proc = subprocess.run(
+    code = main(
         [
-            sys.executable, "-m", "app.cli", "eval", "--scenario", "relations",
-            "--seeds", "1", "--frames", "40", "--width", "160", "--height", "120",
-            "--min-mapping-bbox-area", "125", "--noise", "none", "--json", str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
+            "eval", "--scenario", "relations", "--seeds", "1", "--frames", "40",
+            "--width", "160", "--height", "120", "--min-mapping-bbox-area", "125",
+            "--noise", "none", "--json", str(out),
+        ]
     )  # fmt: skip
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "relational top-1" in proc.stdout and "[relations]" in proc.stderr
+    assert code == 0
+    printed = capsys.readouterr()
+    assert "relational top-1" in printed.out and "[relations]" in printed.err
     result = json.loads(out.read_text())
     assert (result["scenario"], result["seeds"], result["noise"]) == ("relations", [0], "none")
     relations = result["relations"]
