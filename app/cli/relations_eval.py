@@ -561,8 +561,11 @@ def _why(
     if q.target and category_of.get(identity.get(top.id, 0)) not in named(q.target, loose=True):
         return "target grounding", detail
     anchors = {identity.get(a, 0) for a, _ in best.relation.anchors}
+    top_anchors = {identity.get(a, 0) for a, _ in top.relation.anchors}
     if q.anchors and not anchors & set(q.anchors):
         return "anchor grounding", detail
+    if q.anchors and top.score > best.score and not top_anchors & set(q.anchors):
+        return "anchor grounding", detail  # another anchor reading outweighs the right one
     fault, what = _geometry_faults(best, view, bboxes)
     if not fault:
         fault, what = _geometry_faults(top, view, bboxes)
