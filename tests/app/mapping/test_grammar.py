@@ -328,3 +328,26 @@ def test_an_adversarial_500_character_query_parses_in_well_under_a_second(text):
     t0 = time.perf_counter()
     check_reading(parse(text))
     assert time.perf_counter() - t0 < 0.25
+
+
+def test_the_readme_examples_read_as_the_relations_their_row_names():
+    """README's "What can be asked" table stays true to the parser."""
+    import re
+    from pathlib import Path
+
+    readme = (Path(__file__).parents[3] / "README.md").read_text("utf-8")
+    section = readme.split("What can be asked", 1)[1].split("\n\n", 2)[1]
+    rows = [line for line in section.splitlines() if line.startswith("| ") and '"' in line]
+    assert len(rows) >= 5
+    seen_from_you = {"left_of", "right_of", "in_front_of", "behind"}
+    for row in rows:
+        kinds_cell, examples_cell = row.strip("| ").split(" | ", 1)
+        kinds = {k.strip().replace(" ", "_") for k in kinds_cell.split(",")}
+        kinds = seen_from_you if kinds == {"seen_from_you"} else kinds
+        for question in re.findall(r'"([^"]+)"', examples_cell):
+            reading = parse(question)
+            found = {c.kind for c in reading.relations}
+            if reading.superlative is not None:
+                found.add("superlatives")
+            assert is_relational(reading), question
+            assert found & kinds, (question, found, kinds)
