@@ -558,7 +558,8 @@ def _why(
     if q.target and best.relevance < CONFIDENT and best.score <= top.score:
         # a superlative weighs only confident targets; any score is relevance x degree
         return "target phrase weakly grounded", detail
-    if q.target and category_of.get(identity.get(top.id, 0)) not in named(q.target, loose=True):
+    wrong_category = category_of.get(identity.get(top.id, 0)) not in named(q.target, loose=True)
+    if q.target and wrong_category and best.score > 0:  # else the answer stands in nothing
         return "target grounding", detail
     anchors = {identity.get(a, 0) for a, _ in best.relation.anchors}
     top_anchors = {identity.get(a, 0) for a, _ in top.relation.anchors}
