@@ -47,7 +47,7 @@ def add_knob_flags(parser: argparse.ArgumentParser) -> None:
             dest=f"knob_{f.name}",
             default=None,
             metavar="LIST" if isinstance(default, list) else "N",
-            help=f"{docs.get(f.name, '')} (default: {default})",
+            help=f"{docs.get(f.name, '')} (default: {default})".replace("%", "%%"),
         )
 
 
