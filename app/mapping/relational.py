@@ -82,6 +82,8 @@ table" for the phrase "table"), yet in a question about a map the phrase means t
 CATEGORY_MIN_RELEVANCE = 0.25
 """Least relevance of the best-rated object for a weakly named target to have a category
 ("bag" rates backpacks 0.35 with MiniLM; below this nothing is what the phrase names)."""
+CATEGORY_MARGIN = 0.2
+"""A superlative's category holds the objects rated within this of the best-rated one."""
 MATCH_MIN_SCORE = 0.25
 """Least score (target relevance x degrees x anchor relevances) of a best hit that answers
 the question: `match` true. A mug fully on the desk scores ~1, a mug under no sofa 0."""
@@ -148,7 +150,9 @@ class HitRelation:
     anchors: list[tuple[int, str]]
     """(id, label) of each anchor; [] when measured from the asker or within the category."""
     degree: float
-    """In [0, 1]: how much the hit stands in `kind` to the anchors."""
+    """In [0, 1]: how much the hit stands in `kind` to the anchors: the relation's own
+    degree, before the anchors' relevance weighs it into the score (a lamp wholly on a
+    nightstand named "bedside table" is 1.0 however weakly the phrase names it)."""
 
 
 @dataclass(frozen=True)
@@ -267,10 +271,23 @@ class _Part:
     measured against (positions, _NONE where none)."""
 
     kind: str
+    q: _Question
+    phrases: list[str]
+    """The anchor phrases (none: the asker, or within the category)."""
 
     def measure(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(degrees float64 [m], anchor positions int64 [m, 2]) of the objects at `positions`."""
+        """(degrees float64 [m], anchor positions int64 [m, 2]) of the objects at `positions`:
+        each degree weighed by its anchors' relevance (what the score multiplies)."""
         raise NotImplementedError
+
+    def anchor_weight(self, anchors: np.ndarray) -> float:
+        """The anchors' relevance a measured degree was weighed by (anchors: one row of
+        anchor positions); 1 for none, the asker or the floor."""
+        weight = 1.0
+        for phrase, a in zip(self.phrases, anchors.tolist(), strict=False):
+            if a >= 0:
+                weight *= float(self.q.ground(phrase).relevance[a])
+        return weight
 
 
 class _Clause(_Part):
@@ -505,7 +522,7 @@ class _Superlative(_Part):
     target is unspecified); degree 0 outside it."""
 
     def __init__(self, superlative: Superlative, target: np.ndarray, q: _Question):
-        self.kind, self.q = superlative.kind, q
+        self.kind, self.q, self.phrases = superlative.kind, q, list(superlative.anchors)
         self.category = category_of(target)
         self.member = np.full(len(target), _NONE, np.int64)  # position -> index in category
         self.member[self.category] = np.arange(len(self.category))
@@ -675,6 +692,8 @@ def answer(
     hits = []
     for i, position in enumerate(top.tolist()):
         named = [q.named(int(a)) for a in anchors[i] if a != _NONE]
+        weight = explaining.anchor_weight(anchors[i])
+        degree = min(1.0, float(degrees[i]) / weight) if weight > 0 else float(degrees[i])
         hits.append(
             RelationalHit(
                 id=int(things.ids[position]),
@@ -682,7 +701,7 @@ def answer(
                 score=float(score[position]),
                 relevance=float(target[position]),
                 cosine=float(cosine[i]),
-                relation=HitRelation(explaining.kind, named, float(degrees[i])),
+                relation=HitRelation(explaining.kind, named, degree),
             )
         )
     return hits
@@ -690,14 +709,16 @@ def answer(
 
 def category_of(target: np.ndarray) -> np.ndarray:
     """Positions of the target's category, within which a superlative ranks: the objects
-    rated as confident targets; when none is, those rated as the best one is, if at least
+    rated as confident targets and within CATEGORY_MARGIN of the best ("the table lamp
+    closest to the bookcase" ranks table lamps, not the floor lamp a "lamp" rates 0.6);
+    when none is confident, those rated as the best one is, if at least
     CATEGORY_MIN_RELEVANCE ("the lowest bag" on a map of backpacks, rated 0.35)."""
     if len(target) == 0:
         return np.zeros(0, np.int64)
     best = float(target.max())
     if best < CATEGORY_MIN_RELEVANCE:
         return np.zeros(0, np.int64)
-    return np.flatnonzero(target >= min(CONFIDENT, best))
+    return np.flatnonzero(target >= max(min(CONFIDENT, best), best - CATEGORY_MARGIN))
 
 
 def _anchor_labels(q: _Question, anchor_phrases: list[str]) -> np.ndarray:
