@@ -710,7 +710,9 @@ def answer(
 def category_of(target: np.ndarray) -> np.ndarray:
     """Positions of the target's category, within which a superlative ranks: the objects
     rated as confident targets and within CATEGORY_MARGIN of the best ("the table lamp
-    closest to the bookcase" ranks table lamps, not the floor lamp a "lamp" rates 0.6);
+    closest to the bookcase" ranks table lamps, not the floor lamp a "lamp" rates 0.6), or
+    named by the phrase's head noun (HEAD_NOUN_RELEVANCE: "the lamp closest to the desk"
+    ranks table lamps beside a thing labelled just "lamp");
     when none is confident, those rated as the best one is, if at least
     CATEGORY_MIN_RELEVANCE ("the lowest bag" on a map of backpacks, rated 0.35)."""
     if len(target) == 0:
@@ -718,7 +720,8 @@ def category_of(target: np.ndarray) -> np.ndarray:
     best = float(target.max())
     if best < CATEGORY_MIN_RELEVANCE:
         return np.zeros(0, np.int64)
-    return np.flatnonzero(target >= max(min(CONFIDENT, best), best - CATEGORY_MARGIN))
+    near_best = min(best - CATEGORY_MARGIN, HEAD_NOUN_RELEVANCE)  # a named kind is always in
+    return np.flatnonzero(target >= max(min(CONFIDENT, best), near_best))
 
 
 def _anchor_labels(q: _Question, anchor_phrases: list[str]) -> np.ndarray:

@@ -169,6 +169,7 @@ def test_a_phrase_names_a_label_by_its_head_noun_and_its_modifiers(phrase, label
     [
         ([0.9, 0.4, 0.75], [0, 2]),  # the confident ones near the best
         ([1.0, 0.6, 0.85], [0, 2]),  # not one a margin behind the best (a floor lamp)
+        ([1.0, 0.75, 0.7], [0, 1]),  # but always one its head noun names (a table lamp)
         ([0.35, 0.35, 0.1], [0, 1]),  # none confident: those rated as the best one is
         ([0.2, 0.1], []),  # nothing is what the phrase names
         ([], []),
