@@ -199,12 +199,12 @@ class SessionSummary(Record):
     """Whether the session's map is in memory now (else it loads on first use)."""
     last_used_at: float | None = None
     """Unix time of the session's last frame or use (what retention counts from)."""
-    up: UpAxis | None = None
+    up: Annotated[UpAxis | None, Field(exclude_if=_none)] = None
     """Extension: the world axis that is up, what relations and places are measured along
-    (None from a server that does not say)."""
-    up_source: UpSource | None = None
+    (None from a server that does not say; then left out of the body)."""
+    up_source: Annotated[UpSource | None, Field(exclude_if=_none)] = None
     """Extension: "set" at creation, "inferred" from the device's poses, or "default" (+z)
-    until the poses say (None from a server that does not say)."""
+    until the poses say (None from a server that does not say; then left out)."""
 
 
 class LatencySummary(Record):
@@ -252,12 +252,12 @@ class SessionStats(Record):
     warnings: list[str] = Field(default_factory=list)
     """Extension: problems with what the session is fed, each once, with the fix (e.g.
     frames without detections on a backend that needs them)."""
-    up: UpAxis | None = None
+    up: Annotated[UpAxis | None, Field(exclude_if=_none)] = None
     """Extension: the world axis that is up, what relations and places are measured along
-    (None from a server that does not say)."""
-    up_source: UpSource | None = None
+    (None from a server that does not say; then left out of the body)."""
+    up_source: Annotated[UpSource | None, Field(exclude_if=_none)] = None
     """Extension: "set" at creation, "inferred" from the device's poses, or "default" (+z)
-    until the poses say (None from a server that does not say)."""
+    until the poses say (None from a server that does not say; then left out)."""
 
 
 class ObjectRecord(Record):
