@@ -67,13 +67,18 @@ SCENE = {
 }
 
 
-def scene_export(name: str = "relations") -> dict:
-    """SCENE as a `semanticxr-map` export for POST /v1/sessions/import (ids kept, points to
-    0.1 mm): a server holding it answers relational questions without a walk. No pose: up is
-    Z, and the asker's position is unknown."""
+TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+"""(x, y, z) Z-up -> (x, z, -y) Y-up: the same room in an XR runtime's frame."""
+
+
+def map_export(room: dict, name: str, knobs: dict | None = None, turn=None, **session) -> dict:
+    """A room ({id: (label, points)}) as a `semanticxr-map` export for POST
+    /v1/sessions/import: ids kept, points to 0.1 mm as the export format keeps them, turned
+    by `turn` (a 3x3 matrix) when given; `session` adds fields (e.g. up="+y"). No pose: up
+    is the session's (Z unless set), and the asker's position is unknown."""
     objects = []
-    for i, (label, points) in SCENE.items():
-        pts = points.round(4)
+    for i, (label, points) in room.items():
+        pts = (points if turn is None else points @ np.asarray(turn).T).round(4)
         objects.append(
             {
                 "id": i,
@@ -91,8 +96,14 @@ def scene_export(name: str = "relations") -> dict:
         "session": {
             "name": name,
             "mode": "semanticxr",
-            "knobs": {},
+            "knobs": knobs or {},
             "embedding": {"model": "all-MiniLM-L6-v2", "dim": 384},
+            **session,
         },
         "objects": objects,
     }
+
+
+def scene_export(name: str = "relations") -> dict:
+    """SCENE as an import (`map_export`)."""
+    return map_export(SCENE, name)

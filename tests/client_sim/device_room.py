@@ -6,7 +6,7 @@ metres; shapes from tests/relation_scene.py."""
 from __future__ import annotations
 
 import numpy as np
-from relation_scene import block, chair, table
+from relation_scene import TO_Y_UP, block, chair, map_export, table
 
 ROOM: dict[int, tuple[str, np.ndarray]] = {
     1: ("desk", table(0.0, 0.0, w=1.2, d=0.6, seed=1, count=200)),
@@ -65,37 +65,9 @@ NEGATIVES = {
 """The questions nothing in ROOM satisfies (`match` false): no mug within reach of VIEWER."""
 
 
-TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
-"""(x, y, z) Z-up -> (x, z, -y) Y-up: the same room in an XR runtime's frame."""
-
-
 def room_export(y_up: bool = False) -> dict:
-    """ROOM as a `semanticxr-map` export for POST /v1/sessions/import (ids kept, points to
-    0.1 mm as the export format keeps them). No pose: up is Z, or with `y_up` the room turned
-    into a Y-up frame (TO_Y_UP) with the session's up set to "+y"."""
-    objects = []
-    for i, (label, points) in ROOM.items():
-        pts = (points @ TO_Y_UP.T if y_up else points).round(4)
-        objects.append(
-            {
-                "id": i,
-                "version": 1,
-                "label": label,
-                "bbox": [*pts.min(0).tolist(), *pts.max(0).tolist()],
-                "centroid": pts.mean(0).tolist(),
-                "n_obs": 3,
-                "points": pts.tolist(),
-            }
-        )
-    return {
-        "format": "semanticxr-map",
-        "version": 1,
-        "session": {
-            "name": "device room",
-            "mode": "semanticxr",
-            "knobs": {},
-            "embedding": {"model": "all-MiniLM-L6-v2", "dim": 384},
-            **({"up": "+y", "up_source": "set"} if y_up else {}),
-        },
-        "objects": objects,
-    }
+    """ROOM as an import (`map_export`): Z-up, or with `y_up` turned into a Y-up frame
+    (TO_Y_UP) with the session's up set to "+y"."""
+    if y_up:
+        return map_export(ROOM, "device room", turn=TO_Y_UP, up="+y", up_source="set")
+    return map_export(ROOM, "device room")

@@ -11,7 +11,7 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from device_room import NEGATIVES, QUESTIONS, ROOM, VIEWER
+from device_room import NEGATIVES, QUESTIONS, ROOM, TO_Y_UP, VIEWER
 
 from app.config import Knobs
 from app.mapping.grammar import parse
@@ -23,8 +23,6 @@ from client_sim.local_map import _BODY_OVERHEAD_BYTES, BYTES_PER_MB, LocalMap
 from client_sim.querying import LQ, QueryRouter
 
 Y_UP = np.array([0.0, 1.0, 0.0])
-TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
-"""(x, y, z) Z-up -> (x, z, -y) Y-up: the same room in an XR runtime's frame."""
 
 
 @pytest.fixture(scope="module")

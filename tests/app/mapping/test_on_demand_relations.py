@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from relation_scene import block, table
+from relation_scene import TO_Y_UP, block, table
 
 from app.mapping.relations import (
     PAIRWISE_KINDS,
@@ -21,7 +21,6 @@ from app.mapping.relations import (
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 Y_UP = np.array([0.0, 1.0, 0.0])
-TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
 @st.composite

@@ -416,7 +416,7 @@ def test_a_scene_turned_about_up_and_moved_has_the_same_relations(things, angle,
 @given(things=scenes())
 def test_a_z_up_scene_seen_y_up_has_the_same_relations(things):
     # (x, y, z) Z-up -> (x, z, -y) Y-up: the same room in an XR runtime's frame
-    to_y_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    to_y_up = scene.TO_Y_UP
     viewer = np.array([1.0, -2.5, 1.6])
     assert_same_degrees(
         all_degrees(things, Z_UP, viewer),
@@ -574,7 +574,7 @@ def test_removing_an_object_removes_its_relations():
 
 
 def test_a_y_up_index_answers_like_a_z_up_one():
-    to_y_up = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    to_y_up = scene.TO_Y_UP
     z_up, y_up = room_index(), RelationIndex(up=Y_UP)
     y_up.update(
         {

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import httpx
 import pytest
-from relation_scene import SCENE
+from relation_scene import SCENE, map_export
 
 from app.protocol.rest import QueryResult
 
@@ -24,31 +24,7 @@ def http(live_server):
 @pytest.fixture
 def sid(http):
     """A session holding SCENE (Z-up, no device pose: up is Z, no asker's position)."""
-    objects = []
-    for i, (label, points) in SCENE.items():
-        pts = points.round(4)
-        objects.append(
-            {
-                "id": i,
-                "version": 1,
-                "label": label,
-                "bbox": [*pts.min(0).tolist(), *pts.max(0).tolist()],
-                "centroid": pts.mean(0).tolist(),
-                "n_obs": 3,
-                "points": pts.tolist(),
-            }
-        )
-    export = {
-        "format": "semanticxr-map",
-        "version": 1,
-        "session": {
-            "name": "relations",
-            "mode": "semanticxr",
-            "knobs": {},
-            "embedding": {"model": "all-MiniLM-L6-v2", "dim": 384},
-        },
-        "objects": objects,
-    }
+    export = map_export(SCENE, "relations")
     created = http.post("/v1/sessions/import", json=export)
     assert created.status_code == 201, created.text
     return created.json()["session_id"]

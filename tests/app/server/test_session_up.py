@@ -14,7 +14,7 @@ import httpx
 import numpy as np
 import pytest
 from devices import stream_in_step
-from relation_scene import SCENE
+from relation_scene import SCENE, TO_Y_UP, map_export
 
 from app.mapping.places import UP_STABLE_KEYFRAMES
 from app.protocol.rest import QueryResult
@@ -27,8 +27,6 @@ pytestmark = pytest.mark.timeout(180)
 
 API_KEY = "up-test-key"
 KNOBS = {"keyframe_interval": 1}
-Y_UP_FROM_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
-"""A rotation taking a Z-up world to a Y-up one: (x, y, z) -> (x, z, -y)."""
 
 
 def look(forward, world_up, position=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -213,31 +211,7 @@ def test_export_carries_a_settled_up_and_import_keeps_it(server, http):
 # ---------------------------------------------------------------------- relations
 def y_up_scene_export() -> dict:
     """tests/relation_scene.py's room turned Y-up, as an import (no poses: default up)."""
-    objects = []
-    for i, (label, points) in SCENE.items():
-        pts = (points @ Y_UP_FROM_Z_UP.T).round(4)
-        objects.append(
-            {
-                "id": i,
-                "version": 1,
-                "label": label,
-                "bbox": [*pts.min(0).tolist(), *pts.max(0).tolist()],
-                "centroid": pts.mean(0).tolist(),
-                "n_obs": 3,
-                "points": pts.tolist(),
-            }
-        )
-    return {
-        "format": "semanticxr-map",
-        "version": 1,
-        "session": {
-            "name": "relations, Y-up",
-            "mode": "semanticxr",
-            "knobs": KNOBS,
-            "embedding": {"model": "all-MiniLM-L6-v2", "dim": 384},
-        },
-        "objects": objects,
-    }
+    return map_export(SCENE, "relations, Y-up", KNOBS, turn=TO_Y_UP)
 
 
 QUESTIONS = [
