@@ -6,7 +6,11 @@ import argparse
 import json
 import platform
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
+
+import numpy as np
 
 
 class _HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
@@ -49,3 +53,25 @@ def save_plot(fig, out_dir: str, stem: str) -> Path:
     fig.savefig(path, dpi=110, bbox_inches="tight")
     print(f"wrote {path}", file=sys.stderr)
     return path
+
+
+def timed_ms(
+    run: Callable[[], object], reps: int, before: Callable[[], object] = lambda: None
+) -> dict:
+    """p50/p95/p99/mean/min in ms of `reps` calls of `run` (after one warm-up call); `before`
+    runs untimed before each call (and the warm-up)."""
+    before()
+    run()
+    times_ms = []
+    for _ in range(reps):
+        before()
+        start = time.perf_counter_ns()
+        run()
+        times_ms.append((time.perf_counter_ns() - start) / 1e6)
+    return {
+        "p50": float(np.percentile(times_ms, 50)),
+        "p95": float(np.percentile(times_ms, 95)),
+        "p99": float(np.percentile(times_ms, 99)),
+        "mean": float(np.mean(times_ms)),
+        "min": float(np.min(times_ms)),
+    }

@@ -24,13 +24,13 @@ import gc
 import os
 import time
 import tracemalloc
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from app.protocol import DEFAULT_EMBEDDING_DIM, UpsertEntry, pack_delta
-from bench.common import bench_parser, check, machine, save_plot, write_outputs
+from bench.common import bench_parser, check, machine, save_plot, timed_ms, write_outputs
 
 if TYPE_CHECKING:
     from app.semantics import TextEncoder
@@ -78,23 +78,6 @@ def object_upserts(ids: range, rng: np.random.Generator, version: int = 1) -> li
 def delta(seq: int, upserts: list[UpsertEntry]) -> dict:
     """The wire `delta` (as msgpack would unpack it) of `upserts`."""
     return pack_delta(seq, upserts)
-
-
-def timed_ms(run: Callable[[], object], reps: int) -> dict:
-    """p50/p95/p99/mean/min in ms of `reps` calls of `run` (after one warm-up call)."""
-    run()
-    times_ms = []
-    for _ in range(reps):
-        start = time.perf_counter_ns()
-        run()
-        times_ms.append((time.perf_counter_ns() - start) / 1e6)
-    return {
-        "p50": float(np.percentile(times_ms, 50)),
-        "p95": float(np.percentile(times_ms, 95)),
-        "p99": float(np.percentile(times_ms, 99)),
-        "mean": float(np.mean(times_ms)),
-        "min": float(np.min(times_ms)),
-    }
 
 
 def baseline_bytes(objects: int) -> int:

@@ -26,12 +26,11 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable
 
 import numpy as np
 
 from app.protocol import UpsertEntry, pack_delta
-from bench.common import bench_parser, check, machine, write_outputs
+from bench.common import bench_parser, check, machine, timed_ms, write_outputs
 from bench.relations import ROOM_M, floor_of
 
 DELTA_OBJECTS = 1000
@@ -55,25 +54,6 @@ RELATIONAL_QUESTIONS = [
     "the chair left of the sofa",
     "the biggest table",
 ]
-
-
-def timed_ms(run: Callable[[], object], reps: int, before: Callable[[], object] = lambda: None):
-    """p50/p95/mean/min in ms of `reps` calls of `run` (one warm-up call first); `before` runs
-    untimed before each call."""
-    before()
-    run()
-    times_ms = []
-    for _ in range(reps):
-        before()
-        start = time.perf_counter_ns()
-        run()
-        times_ms.append((time.perf_counter_ns() - start) / 1e6)
-    return {
-        "p50": float(np.percentile(times_ms, 50)),
-        "p95": float(np.percentile(times_ms, 95)),
-        "mean": float(np.mean(times_ms)),
-        "min": float(np.min(times_ms)),
-    }
 
 
 def build_local_map(objects: int, encoder, seed: int):
@@ -206,14 +186,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     targets = [
         check(
-            "relational LQ p50 / plain LQ p50 at 10k objects (warm)",
+            f"relational LQ p50 / plain LQ p50 at {args.objects} objects (warm)",
             summary["relational_warm_p50_ms"] / plain["p50"],
             "<=",
             2.0,
             "x",
         ),
         check(
-            "relational LQ p50 / plain LQ p50 at 10k objects (cold)",
+            f"relational LQ p50 / plain LQ p50 at {args.objects} objects (cold)",
             summary["relational_cold_p50_ms"] / plain["p50"],
             "<=",
             2.0,

@@ -38,6 +38,7 @@ from __future__ import annotations
 import heapq
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -251,11 +252,10 @@ class _Question:
             same_head(phrase, label) for label in self.things.labels
         )
 
+    @cached_property
     def floor(self) -> float | None:
         """The floor's height along up (`relations.floor_height` over the whole map)."""
-        if not hasattr(self, "_floor"):
-            self._floor = floor_height(self.index, self.things.ids)
-        return self._floor
+        return floor_height(self.index, self.things.ids)
 
 
 _NONE = -1
@@ -365,7 +365,7 @@ class _Clause(_Part):
         degrees = np.zeros(len(positions))
         anchors = np.full((len(positions), 2), _NONE, np.int64)
         anchors[:, 0] = _FLOOR
-        floor = q.floor()
+        floor = q.floor
         if floor is None:
             return degrees, anchors
         ids = q.ids(positions)

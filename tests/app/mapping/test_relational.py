@@ -23,14 +23,19 @@ from app.mapping.relations import ObjectGeometry, RelationIndex
 Z_UP = np.array([0.0, 0.0, 1.0])
 
 
+def map_of(room, encoder):
+    """(things, relation index, encoder) of a room {id: (label, points)}, Z-up."""
+    labels = sorted({label for label, _ in room.values()})
+    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
+    things = [MapThing(i, label, embedding[label]) for i, (label, _) in room.items()]
+    index = RelationIndex(Z_UP)
+    index.update({i: ObjectGeometry(label, pts) for i, (label, pts) in room.items()})
+    return things, index, encoder
+
+
 @pytest.fixture(scope="module")
 def scene(encoder):
-    labels = sorted({label for label, _ in SCENE.values()})
-    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
-    things = [MapThing(i, label, embedding[label]) for i, (label, _) in SCENE.items()]
-    index = RelationIndex(Z_UP)
-    index.update({i: ObjectGeometry(label, pts) for i, (label, pts) in SCENE.items()})
-    return things, index, encoder
+    return map_of(SCENE, encoder)
 
 
 def ask(scene, text, viewer=None, k=5):
@@ -103,19 +108,13 @@ def test_an_anchor_named_by_its_head_noun_grounds_to_the_longer_label(encoder):
     """ "the table" means the map's dining table, "the counter" its kitchen counter, though
     the encoder rates those labels low for the bare word."""
     renamed = {3: "dining table", 2: "wall shelf"}
-    labels = sorted({renamed.get(i, label) for i, (label, _) in SCENE.items()})
-    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
-    things = [
-        MapThing(i, renamed.get(i, label), embedding[renamed.get(i, label)])
-        for i, (label, _) in SCENE.items()
-    ]
-    index = RelationIndex(Z_UP)
-    index.update({t.id: ObjectGeometry(t.label, SCENE[t.id][1]) for t in things})
+    room = {i: (renamed.get(i, label), points) for i, (label, points) in SCENE.items()}
+    renamed_map = map_of(room, encoder)
     for text, expected, anchor in [
         ("the mug on the table", 12, 3),
         ("the mug on the shelf", 11, 2),
     ]:
-        hits = answer(parse(text), things, index, encoder)
+        hits = ask(renamed_map, text)
         assert hits is not None and hits[0].id == expected, text
         assert hits[0].relation.anchors == [(anchor, renamed[anchor])]
         assert is_match(hits)
@@ -138,12 +137,7 @@ def test_a_map_holding_a_floor_object_answers_by_it(encoder):
         [*np.meshgrid(np.linspace(-1, 6, 30), np.linspace(-1, 6, 30)), np.zeros((30, 30))], -1
     ).reshape(-1, 3)
     room = {**SCENE, 99: ("floor", floor)}
-    labels = sorted({label for label, _ in room.values()})
-    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
-    things = [MapThing(i, label, embedding[label]) for i, (label, _) in room.items()]
-    index = RelationIndex(Z_UP)
-    index.update({i: ObjectGeometry(label, pts) for i, (label, pts) in room.items()})
-    hits = answer(parse("what is under the floor"), things, index, encoder)
+    hits = ask(map_of(room, encoder), "what is under the floor")
     assert hits is not None and hits[0].relation.anchors == [(99, "floor")]
 
 
@@ -182,10 +176,5 @@ def test_a_superlatives_category(relevance, members):
 def test_what_stands_on_a_thing_is_not_a_piece_of_it(encoder):
     """A shelf mapped as two objects: the second piece is not "what is on the shelf"."""
     room = {**SCENE, 77: ("shelf", SCENE[2][1] + np.array([0.0, 0.0, 0.2]))}
-    labels = sorted({label for label, _ in room.values()})
-    embedding = dict(zip(labels, encoder.encode(labels), strict=True))
-    things = [MapThing(i, label, embedding[label]) for i, (label, _) in room.items()]
-    index = RelationIndex(Z_UP)
-    index.update({i: ObjectGeometry(label, pts) for i, (label, pts) in room.items()})
-    hits = answer(parse("what is on the shelf"), things, index, encoder)
+    hits = ask(map_of(room, encoder), "what is on the shelf")
     assert hits is not None and hits[0].id == 11 and "shelf" not in {h.label for h in hits[:1]}
