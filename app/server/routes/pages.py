@@ -1,5 +1,7 @@
-"""The browser pages the server serves itself: the session dashboard at "/" and its assets
-under "/static/" (plain files from the repository's `static/` folder, no build step).
+"""The browser pages the server serves itself: the session dashboard at "/", the real-device
+WebXR page at "/xr", and their assets under "/static/" (plain files from the repository's
+`static/` folder, ES modules with no build step; npm dependencies vendored under
+`static/vendor/` by `scripts/vendor_js.sh`).
 
 The pages are public (they hold no data); everything they show comes from the REST API,
 which checks the API key or session token the user types in. Routes stay out of the
@@ -20,6 +22,7 @@ STATIC_DIR = Path(__file__).resolve().parents[3] / "static"
 CONTENT_TYPES = {
     ".html": "text/html; charset=utf-8",
     ".js": "text/javascript; charset=utf-8",
+    ".mjs": "text/javascript; charset=utf-8",
     ".css": "text/css; charset=utf-8",
     ".png": "image/png",
     ".svg": "image/svg+xml",
@@ -54,6 +57,14 @@ def _file_response(path: Path) -> FileResponse:
 def dashboard() -> FileResponse:
     """The session dashboard (static/index.html)."""
     return _file_response(STATIC_DIR / "index.html")
+
+
+@router.get("/xr")
+def xr_page() -> FileResponse:
+    """The real-device page (static/xr/index.html): a WebXR immersive-ar client of wire
+    protocol v1. `/xr#session=SID&token=TOKEN` opens a session (a fragment: the token never
+    reaches the server's log)."""
+    return _file_response(STATIC_DIR / "xr" / "index.html")
 
 
 @router.get("/static/{name:path}")

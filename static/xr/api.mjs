@@ -1,0 +1,99 @@
+// The page's REST and WebSocket addresses and credentials (wire protocol v1, docs/protocol.md).
+// Credentials are kept as the dashboard keeps them: the API key and each session's token in
+// sessionStorage under the same keys, so a token given to one page serves the other too.
+// A session's own token wins; the API key is accepted for every session.
+
+const STORE_API_KEY = "semanticxr.apiKey";
+const STORE_TOKENS = "semanticxr.tokens"; // {session id: token}
+
+export const auth = {
+  apiKey() {
+    return sessionStorage.getItem(STORE_API_KEY) || "";
+  },
+  setApiKey(key) {
+    if (key) sessionStorage.setItem(STORE_API_KEY, key);
+    else sessionStorage.removeItem(STORE_API_KEY);
+  },
+  tokens() {
+    try {
+      const parsed = JSON.parse(sessionStorage.getItem(STORE_TOKENS) || "{}");
+      return parsed && typeof parsed === "object" ? parsed : {};
+    } catch {
+      return {};
+    }
+  },
+  setToken(sid, token) {
+    const tokens = auth.tokens();
+    if (token) tokens[sid] = token;
+    else delete tokens[sid];
+    sessionStorage.setItem(STORE_TOKENS, JSON.stringify(tokens));
+  },
+  credential(sid) {
+    return (sid && auth.tokens()[sid]) || auth.apiKey();
+  },
+};
+
+/** An HTTP answer that was not 2xx: `status` and the server's own words (`detail`). */
+export class ApiError extends Error {
+  constructor(status, detail) {
+    super(detail);
+    this.status = status;
+    this.detail = detail;
+  }
+}
+
+function detailOf(body, fallback) {
+  const detail = body && body.detail;
+  if (typeof detail === "string") return detail;
+  if (Array.isArray(detail)) {
+    // FastAPI's validation errors: "field: message", one per problem.
+    return detail.map((d) => `${(d.loc || []).slice(1).join(".")}: ${d.msg}`).join("; ");
+  }
+  return fallback;
+}
+
+/**
+ * A REST call on this page's own origin. `sid` picks the credential (the session's token,
+ * else the API key); `body` is sent as JSON. Throws ApiError naming what the server said, or
+ * a TypeError when the network is down.
+ */
+export async function request(method, path, { sid = null, body = undefined, params = null, signal } = {}) {
+  const url = new URL(path, location.origin);
+  for (const [key, value] of Object.entries(params || {})) url.searchParams.set(key, String(value));
+  const headers = { Accept: "application/json" };
+  const credential = auth.credential(sid);
+  if (credential) headers.Authorization = `Bearer ${credential}`;
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  const response = await fetch(url, {
+    method,
+    headers,
+    body: body === undefined ? undefined : JSON.stringify(body),
+    signal,
+  });
+  const text = await response.text();
+  let parsed = null;
+  try {
+    parsed = text ? JSON.parse(text) : null;
+  } catch {
+    parsed = null;
+  }
+  if (!response.ok) throw new ApiError(response.status, detailOf(parsed, `${response.status} ${response.statusText}`));
+  return parsed;
+}
+
+/** A WebSocket URL on this page's origin (ws: or wss: as the page), the credential as ?token=. */
+export function socketUrl(path, { sid = null, params = null } = {}) {
+  const url = new URL(path, location.origin);
+  url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
+  for (const [key, value] of Object.entries(params || {})) url.searchParams.set(key, String(value));
+  const credential = auth.credential(sid);
+  if (credential) url.searchParams.set("token", credential);
+  return url.toString();
+}
+
+/** The `#session=SID&token=TOKEN` fragment, if the page was opened with one. */
+export function sessionFromFragment(hash = location.hash) {
+  const params = new URLSearchParams(hash.replace(/^#/, ""));
+  const sid = params.get("session");
+  return sid ? { sid, token: params.get("token") || "" } : null;
+}
