@@ -225,6 +225,40 @@ def read_matrix_file(path: Path, shape: tuple[int, int], what: str) -> np.ndarra
     return np.array(values, dtype=np.float64).reshape(shape)
 
 
+def quaternion_to_matrix(qx: float, qy: float, qz: float, qw: float, where: str) -> np.ndarray:
+    """float64 [3, 3] rotation of a (near-)unit quaternion; ValueError naming `where` if not."""
+    q = np.array([qw, qx, qy, qz], np.float64)
+    norm = float(np.linalg.norm(q))
+    # Text files print a few decimals (TUM: 4), so unit quaternions come out within ~1e-4 of
+    # norm 1; anything further off is a corrupt line, not rounding.
+    if not abs(norm - 1.0) <= 1e-2:  # also refuses NaN
+        raise ValueError(f"{where}: quaternion norm is {norm:.4f}, expected 1")
+    w, x, y, z = q / norm
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def pinhole_intrinsics(k: np.ndarray, where: str) -> Intrinsics:
+    """(fx, fy, cx, cy) of a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] (the skew s
+    is ignored); ValueError naming `where` if `k` is not one."""
+    k = np.asarray(k, dtype=np.float64)
+    if (
+        k.shape != (3, 3)
+        or not np.all(np.isfinite(k))
+        or k[0, 0] <= 0
+        or k[1, 1] <= 0
+        or not np.allclose(k[1:, 0], 0.0)
+        or not np.allclose(k[2], [0.0, 0.0, 1.0])
+    ):
+        raise ValueError(f"{where}: not a pinhole intrinsics matrix: {k.tolist()}")
+    return (float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
+
+
 def load_labels(
     labels_dir: Path | None, stem: str, rgb_shape: tuple[int, ...]
 ) -> tuple[np.ndarray | None, list[dict] | None]:

@@ -22,13 +22,12 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import numpy as np
-
 from client_sim.sources.base import (
     Intrinsics,
     RecordedSource,
     SourceFrame,
     checked_pose,
+    pinhole_intrinsics,
     read_matrix_file,
     read_rgb,
     read_uint16_png,
@@ -128,8 +127,7 @@ def _find_intrinsics(frames_dir: Path) -> Intrinsics:
     for folder in (frames_dir, frames_dir.parent):
         path = folder / INTRINSICS_FILE
         if path.is_file():
-            k = read_matrix_file(path, (3, 3), "camera intrinsics")
-            if k[0, 0] <= 0 or k[1, 1] <= 0 or not np.allclose(k[2], [0.0, 0.0, 1.0]):
-                raise ValueError(f"{path}: not a pinhole intrinsics matrix: {k.tolist()}")
-            return (float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
+            return pinhole_intrinsics(
+                read_matrix_file(path, (3, 3), "camera intrinsics"), str(path)
+            )
     return SEVEN_SCENES_INTRINSICS

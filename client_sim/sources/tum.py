@@ -30,6 +30,7 @@ from client_sim.sources.base import (
     SourceFrame,
     checked_pose,
     parse_floats,
+    quaternion_to_matrix,
     read_rgb,
     read_uint16_png,
     require_file,
@@ -150,24 +151,6 @@ def nearest_within(times: np.ndarray, reference_times: np.ndarray, max_dt_s: flo
     nearest = np.where(take_left, left, right)
     too_far = np.abs(reference_times[nearest] - times) > max_dt_s
     return np.where(too_far, -1, nearest).astype(np.intp)
-
-
-def quaternion_to_matrix(qx: float, qy: float, qz: float, qw: float, where: str) -> np.ndarray:
-    """float64 [3, 3] rotation of a (near-)unit quaternion; ValueError naming `where` if not."""
-    q = np.array([qw, qx, qy, qz], np.float64)
-    norm = float(np.linalg.norm(q))
-    # The files print 4 decimals, so unit quaternions come out within ~1e-4 of norm 1;
-    # anything further off is a corrupt line, not rounding.
-    if abs(norm - 1.0) > 1e-2:
-        raise ValueError(f"{where}: quaternion norm is {norm:.4f}, expected 1")
-    w, x, y, z = q / norm
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def _data_lines(path: Path) -> list[tuple[int, str]]:
