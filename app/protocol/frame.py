@@ -38,6 +38,9 @@ class FrameInput:
     instances:    [{"id": int, "label": str, "score": float}] for the ids in instance_ids
     depth_patches: full-resolution depth of a few boxes of the RGB image (the depth
                   co-design for small things: `DepthPatch`), optional
+    pose_skew_s:  the RGB image's capture time minus the pose's (seconds), where the device
+                  paired an image with the nearest pose of another clock (a headset's camera
+                  read through getUserMedia); None where image and pose are one sample
     """
 
     seq: int
@@ -50,6 +53,11 @@ class FrameInput:
     instance_ids: np.ndarray | None = None
     instances: list[dict] = field(default_factory=list)
     depth_patches: list[DepthPatch] = field(default_factory=list)
+    pose_skew_s: float | None = None
+
+
+MAX_POSE_SKEW_S = 10.0
+"""Largest |pose_skew_s| a frame may declare: an image seconds away from its pose is a bug."""
 
 
 @dataclass(frozen=True)
@@ -271,6 +279,7 @@ def parse_frame(
     patches = _parse_depth_patches(
         message.get("depth_patches"), width, height, scale, budget, decode=mapped
     )
+    pose_skew_s = _parse_pose_skew(message.get("pose_skew_s"))
 
     return FrameInput(
         seq=seq,
@@ -283,7 +292,20 @@ def parse_frame(
         instance_ids=instance_ids,
         instances=instances,
         depth_patches=patches,
+        pose_skew_s=pose_skew_s,
     )
+
+
+def _parse_pose_skew(value: Any) -> float | None:
+    """The optional `pose_skew_s` (v1 extension): a finite number of seconds within
+    MAX_POSE_SKEW_S, or absent."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise InputError("pose_skew_s", f"must be a finite number of seconds, got {value!r}")
+    if abs(value) > MAX_POSE_SKEW_S:
+        raise InputError("pose_skew_s", f"must be within ±{MAX_POSE_SKEW_S:g} s, got {value!r}")
+    return float(value)
 
 
 # --- parts shared by the stream socket's messages (frame, and the sighting extension) ---------
