@@ -115,6 +115,13 @@ def test_detections_are_optional():
     assert frame.instance_ids is None and frame.instances == []
 
 
+def test_a_frame_says_how_far_its_image_was_from_its_pose_when_they_were_paired():
+    message = encoded()
+    assert parse_frame(message).pose_skew_s is None
+    message["pose_skew_s"] = -0.012
+    assert parse_frame(message).pose_skew_s == pytest.approx(-0.012)
+
+
 def _set(path: str, value):
     def mutate(msg):
         *parents, leaf = path.split(".")
@@ -153,6 +160,10 @@ CASES = [
     ("depth_patches.boxes[0]", _set("depth_patches.boxes", [[20, 10, 50.5, 30]])),
     ("depth_patches", GARBLED_PATCHES),
     ("depth_patches", _set("depth_patches.boxes", [[0, 0, W, H], [0, 0, W, H]])),
+    ("pose_skew_s", _set("pose_skew_s", "0.1")),
+    ("pose_skew_s", _set("pose_skew_s", float("nan"))),
+    ("pose_skew_s", _set("pose_skew_s", 11.0)),
+    ("pose_skew_s", _set("pose_skew_s", True)),
 ]
 
 
