@@ -16,6 +16,21 @@ import { MapFollower } from "./updates.mjs";
  * colour at most 640 px on its longer side. */
 export const STREAM_DEFAULTS = { fps: 5, jpegQuality: 50, depthScaleM: 0.01, maxSide: 640 };
 
+/** The stream settings, from the defaults and the page's query (?fps=&jpeg=&side=), which
+ * are checked: a bad value is said, and the default kept. */
+function streamSettings(query = new URLSearchParams(location.search)) {
+  const settings = { ...STREAM_DEFAULTS };
+  const bounds = { fps: ["fps", 0.2, 30], jpeg: ["jpegQuality", 1, 100], side: ["maxSide", 64, 4096] };
+  const problems = [];
+  for (const [param, [key, low, high]] of Object.entries(bounds)) {
+    if (!query.has(param)) continue;
+    const value = Number(query.get(param));
+    if (Number.isFinite(value) && value >= low && value <= high) settings[key] = value;
+    else problems.push(`?${param}= must be a number in ${low}..${high}; using ${settings[key]}`);
+  }
+  return { settings, problems };
+}
+
 const $ = (selector) => document.querySelector(selector);
 const UPSTREAM_WINDOW_MS = 5000;
 const COST_HISTORY = 600;
@@ -225,13 +240,13 @@ async function startAr() {
     capture,
     stream,
     worker,
-    sampler: new FrameSampler(STREAM_DEFAULTS.fps),
+    sampler: new FrameSampler(state.settings.fps),
     keyframeInterval: knobs.keyframe_interval || 5,
     options: {
       ratio: knobs.depth_downsampling_ratio || 5,
-      depthScaleM: STREAM_DEFAULTS.depthScaleM,
-      jpegQuality: STREAM_DEFAULTS.jpegQuality,
-      maxSide: STREAM_DEFAULTS.maxSide,
+      depthScaleM: state.settings.depthScaleM,
+      jpegQuality: state.settings.jpegQuality,
+      maxSide: state.settings.maxSide,
     },
     encoding: 0,
     nextSeq: 0,
@@ -406,6 +421,9 @@ function wire() {
 }
 
 async function start() {
+  const { settings, problems } = streamSettings();
+  state.settings = settings;
+  if (problems.length) showBanner(problems.join("; "));
   wire();
   const opened = sessionFromFragment();
   if (opened) {
