@@ -1,6 +1,7 @@
 """Frame sources of the device emulator: one interface (`FrameSource`), one module per source.
 
-Recorded datasets (`tum`, `7scenes`, `replica`) are built from a "kind:path" spec with
+Recorded datasets (`tum`, `7scenes`, `replica`) and iPhone/iPad captures (`record3d`: a
+Record3D .r3d file; `stray`: a Stray Scanner folder) are built from a "kind:path" spec with
 `make_source`; the synthetic world lives in `client_sim.sources.synthetic`, and its scripted
 second visit in `client_sim.sources.revisit`. All are imported lazily, so reading a dataset
 never loads the synthetic world (open3d scenes, renderer).
@@ -10,18 +11,30 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from client_sim.sources.base import FrameSource, SourceFrame
+from client_sim.sources.base import FrameSource, SourceError, SourceFrame
 
 if TYPE_CHECKING:
     from client_sim.sources.revisit import RevisitSource
     from client_sim.sources.synthetic import SyntheticFrame, SyntheticSource
 
-SOURCE_KINDS: tuple[str, ...] = ("synthetic", "revisit", "tum", "7scenes", "replica")
+SOURCE_KINDS: tuple[str, ...] = (
+    "synthetic",
+    "revisit",
+    "tum",
+    "7scenes",
+    "replica",
+    "record3d",
+    "stray",
+)
+PHONE_SOURCE_KINDS: tuple[str, ...] = ("record3d", "stray")
+"""The kinds that take `max_side_px` and `min_confidence` (client_sim.sources.phone)."""
 
 __all__ = [
+    "PHONE_SOURCE_KINDS",
     "SOURCE_KINDS",
     "FrameSource",
     "RevisitSource",
+    "SourceError",
     "SourceFrame",
     "SyntheticFrame",
     "SyntheticSource",
@@ -56,6 +69,14 @@ def make_source(spec: str, **kwargs: Any) -> FrameSource:
         from client_sim.sources.sevenscenes import SevenScenesSource
 
         return SevenScenesSource(path, **kwargs)
+    if kind == "record3d":
+        from client_sim.sources.record3d import Record3DSource
+
+        return Record3DSource(path, **kwargs)
+    if kind == "stray":
+        from client_sim.sources.stray import StraySource
+
+        return StraySource(path, **kwargs)
     from client_sim.sources.replica import ReplicaSource
 
     return ReplicaSource(path, **kwargs)

@@ -29,6 +29,12 @@ Intrinsics = tuple[float, float, float, float]
 """(fx, fy, cx, cy) in pixels, pixel centres at integer coordinates."""
 
 
+class SourceError(ValueError):
+    """A recording that cannot be read: a corrupt, truncated or inconsistent file. The message
+    names the file and what is wrong; `semanticxr device` prints it and stops (also when it
+    happens mid-stream, where a reader finds it)."""
+
+
 @dataclass
 class SourceFrame:
     """One RGB-D frame with its pose, as a device would capture it."""
