@@ -85,8 +85,16 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument(
         "--source",
         default="synthetic:apartment",
-        help="synthetic:<scene> | 7scenes:<dir> | replica:<dir> | tum:<dir> "
-        "(default synthetic:apartment)",
+        help="synthetic:<scene> | 7scenes:<dir> | replica:<dir> | tum:<dir> | "
+        "record3d:<file.r3d> | stray:<dir> (iPhone/iPad captures) (default synthetic:apartment)",
+    )
+    parser.add_argument(
+        "--source-max-side",
+        type=int,
+        metavar="PX",
+        help="record3d:/stray: captures: scale frames so their longer side is at most PX, "
+        "intrinsics with them (default 640, the emulated device's 640x480; 0 keeps the "
+        "capture's size, 1920x1440 on a LiDAR iPhone)",
     )
     parser.add_argument(
         "--frames",
@@ -198,6 +206,7 @@ def encoder_options_from_args(args: argparse.Namespace) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     """Run the device command; 0 on success, 1 when a query got no answer, 2 on a set-up
     error, 130 on Ctrl-C."""
+    from client_sim.sources import SourceError
     from client_sim.streaming import DeviceError
 
     knobs_from_args(args)  # validates the knob flags (KnobError names the bad one)
@@ -215,13 +224,13 @@ def run(args: argparse.Namespace) -> int:
         http_base_url(args.server)
         encoder_options_from_args(args)
         # The source first: a wrong path should not leave an empty session behind.
-        source = make_device_source(args.source, args.frames)
+        source = make_device_source(args.source, args.frames, args.source_max_side)
     except (ValueError, OSError) as exc:
         print(f"semanticxr device: {exc}", file=sys.stderr)
         return 2
     try:
         return asyncio.run(_run(args, source))
-    except (ApiError, DeviceError) as exc:
+    except (ApiError, DeviceError, SourceError) as exc:  # SourceError: a frame that cannot be read
         print(f"semanticxr device: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -229,16 +238,25 @@ def run(args: argparse.Namespace) -> int:
         return 130
 
 
-def make_device_source(spec: str, frames: int | None) -> FrameSource:
-    """synthetic:<scene> (a walk of `frames` frames) or a recorded dataset "kind:dir"."""
+def make_device_source(
+    spec: str, frames: int | None, max_side_px: int | None = None
+) -> FrameSource:
+    """synthetic:<scene> (a walk of `frames` frames) or a recorded dataset "kind:path";
+    `max_side_px` (None: the source's default, 0: full size) for iPhone/iPad captures only."""
+    from client_sim.sources import PHONE_SOURCE_KINDS, make_source
+
     kind, _, rest = spec.partition(":")
     if kind == "synthetic":
         from client_sim.sources.synthetic import SyntheticSource
 
         return SyntheticSource(rest or "apartment", n_frames=frames or SYNTHETIC_DEFAULT_FRAMES)
-    from client_sim.sources import make_source
-
-    return make_source(spec)
+    if max_side_px is None:
+        return make_source(spec)
+    if kind not in PHONE_SOURCE_KINDS:
+        raise ValueError(f"--source-max-side applies to {' and '.join(PHONE_SOURCE_KINDS)} sources")
+    if max_side_px < 0:
+        raise ValueError(f"--source-max-side must be >= 0 (0: full size), got {max_side_px}")
+    return make_source(spec, max_side_px=max_side_px or None)
 
 
 async def _join_session(

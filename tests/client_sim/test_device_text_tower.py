@@ -63,7 +63,9 @@ def run_device(server_url: str, tmp_path: Path, monkeypatch, *flags: str) -> tup
     from app.cli import device
 
     monkeypatch.setattr(
-        device, "make_device_source", lambda spec, frames: WithoutDetections(RectSource(SCENE, 6))
+        device,
+        "make_device_source",
+        lambda spec, frames, max_side_px=None: WithoutDetections(RectSource(SCENE, 6)),
     )
     parser = argparse.ArgumentParser()
     device.add_parser(parser.add_subparsers(dest="command"))

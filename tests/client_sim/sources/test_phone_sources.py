@@ -8,10 +8,12 @@ camera-to-world poses, and world points that land where the renderer put the sur
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 from pathlib import Path
 
+import httpx
 import lzfse
 import numpy as np
 import pytest
@@ -328,7 +330,7 @@ def test_stray_a_broken_depth_image_is_named_when_it_is_read(tmp_path, capture):
         source.frame(3)
 
 
-# --- the factory ---------------------------------------------------
+# --- the factory and the device command ---------------------------------------------------
 
 
 def test_make_source_for_a_phone_capture_does_not_import_the_synthetic_world(captures):
@@ -341,3 +343,60 @@ def test_make_source_for_a_phone_capture_does_not_import_the_synthetic_world(cap
         "assert 'open3d' not in sys.modules\n"
     )
     subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, check=True, timeout=60)
+
+
+def device_args(*argv: str) -> argparse.Namespace:
+    from app.cli.device import add_parser
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers(dest="command"))
+    return parser.parse_args(["device", *argv])
+
+
+@pytest.mark.slow
+def test_the_device_streams_a_stray_capture_to_a_real_server(live_server, captures, capsys):
+    server = live_server()
+    args = device_args(
+        "--server", server.url, "--create", "--source", f"stray:{captures['stray']}", "--fps", "0"
+    )
+    assert args.func(args) == 0
+    err = capsys.readouterr().err
+    sid = err.split("created session ")[1].split()[0]
+    stats = httpx.get(f"{server.url}/v1/sessions/{sid}").json()
+    assert stats["keyframes"] >= 1 and stats["frames"] >= 1
+    # a capture carries no detections: the server says how to map it, once
+    assert err.count("server warns: ") == 1 and "--perception models" in err
+
+
+def test_the_device_names_a_capture_it_cannot_use_and_exits_2(tmp_path, capsys):
+    missing = device_args("--server", "http://127.0.0.1:9", "--create")
+    missing.source = f"record3d:{tmp_path / 'no.r3d'}"
+    assert missing.func(missing) == 2
+    assert f"Record3D capture (.r3d) not found: {tmp_path / 'no.r3d'}" in capsys.readouterr().err
+    wrong_kind = device_args(
+        "--server",
+        "http://127.0.0.1:9",
+        "--create",
+        "--source",
+        "tum:/x",
+        "--source-max-side",
+        "320",
+    )
+    assert wrong_kind.func(wrong_kind) == 2
+    assert "--source-max-side applies to record3d and stray" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_frame_that_breaks_mid_stream_stops_the_device_naming_the_file(
+    tmp_path, capture, capsys, live_server
+):
+    path = write_r3d(tmp_path / "scan.r3d", capture)
+    rewrite_r3d_entry(path, "rgbd/2.depth", b"garbage")
+    server = live_server()
+    args = device_args(
+        "--server", server.url, "--create", "--source", f"record3d:{path}", "--fps", "0"
+    )
+    assert args.func(args) == 2
+    err = capsys.readouterr().err
+    assert f"semanticxr device: {path}:rgbd/2.depth: not LZFSE-compressed data" in err
+    assert "Traceback" not in err
