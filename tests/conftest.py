@@ -26,6 +26,7 @@ class LiveServer:
         self._thread = ServerThread(self.settings, encoder).start()
         self.app, self.server = self._thread.app, self._thread.server
         self.url, self.ws_url = self._thread.url, self._thread.ws_url
+        self.certificate = self._thread.certificate  # with https=True: what clients trust
 
     def stop(self):
         self._thread.stop()

@@ -45,6 +45,13 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    if settings.https:
+        print(
+            "semanticxr gateway: --https: a gateway serves plain HTTP; put a TLS proxy in "
+            "front of it",
+            file=sys.stderr,
+        )
+        return 2
     if not check_ports("gateway", (settings.host, settings.port, "--port")):
         return 2
     logging.basicConfig(

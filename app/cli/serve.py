@@ -6,10 +6,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from app.flags import add_dataclass_flags
 from app.server.settings import ServerSettings
+
+if TYPE_CHECKING:
+    from app.server.tls import Certificate
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -61,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     from app.cli.ports import check_ports
     from app.perception.models.weights import MissingModelsError
     from app.server.app import create_app
-    from app.server.runner import uvicorn_config
+    from app.server.runner import tls_ready, uvicorn_config
+    from app.server.tls import TlsError
 
     settings = settings_from_args(args)
     if not check_ports("serve", (settings.host, settings.port, "--port")):
@@ -73,12 +77,71 @@ def run(args: argparse.Namespace) -> int:
         return run_cluster(settings)
     try:
         load_backends(settings)
-    except MissingModelsError as exc:
+        settings, certificate = tls_ready(settings)
+    except (MissingModelsError, TlsError) as exc:
         print(f"semanticxr serve: {exc}", file=sys.stderr)
         return 2
-    print(f"SemanticXR on http://{settings.host}:{settings.port}  (data in {settings.data_dir})")
+    if certificate is None:
+        print(
+            f"SemanticXR on http://{settings.host}:{settings.port}  (data in {settings.data_dir})"
+        )
+    else:
+        print(https_banner(settings, certificate, color=sys.stdout.isatty()), flush=True)
     Server(uvicorn_config(create_app(settings), settings)).run()
     return 0
+
+
+def https_banner(settings: ServerSettings, certificate: Certificate, color: bool = False) -> str:
+    """What `serve --https` says at start: where it serves, the real-device page's URL
+    (`https://<LAN address>:<port>/xr`) and a QR code of it (nothing secret: no key, no
+    token), what a phone will say of a self-signed certificate, and the clients' --tls-ca.
+    color: draw the code in ANSI white on black (a terminal with a light theme)."""
+    from app.server.edges import WILDCARD_BINDS
+    from app.server.tls import LOOPBACK_NAMES, page_host, url_host
+
+    host = page_host(settings.host, certificate.names)
+    origin = f"https://{url_host(host)}:{settings.port}"
+    wildcard = settings.host in WILDCARD_BINDS
+    where = "every interface, IPv4 and IPv6" if settings.host == "" else settings.host
+    lines = [f"SemanticXR on {origin}  (listening on {where}; data in {settings.data_dir})"]
+    if settings.host in LOOPBACK_NAMES:
+        lines.append("  this machine only: leave out --host for a phone on the network to reach it")
+    lines += [
+        f"Open this on a phone on the same network: {origin}/xr",
+        qr_text(f"{origin}/xr", color),
+    ]
+    others = [
+        f"https://{url_host(name)}:{settings.port}/xr"
+        for name in certificate.names
+        if wildcard and name not in (host, *LOOPBACK_NAMES) and not name.startswith("*")
+    ]
+    if others:
+        lines.append(f"  also: {', '.join(others)}")
+    if certificate.self_signed:
+        state = "made now" if certificate.made else "reused"
+        lines.append(
+            "The phone will warn that the connection is not private (this server's own "
+            f"certificate, {state}): proceed once (Chrome: Advanced, Proceed; Safari: Show "
+            "Details, visit this website)."
+        )
+    lines.append(f"Python clients: --tls-ca {certificate.cert_path}")
+    return "\n".join(lines)
+
+
+def qr_text(text: str, color: bool = False) -> str:
+    """`text` as a QR code in half-block characters (two rows of modules a line, with its
+    quiet zone), the light modules drawn, as a dark terminal shows them; color: in ANSI
+    white on black, so that a light theme shows it the same."""
+    import io
+
+    import segno
+
+    out = io.StringIO()
+    segno.make(text, error="m", micro=False).terminal(out=out, compact=True)
+    lines = out.getvalue().splitlines()
+    if color:
+        lines = [f"\x1b[97;40m{line}\x1b[0m" for line in lines]
+    return "\n".join(lines)
 
 
 def run_cluster(settings: ServerSettings) -> int:

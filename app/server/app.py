@@ -46,7 +46,12 @@ def create_app(
         manager = SessionManager(settings, store, encoder or get_text_encoder(), make_metrics())
         restored = manager.restore()
         app.state.settings, app.state.manager = settings, manager
-        if settings.api_key is None:
+        if settings.api_key is None and settings.https:  # served to the LAN, as a rule
+            log.warning(
+                "no API key set: anyone on your network can create sessions and read their "
+                "maps; start the server with --api-key KEY to require one"
+            )
+        elif settings.api_key is None:
             log.warning(
                 "no API key set: the server runs OPEN (anyone can create and read sessions)"
             )

@@ -1,9 +1,11 @@
-"""Run the server: the one uvicorn configuration (`semanticxr serve`), uvicorn in a background
-thread of another program (`ServerThread`: the demo, scripts, tests), and `semanticxr serve`
-in a child process as an operator runs it (`ServerProcess`: benches, crash tests)."""
+"""Run the server: the one uvicorn configuration (`semanticxr serve`), its certificate with
+--https (`tls_ready`), uvicorn in a background thread of another program (`ServerThread`: the
+demo, scripts, tests), and `semanticxr serve` in a child process as an operator runs it
+(`ServerProcess`: benches, crash tests)."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import socket
@@ -21,8 +23,17 @@ import uvicorn
 
 from app.semantics import TextEncoder
 from app.server.app import create_app
-from app.server.edges import logging_config
+from app.server.edges import WILDCARD_BINDS, logging_config
 from app.server.settings import ServerSettings
+from app.server.tls import (
+    TLS_DIR,
+    Certificate,
+    TlsError,
+    given_certificate,
+    self_signed_certificate,
+    this_machine_names,
+    url_host,
+)
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -31,8 +42,40 @@ def free_port(host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
+def tls_ready(settings: ServerSettings) -> tuple[ServerSettings, Certificate | None]:
+    """The settings to serve with, and the certificate (None without --https).
+
+    With --https: tls_cert and tls_key name the certificate and key (--tls-cert/--tls-key,
+    checked; else this machine's self-signed one in DATA_DIR/tls, made or reused), and
+    allowed_hosts are the certificate's names unless --allowed-hosts is given. TlsError names
+    the flag whose file cannot serve. Call it before making the app (it reads the hosts)."""
+    if not settings.https:
+        return settings, None
+    if settings.tls_cert is not None and settings.tls_key is not None:
+        certificate = given_certificate(Path(settings.tls_cert), Path(settings.tls_key))
+    else:
+        directory = Path(settings.data_dir) / TLS_DIR
+        try:
+            certificate = self_signed_certificate(directory, this_machine_names())
+        except OSError as exc:
+            raise TlsError(
+                f"--data-dir: cannot keep the certificate in {directory}: {exc.strerror}"
+            ) from None
+    allowed = settings.allowed_hosts
+    served = dataclasses.replace(
+        settings,
+        tls_cert=str(certificate.cert_path),
+        tls_key=str(certificate.key_path),
+        allowed_hosts=",".join(certificate.names) if allowed is None else allowed,
+    )
+    return served, certificate
+
+
 def uvicorn_config(app, settings: ServerSettings, log_level: str | None = None) -> uvicorn.Config:
-    """The one uvicorn configuration of the service (`semanticxr serve` and in-process)."""
+    """The one uvicorn configuration of the service (`semanticxr serve` and in-process);
+    HTTPS when settings come from `tls_ready` with --https."""
+    if settings.https and settings.tls_cert is None:
+        raise ValueError("https settings without a certificate: pass them through tls_ready")
     return uvicorn.Config(
         app,
         host=settings.host,
@@ -42,13 +85,16 @@ def uvicorn_config(app, settings: ServerSettings, log_level: str | None = None) 
         ws_max_size=settings.max_message_bytes,
         ws_per_message_deflate=False,  # payloads are JPEG/zstd already
         limit_concurrency=settings.max_connections,  # beyond: 503 (HTTP) or refused (socket)
+        ssl_certfile=settings.tls_cert,
+        ssl_keyfile=settings.tls_key,
     )
 
 
 class ServerThread:
     """A real uvicorn serving the app in a daemon thread; `url` once `start()` returns.
 
-    Port 0 picks a free port. A stopped ServerThread does not start again: make a new one
+    Port 0 picks a free port. With --https settings it serves TLS (`certificate`: the one it
+    serves, for clients' CA). A stopped ServerThread does not start again: make a new one
     (on the same port and data dir to "restart" the server)."""
 
     def __init__(
@@ -61,14 +107,18 @@ class ServerThread:
         cluster's gateway) instead of the server."""
         if settings.port == 0:
             settings.port = free_port(settings.host)
+        settings, self.certificate = tls_ready(settings)
         self.settings = settings
         self.app = app_factory(settings) if app_factory else create_app(settings, encoder=encoder)
         self.server = uvicorn.Server(uvicorn_config(self.app, settings, log_level="warning"))
         self.thread = threading.Thread(
             target=self.server.run, name="semanticxr-server", daemon=True
         )
-        self.url = f"http://{settings.host}:{settings.port}"
-        self.ws_url = f"ws://{settings.host}:{settings.port}"
+        # a wildcard bind is reached on loopback from this machine
+        host = url_host("127.0.0.1" if settings.host in WILDCARD_BINDS else settings.host)
+        secure = "s" if settings.https else ""
+        self.url = f"http{secure}://{host}:{settings.port}"
+        self.ws_url = f"ws{secure}://{host}:{settings.port}"
 
     def start(self, timeout_s: float = 60.0) -> ServerThread:
         self.thread.start()

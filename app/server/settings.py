@@ -19,8 +19,9 @@ STORE_FILE = "semanticxr.sqlite3"
 
 @dataclass
 class ServerSettings:
-    host: str = "127.0.0.1"
-    """Interface to listen on."""
+    host: str | None = None
+    """Interface to listen on; default 127.0.0.1 (this machine only), with --https every
+    interface, IPv4 and IPv6 ('', which binds both; 0.0.0.0 is IPv4 only, :: IPv6 only)."""
     port: int = 8000
     """TCP port."""
     data_dir: str = "data"
@@ -69,7 +70,19 @@ class ServerSettings:
     """uvicorn log level."""
     allowed_hosts: str | None = None
     """Comma-separated Host names the server answers to ('*' any, '*.example.com' subdomains);
-    default: the loopback names for a loopback bind, any Host for a wildcard bind (0.0.0.0, ::)."""
+    default: the loopback names for a loopback bind, any Host for a wildcard bind (0.0.0.0, ::),
+    the certificate's names with --https."""
+    https: bool = False
+    """Serve HTTPS and wss:// (a phone's WebXR page needs a secure context) with a
+    self-signed certificate for this machine's names (localhost, its hostname, the addresses
+    of its interfaces), made once in DATA_DIR/tls (owner-only) and made anew when they
+    change; answer to those names unless --allowed-hosts says otherwise. Without --host,
+    listen on every interface. Clients trust it with --tls-ca DATA_DIR/tls/cert.pem."""
+    tls_cert: str | None = None
+    """A PEM certificate (chain) to serve HTTPS with instead of the self-signed one (with
+    --tls-key; implies --https): the server answers to the names it holds."""
+    tls_key: str | None = None
+    """The PEM private key of --tls-cert."""
     allow_origin: str = ""
     """Comma-separated browser origins (scheme://host:port) besides the server's own that may
     open its WebSockets."""
@@ -103,7 +116,21 @@ class ServerSettings:
         return [o.strip() for o in self.allow_origin.split(",") if o.strip()]
 
     def __post_init__(self) -> None:
-        """Raise SettingsError naming the setting whose value cannot work."""
+        """Resolve the default bind; raise SettingsError naming the setting whose value
+        cannot work."""
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise SettingsError(
+                "tls_cert and tls_key go together: give both (--tls-cert CERT.pem "
+                "--tls-key KEY.pem), or neither for --https's self-signed certificate"
+            )
+        self.https = self.https or self.tls_cert is not None
+        if self.host is None:
+            self.host = "" if self.https else "127.0.0.1"
+        if self.https and self.cluster is not None:
+            raise SettingsError(
+                "https: a cluster's gateways serve plain HTTP; put a TLS proxy in front of "
+                "them, or run one server with --https"
+            )
         if not 0 <= self.port <= 65535:
             raise SettingsError(f"port must be within [0, 65535], got {self.port}")
         for name in _POSITIVE:
@@ -181,6 +208,10 @@ class ServerSettings:
                 continue
             if f.type in ("str", "str | None"):
                 values[f.name] = env
+            elif f.type == "bool":
+                if env.strip().lower() not in _BOOLEANS:
+                    raise SettingsError(f"{variable} must be true or false, got {env!r}")
+                values[f.name] = _BOOLEANS[env.strip().lower()]
             elif f.type in ("float", "float | None"):
                 try:
                     values[f.name] = float(env)
@@ -198,6 +229,9 @@ class ServerSettings:
 class SettingsError(ValueError):
     """A server setting (flag or environment variable) with a value that cannot work."""
 
+
+_BOOLEANS = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}
+"""How a SEMANTICXR_* variable says a boolean setting."""
 
 _POSITIVE = (
     "max_message_bytes",

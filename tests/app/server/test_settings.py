@@ -47,6 +47,9 @@ def test_the_store_defaults_to_the_sqlite_file_in_the_data_dir(monkeypatch, tmp_
         ({}, ["--idle-unload-s", "0"], "idle_unload_s must be over 0 seconds, got 0.0"),
         ({"SEMANTICXR_IDLE_UNLOAD_S": "soon"}, [], "SEMANTICXR_IDLE_UNLOAD_S must be a number"),
         ({}, ["--session-retention-days", "-1"], "session_retention_days must be over 0 days"),
+        ({}, ["--tls-cert", "cert.pem"], "tls_cert and tls_key go together"),
+        ({"SEMANTICXR_HTTPS": "maybe"}, [], "SEMANTICXR_HTTPS must be true or false, got 'maybe'"),
+        ({}, ["--https", "--cluster", "auto", "--store", "postgresql://db/x"], "https: a cluster"),
     ],
 )
 def test_serve_refuses_settings_that_cannot_work_and_names_them(
@@ -109,3 +112,22 @@ def test_fractional_settings_come_from_flags_and_the_environment(monkeypatch):
     assert (settings.idle_unload_s, settings.session_retention_days) == (2.5, 0.5)
     assert ServerSettings().session_retention_days is None  # retention is off by default
     assert (ServerSettings().max_sessions, ServerSettings().max_resident_sessions) == (10_000, 64)
+
+
+def test_https_listens_on_every_interface_unless_a_host_is_given(monkeypatch):
+    assert ServerSettings().host == "127.0.0.1"  # plain serve: this machine only, as before
+    assert ServerSettings(https=True).host == ""  # '' binds IPv4 and IPv6 (0.0.0.0 only v4)
+    assert ServerSettings(https=True, host="127.0.0.1").host == "127.0.0.1"
+    given = ServerSettings(tls_cert="cert.pem", tls_key="key.pem")
+    assert given.https and given.host == ""  # a certificate given means HTTPS
+    monkeypatch.setenv("SEMANTICXR_HTTPS", "true")
+    assert ServerSettings.from_env().https
+    monkeypatch.setenv("SEMANTICXR_HTTPS", "0")
+    assert not ServerSettings.from_env().https
+
+
+def test_serve_with_a_certificate_it_cannot_read_exits_2_naming_the_flag(capsys, tmp_path):
+    missing = str(tmp_path / "nope.pem")
+    code = main(["serve", "--data-dir", str(tmp_path), "--tls-cert", missing, "--tls-key", missing])
+    assert code == 2  # before any port is bound
+    assert f"semanticxr serve: --tls-cert: cannot read {missing}" in capsys.readouterr().err
