@@ -10,9 +10,10 @@ import argparse
 import ast
 import dataclasses
 import inspect
+import ssl
 from typing import Any
 
-from app.client import http_base_url
+from app.client import http_base_url, trusting
 from app.config import Knobs, knob_docs, updated_knobs
 
 
@@ -34,6 +35,27 @@ def server_url(text: str) -> str:
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def tls_ca(text: str) -> ssl.SSLContext:
+    """argparse type: a PEM file of certificates to trust -> the SSL context built from it
+    (once, for every client of the command); a missing or unreadable file exits 2 naming
+    --tls-ca."""
+    try:
+        return trusting(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_tls_ca_flag(parser: argparse.ArgumentParser) -> None:
+    """--tls-ca PATH (dest tls_ca: an ssl.SSLContext, or None for the system's CAs)."""
+    parser.add_argument(
+        "--tls-ca",
+        type=tls_ca,
+        metavar="PATH",
+        help="trust the server's certificate in this PEM file (a `serve --https` server's "
+        "DATA_DIR/tls/cert.pem, or the CA of its --tls-cert); default: the system's CAs",
+    )
 
 
 def add_knob_flags(parser: argparse.ArgumentParser) -> None:

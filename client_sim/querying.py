@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import ssl
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -191,7 +192,8 @@ class QueryRouter:
     client's smoothed RTT in ms (None unknown, inf down). server_timeout_s: longest wait for
     the server (probe or SQ) before LQ. up: the session's up axis ("+z", "+y", ...) if the
     caller knows it (the session record's `up`); otherwise it is read from the record after
-    an SQ, and Z until then.
+    an SQ, and Z until then. ssl_context: whom an https:// server must prove to be (default:
+    the system's CAs).
     """
 
     def __init__(
@@ -207,10 +209,13 @@ class QueryRouter:
         embedding: dict | None = None,
         local_off_reason: str = "no text encoder on this device",
         up: str | None = None,
+        ssl_context: ssl.SSLContext | None = None,
     ):
         if encoder is not None and embedding is not None:
             check_encoder(encoder, embedding)
-        self.api = SessionApi(server_url, session_id, token, timeout_s=server_timeout_s)
+        self.api = SessionApi(
+            server_url, session_id, token, timeout_s=server_timeout_s, ssl_context=ssl_context
+        )
         self.local_map = local_map
         self.encoder = encoder
         self.local_off_reason = local_off_reason

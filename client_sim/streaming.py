@@ -32,6 +32,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import ssl
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
@@ -163,6 +164,8 @@ class DeviceClient:
     server selects it); False: every frame whole. local_map: where deltas go (default:
     `make_local_map(knobs, embedding_dim)`). on_log: receives one human-readable line per
     event worth telling (reconnects, server errors, resyncs); default: this module's logger.
+    ssl_context: whom a wss:// server must prove to be (`app.client.trusting`; default: the
+    system's CAs), for both sockets.
     """
 
     def __init__(
@@ -178,6 +181,7 @@ class DeviceClient:
         local_map: LocalMap | None = None,
         on_log: Callable[[str], None] | None = None,
         embedding_dim: int = DEFAULT_EMBEDDING_DIM,
+        ssl_context: ssl.SSLContext | None = None,
     ):
         if isinstance(send_every, bool) or not isinstance(send_every, int) or send_every < 1:
             raise ValueError(f"send_every must be a positive integer, got {send_every!r}")
@@ -185,6 +189,7 @@ class DeviceClient:
         self.ws_url = websocket_base_url(server_url)
         self.session_id = session_id
         self.token = token
+        self.ssl_context = ssl_context
         self.knobs = knobs or Knobs()
         self.encoder_options = dict(encoder_options or {})
         FrameEncoder(
@@ -220,22 +225,36 @@ class DeviceClient:
         mode: str = "semanticxr",
         knobs: dict | None = None,
         api_key: str | None = None,
+        ssl_context: ssl.SSLContext | None = None,
     ) -> tuple[str, str, dict]:
         """POST /v1/sessions -> (session_id, token, the whole answer incl. embedding, knobs)."""
-        return await create_session(server_url, name=name, mode=mode, knobs=knobs, api_key=api_key)
+        return await create_session(
+            server_url, name=name, mode=mode, knobs=knobs, api_key=api_key, ssl_context=ssl_context
+        )
 
     @staticmethod
-    async def fetch_session(server_url: str, session_id: str, token: str | None) -> SessionStats:
+    async def fetch_session(
+        server_url: str,
+        session_id: str,
+        token: str | None,
+        *,
+        ssl_context: ssl.SSLContext | None = None,
+    ) -> SessionStats:
         """GET /v1/sessions/{sid}: stats, knobs in force, embedding model and dimension."""
-        async with SessionApi(server_url, session_id, token) as api:
+        async with SessionApi(server_url, session_id, token, ssl_context=ssl_context) as api:
             return await api.fetch()
 
     @staticmethod
     async def patch_knobs(
-        server_url: str, session_id: str, token: str | None, changes: dict
+        server_url: str,
+        session_id: str,
+        token: str | None,
+        changes: dict,
+        *,
+        ssl_context: ssl.SSLContext | None = None,
     ) -> dict:
         """PATCH /v1/sessions/{sid}/knobs -> the knobs now in force."""
-        async with SessionApi(server_url, session_id, token) as api:
+        async with SessionApi(server_url, session_id, token, ssl_context=ssl_context) as api:
             return await api.patch_knobs(changes)
 
     # --- state ----------------------------------------------------------------------------
@@ -330,7 +349,9 @@ class DeviceClient:
     async def _open(self, path: str, **kwargs: Any) -> ClientConnection | None:
         """Open a WebSocket to `path` (None if stopped first); raises the connection errors."""
         return await self._until_stopped(
-            open_websocket(f"{self.ws_url}{path}", self.token, **kwargs)
+            open_websocket(
+                f"{self.ws_url}{path}", self.token, ssl_context=self.ssl_context, **kwargs
+            )
         )
 
     # --- frames up ------------------------------------------------------------------------
@@ -448,6 +469,7 @@ class DeviceClient:
             on_connected=self._updates_connected,
             on_disconnected=self._updates_disconnected,
             on_rtt_ms=self._observe_rtt,
+            ssl_context=self.ssl_context,
         )
         await self._updates.run()
 

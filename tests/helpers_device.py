@@ -5,6 +5,7 @@ analytic test world (tests/analytic_world.py)."""
 from __future__ import annotations
 
 import asyncio
+import ssl
 import time
 from collections.abc import Callable
 
@@ -34,10 +35,15 @@ async def wait_until(
         await asyncio.sleep(0.02)  # a polling period, not synchronisation
 
 
-async def server_state(server_url: str, sid: str, token: str) -> tuple[int, list[dict]]:
-    """(update_seq, confirmed objects with points) straight from the server (no proxy)."""
+async def server_state(
+    server_url: str, sid: str, token: str, verify: ssl.SSLContext | bool = True
+) -> tuple[int, list[dict]]:
+    """(update_seq, confirmed objects with points) straight from the server (no proxy);
+    verify: what an https:// server's certificate is checked against."""
     headers = {"Authorization": f"Bearer {token}"}
-    async with httpx.AsyncClient(base_url=server_url, headers=headers, timeout=10) as http:
+    async with httpx.AsyncClient(
+        base_url=server_url, headers=headers, timeout=10, verify=verify
+    ) as http:
         stats = (await http.get(f"/v1/sessions/{sid}")).json()
         objects = (await http.get(f"/v1/sessions/{sid}/objects", params={"points": True})).json()
     return stats["update_seq"], objects

@@ -21,6 +21,7 @@ import asyncio
 import contextlib
 import html
 import logging
+import ssl
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -241,7 +242,8 @@ class ViewerApp:
     server_url: http(s)://host:port of the SemanticXR server. token: the session token (or
     the API key), sent as `Authorization: Bearer`. port / host: where the viewer listens
     (port 0: any free port; see `port` after construction). up_direction: the up axis of the
-    device's world frame (the synthetic world is +z up).
+    device's world frame (the synthetic world is +z up). ssl_context: whom an https://
+    server must prove to be (`app.client.trusting`; default: the system's CAs).
 
     `start()` begins following updates; `stop()` ends everything. Usable as a context manager.
     """
@@ -257,11 +259,15 @@ class ViewerApp:
         up_direction: UpDirection = "+z",
         stats_period_s: float = STATS_PERIOD_S,
         verbose: bool = False,
+        ssl_context: ssl.SSLContext | None = None,
     ):
-        self.api = SessionApi(server_url, session_id, token, timeout_s=REST_TIMEOUT_S)
+        self.api = SessionApi(
+            server_url, session_id, token, timeout_s=REST_TIMEOUT_S, ssl_context=ssl_context
+        )
         self.server_url = server_url
         self.session_id = session_id
         self.token = token
+        self.ssl_context = ssl_context
         self.host = host
         self.stats_period_s = stats_period_s
         self.status = ViewerStatus()
@@ -358,6 +364,7 @@ class ViewerApp:
             apply_in_thread=True,
             on_connected=self._updates_connected,
             on_disconnected=self._updates_disconnected,
+            ssl_context=self.ssl_context,
         )
         await subscriber.run()
 

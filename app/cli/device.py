@@ -36,7 +36,13 @@ from app.cli.common import frames_words, write_json
 from app.client import ApiError, http_base_url
 from app.client.rest import parsed_answer
 from app.config import Knobs, updated_knobs
-from app.flags import add_knob_flags, explicit_knobs, knobs_from_args, server_url
+from app.flags import (
+    add_knob_flags,
+    add_tls_ca_flag,
+    explicit_knobs,
+    knobs_from_args,
+    server_url,
+)
 from app.protocol import SessionCreated, SessionStats
 
 if TYPE_CHECKING:  # the real imports are in the functions: torch loads in ~1.5 s, and
@@ -69,6 +75,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument(
         "--server", required=True, type=server_url, metavar="URL", help="e.g. http://host:8000"
     )
+    add_tls_ca_flag(parser)
     session = parser.add_argument_group("session (join one, or --create one)")
     session.add_argument("--session", metavar="SID", help="session id to join")
     session.add_argument("--token", help="the session's token (default: the API key)")
@@ -269,14 +276,21 @@ async def _join_session(
     changes = explicit_knobs(args)
     if args.create:
         sid, token, answer = await DeviceClient.create_session(
-            args.server, name=args.name, mode=args.mode, knobs=changes, api_key=args.api_key
+            args.server,
+            name=args.name,
+            mode=args.mode,
+            knobs=changes,
+            api_key=args.api_key,
+            ssl_context=args.tls_ca,
         )
         print(f"[device] created session {sid} (token {token})", file=sys.stderr)
         return sid, token, parsed_answer(SessionCreated, answer, "POST /v1/sessions")
     token = args.token or args.api_key
+    trust = args.tls_ca
     if changes:  # knobs are settable at run time: the flags apply to the joined session
-        await DeviceClient.patch_knobs(args.server, args.session, token, changes)
-    return args.session, token, await DeviceClient.fetch_session(args.server, args.session, token)
+        await DeviceClient.patch_knobs(args.server, args.session, token, changes, ssl_context=trust)
+    stats = await DeviceClient.fetch_session(args.server, args.session, token, ssl_context=trust)
+    return args.session, token, stats
 
 
 class _Progress:
@@ -369,6 +383,7 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
         sightings=args.sightings,
         local_map=make_local_map(knobs, embedding["dim"]),
         on_log=lambda message: print(f"[device] {message}", file=sys.stderr, flush=True),
+        ssl_context=args.tls_ca,
     )
     loader, local_off = _local_queries(args, embedding)
     # The text encoder takes seconds to load: in parallel with streaming, and only if needed.
@@ -395,7 +410,7 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
             )
         print(progress.line(), file=sys.stderr, flush=True)
         with contextlib.suppress(ApiError):  # what the server counted and warned of, if reachable
-            session = await client.fetch_session(args.server, sid, token)
+            session = await client.fetch_session(args.server, sid, token, ssl_context=args.tls_ca)
             print(
                 f"[device] the server counted {frames_words(session)}", file=sys.stderr, flush=True
             )
@@ -419,6 +434,7 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
                 rtt_ms=lambda: client.rtt_ms,
                 embedding=embedding,
                 local_off_reason=local_off or "",
+                ssl_context=args.tls_ca,
             ) as router:
                 for text in args.query:
                     answers.append(await router.query(text, args.k))

@@ -4,8 +4,9 @@
     semanticxr sessions show SID --server URL    # statistics and the recent changes
     semanticxr sessions export SID --out kitchen.ply --format ply --server URL
 
-Every action takes `--server URL` and `--api-key` (default: env SEMANTICXR_API_KEY, as the
-device does); the key also serves as any session's token. `--json` prints the server's
+Every action takes `--server URL`, `--api-key` (default: env SEMANTICXR_API_KEY, as the
+device does; the key also serves as any session's token) and `--tls-ca PATH` (the
+certificate of a `serve --https` server). `--json` prints the server's
 answer as JSON instead of a table.
 """
 
@@ -20,20 +21,18 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import httpx
-
-from app.client.connection import auth_headers, http_base_url
+from app.client.connection import http_base_url
 from app.client.rest import (
-    REST_TIMEOUT_S,
     ApiError,
     SessionApi,
     delete_session,
     export_map,
+    http_client,
     import_map,
     list_sessions,
     request,
 )
-from app.flags import server_url
+from app.flags import add_tls_ca_flag, server_url
 from app.protocol import SessionStats, SessionSummary
 
 COLUMNS = (
@@ -68,6 +67,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
             default=os.environ.get("SEMANTICXR_API_KEY"),
             help="server API key (default: env SEMANTICXR_API_KEY)",
         )
+        add_tls_ca_flag(p)
         return p
 
     listing = action("list", "every session of the server, as a table")
@@ -123,7 +123,7 @@ def table(rows: list[SessionSummary], width: int) -> str:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    rows = _call(list_sessions(args.server, api_key=args.api_key))
+    rows = _call(list_sessions(args.server, api_key=args.api_key, ssl_context=args.tls_ca))
     if args.json:
         print(json.dumps([row.to_json() for row in rows], indent=2))
     elif not rows:
@@ -175,9 +175,7 @@ async def recent_changes(args: argparse.Namespace) -> dict | None:
     """`GET .../changes` for the newest RECENT_CHANGES; None from a server without the
     living map (404 for the call, the session itself having answered)."""
     url = f"{http_base_url(args.server)}/v1/sessions/{args.sid}/changes"
-    async with httpx.AsyncClient(
-        timeout=REST_TIMEOUT_S, headers=auth_headers(args.api_key)
-    ) as http:
+    async with http_client(args.api_key, ssl_context=args.tls_ca) as http:
         try:
             return await request(http, "GET", url, params={"limit": RECENT_CHANGES})
         except ApiError as exc:
@@ -188,7 +186,7 @@ async def recent_changes(args: argparse.Namespace) -> dict | None:
 
 def run_show(args: argparse.Namespace) -> int:
     async def fetch() -> tuple[SessionStats, dict | None]:
-        async with SessionApi(args.server, args.sid, args.api_key) as api:
+        async with SessionApi(args.server, args.sid, args.api_key, ssl_context=args.tls_ca) as api:
             stats = await api.fetch()
         return stats, await recent_changes(args)
 
@@ -212,7 +210,7 @@ def run_show(args: argparse.Namespace) -> int:
 
 
 def run_delete(args: argparse.Namespace) -> int:
-    _call(delete_session(args.server, args.sid, token=args.api_key))
+    _call(delete_session(args.server, args.sid, token=args.api_key, ssl_context=args.tls_ca))
     print(f"deleted session {args.sid}")
     return 0
 
@@ -227,6 +225,7 @@ def run_export(args: argparse.Namespace) -> int:
             format=args.format,
             embeddings=args.embeddings,
             token=args.api_key,
+            ssl_context=args.tls_ca,
         )
     )
     print(f"wrote {out} ({written} bytes, {args.format})")
@@ -234,7 +233,8 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_import(args: argparse.Namespace) -> int:
-    answer = _call(import_map(args.server, Path(args.file).read_bytes(), api_key=args.api_key))
+    export = Path(args.file).read_bytes()
+    answer = _call(import_map(args.server, export, api_key=args.api_key, ssl_context=args.tls_ca))
     if args.json:
         print(json.dumps(answer, indent=2))
     else:

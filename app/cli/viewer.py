@@ -7,7 +7,7 @@ import os
 import time
 from typing import Any
 
-from app.flags import server_url
+from app.flags import add_tls_ca_flag, server_url
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -21,6 +21,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument(
         "--server", required=True, type=server_url, metavar="URL", help="e.g. http://host:8000"
     )
+    add_tls_ca_flag(parser)
     parser.add_argument("--session", required=True, metavar="SID", help="session id to show")
     parser.add_argument(
         "--token",
@@ -56,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
         port=args.port,
         host=args.host,
         up_direction=args.up,
+        ssl_context=args.tls_ca,
     )
     app.start()
     print(f"SemanticXR viewer of session {args.session} on {app.url}  (Ctrl-C to stop)")

@@ -10,6 +10,7 @@ from app.client.connection import (
     auth_headers,
     http_base_url,
     open_websocket,
+    trusting,
     websocket_base_url,
 )
 from app.client.rest import ApiError, SessionApi, create_session
@@ -26,5 +27,6 @@ __all__ = [
     "create_session",
     "http_base_url",
     "open_websocket",
+    "trusting",
     "websocket_base_url",
 ]

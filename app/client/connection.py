@@ -1,9 +1,12 @@
-"""Where the server is and how to reach it: URLs, auth, WebSockets, reconnect back-off."""
+"""Where the server is and how to reach it: URLs, auth, TLS trust, WebSockets, reconnect
+back-off."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
+import ssl
 from collections.abc import Awaitable
 from typing import TypeVar
 from urllib.parse import urlsplit
@@ -46,6 +49,19 @@ def auth_headers(token: str | None) -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"} if token else {}
 
 
+def trusting(ca_file: str | os.PathLike[str]) -> ssl.SSLContext:
+    """An SSL context that verifies servers against the PEM certificates in `ca_file` (a
+    `serve --https` server's DATA_DIR/tls/cert.pem, or a CA), built once and handed to every
+    HTTP client and socket of a command. ValueError saying why the file cannot serve."""
+    try:
+        return ssl.create_default_context(cafile=os.fspath(ca_file))
+    except FileNotFoundError:
+        raise ValueError(f"no such file: {os.fspath(ca_file)}") from None
+    except OSError as exc:  # unreadable, or not PEM (ssl.SSLError is an OSError)
+        reason = getattr(exc, "reason", None) or exc.strerror or exc
+        raise ValueError(f"cannot read certificates from {os.fspath(ca_file)}: {reason}") from None
+
+
 def describe(exc: BaseException) -> str:
     """One line naming a connection error, for logs and status panels."""
     return f"{type(exc).__name__}: {exc}"
@@ -66,8 +82,14 @@ class Backoff:
         self._next_s = self.first_s
 
 
-async def open_websocket(url: str, token: str | None, **kwargs) -> ClientConnection:
-    """Open a WebSocket of the API; raises one of CONNECTION_ERRORS when it cannot."""
+async def open_websocket(
+    url: str, token: str | None, *, ssl_context: ssl.SSLContext | None = None, **kwargs
+) -> ClientConnection:
+    """Open a WebSocket of the API; raises one of CONNECTION_ERRORS when it cannot.
+    ssl_context: whom a wss:// server must prove to be (`trusting`); default: the system's
+    CAs. A ws:// URL ignores it."""
+    if ssl_context is not None and url.startswith("wss:"):
+        kwargs["ssl"] = ssl_context
     return await websockets.connect(
         url,
         additional_headers=auth_headers(token),

@@ -4,6 +4,7 @@ change their knobs, query them."""
 from __future__ import annotations
 
 import asyncio
+import ssl
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,23 @@ class ApiError(RuntimeError):
         super().__init__(message)
         self.status = status
         """The HTTP status, when the server answered."""
+
+
+def http_client(
+    token: str | None,
+    *,
+    timeout_s: float = REST_TIMEOUT_S,
+    ssl_context: ssl.SSLContext | None = None,
+    headers: dict[str, str] | None = None,
+) -> httpx.AsyncClient:
+    """An HTTP client of the API: `Authorization` for `token` (a session's token or the API
+    key), `headers` besides; ssl_context: whom an https:// server must prove to be
+    (`app.client.connection.trusting`), default the system's CAs."""
+    return httpx.AsyncClient(
+        timeout=timeout_s,
+        headers={**auth_headers(token), **(headers or {})},
+        verify=ssl_context if ssl_context is not None else True,
+    )
 
 
 def _answer(method: str, url: str, response: httpx.Response, expect: int) -> Any:
@@ -71,13 +89,14 @@ async def create_session(
     mode: str = "semanticxr",
     knobs: dict | None = None,
     api_key: str | None = None,
+    ssl_context: ssl.SSLContext | None = None,
 ) -> tuple[str, str, dict]:
     """POST /v1/sessions -> (session_id, token, the whole answer incl. embedding, knobs)."""
     body: dict[str, Any] = {"mode": mode, "knobs": knobs or {}}
     if name is not None:
         body["name"] = name
     url = f"{http_base_url(server_url)}/v1/sessions"
-    async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(api_key)) as http:
+    async with http_client(api_key, ssl_context=ssl_context) as http:
         answer = await request(http, "POST", url, expect=201, json=body)
     return answer["session_id"], answer["token"], answer
 
@@ -86,20 +105,28 @@ EXPORT_TIMEOUT_S = 300.0
 """Longest wait for an export or import, whole (a map may be tens of megabytes)."""
 
 
-async def list_sessions(server_url: str, *, api_key: str | None = None) -> list[SessionSummary]:
+async def list_sessions(
+    server_url: str, *, api_key: str | None = None, ssl_context: ssl.SSLContext | None = None
+) -> list[SessionSummary]:
     """GET /v1/sessions: every session's summary, parsed by the protocol."""
     url = f"{http_base_url(server_url)}/v1/sessions"
-    async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(api_key)) as http:
+    async with http_client(api_key, ssl_context=ssl_context) as http:
         answer = await request(http, "GET", url)
     if not isinstance(answer, list):
         raise ApiError(f"GET {url}: a malformed answer: expected a list of sessions")
     return [parsed_answer(SessionSummary, entry, f"GET {url}") for entry in answer]
 
 
-async def delete_session(server_url: str, session_id: str, *, token: str | None = None) -> None:
+async def delete_session(
+    server_url: str,
+    session_id: str,
+    *,
+    token: str | None = None,
+    ssl_context: ssl.SSLContext | None = None,
+) -> None:
     """DELETE /v1/sessions/{sid} (token: the session's, or the API key)."""
     url = f"{http_base_url(server_url)}/v1/sessions/{session_id}"
-    async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(token)) as http:
+    async with http_client(token, ssl_context=ssl_context) as http:
         try:
             response = await asyncio.wait_for(http.delete(url), REST_TIMEOUT_S)
         except (httpx.HTTPError, TimeoutError) as exc:
@@ -116,6 +143,7 @@ async def export_map(
     format: str = "json",
     embeddings: bool = False,
     token: str | None = None,
+    ssl_context: ssl.SSLContext | None = None,
 ) -> int:
     """GET /v1/sessions/{sid}/export, streamed to `out` (written only when the answer is
     200); returns the bytes written."""
@@ -125,7 +153,7 @@ async def export_map(
 
     async def fetch() -> int:
         async with (
-            httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=auth_headers(token)) as http,
+            http_client(token, ssl_context=ssl_context) as http,
             http.stream("GET", url, params=params) as response,
         ):
             if response.status_code != 200:
@@ -146,12 +174,18 @@ async def export_map(
         partial.unlink(missing_ok=True)
 
 
-async def import_map(server_url: str, export: bytes, *, api_key: str | None = None) -> dict:
+async def import_map(
+    server_url: str,
+    export: bytes,
+    *,
+    api_key: str | None = None,
+    ssl_context: ssl.SSLContext | None = None,
+) -> dict:
     """POST /v1/sessions/import with a JSON export (its bytes) -> the SessionCreated answer.
     A map bigger than the server's body limit is refused (413): the error says so."""
     url = f"{http_base_url(server_url)}/v1/sessions/import"
-    headers = {**auth_headers(api_key), "Content-Type": "application/json"}
-    async with httpx.AsyncClient(timeout=REST_TIMEOUT_S, headers=headers) as http:
+    headers = {"Content-Type": "application/json"}
+    async with http_client(api_key, ssl_context=ssl_context, headers=headers) as http:
         try:
             return await request(
                 http, "POST", url, expect=201, timeout_s=EXPORT_TIMEOUT_S, content=export
@@ -171,6 +205,7 @@ class SessionApi:
 
     server_url: http(s)://host:port (ws(s):// is mapped back). token: the session's token or
     the API key (None for an open server). timeout_s: longest wait for each call, whole.
+    ssl_context: whom an https:// server must prove to be (default: the system's CAs).
     Use `async with`, or `aclose()` when done; the connection opens at the first call (on
     the loop of that call).
     """
@@ -182,17 +217,21 @@ class SessionApi:
         token: str | None = None,
         *,
         timeout_s: float = REST_TIMEOUT_S,
+        ssl_context: ssl.SSLContext | None = None,
     ):
         self.http_url = http_base_url(server_url)
         self.session_id = session_id
         self.token = token
         self.timeout_s = float(timeout_s)
+        self.ssl_context = ssl_context
         self.session_url = f"{self.http_url}/v1/sessions/{session_id}"
         self._http: httpx.AsyncClient | None = None
 
     def _client(self) -> httpx.AsyncClient:
         if self._http is None:
-            self._http = httpx.AsyncClient(timeout=self.timeout_s, headers=auth_headers(self.token))
+            self._http = http_client(
+                self.token, timeout_s=self.timeout_s, ssl_context=self.ssl_context
+            )
         return self._http
 
     async def _call(self, method: str, url: str, expect: int = 200, **kwargs: Any) -> Any:
@@ -281,6 +320,7 @@ class SessionApi:
                 params=_query_params(text, k),
                 headers=auth_headers(self.token),
                 timeout=self.timeout_s,
+                verify=self.ssl_context if self.ssl_context is not None else True,
             )
         except httpx.HTTPError as exc:
             raise ApiError(f"GET {url}: {type(exc).__name__}: {exc}") from exc

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import ssl
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -59,7 +60,8 @@ class UpdatesSubscriber:
     socket's keepalive). on_connected(since, reconnect): a socket is up; `since` is what it
     asked for (None: a full snapshot), `reconnect` whether one was up before.
     on_disconnected(Disconnect). on_rtt_ms: if given, the socket is pinged every
-    PING_INTERVAL_S and each ping -> pong time goes there.
+    PING_INTERVAL_S and each ping -> pong time goes there. ssl_context: whom a wss://
+    server must prove to be (default: the system's CAs).
     """
 
     def __init__(
@@ -75,9 +77,11 @@ class UpdatesSubscriber:
         on_connected: Callable[[int | None, bool], None] | None = None,
         on_disconnected: Callable[[Disconnect], None] | None = None,
         on_rtt_ms: Callable[[float], None] | None = None,
+        ssl_context: ssl.SSLContext | None = None,
     ):
         self.url = f"{websocket_base_url(server_url)}/v1/sessions/{session_id}/updates"
         self.token = token
+        self.ssl_context = ssl_context
         self._apply = apply
         self._applied_seq = applied_seq
         self._start_from_snapshot = start_from_snapshot
@@ -98,7 +102,8 @@ class UpdatesSubscriber:
             since = None if resync else self._applied_seq()
             url = self.url if since is None else f"{self.url}?since={since}"
             try:
-                ws = await until(self._stopped, open_websocket(url, self.token))
+                opening = open_websocket(url, self.token, ssl_context=self.ssl_context)
+                ws = await until(self._stopped, opening)
             except CONNECTION_ERRORS as exc:
                 self._on_disconnected(Disconnect(describe(exc), repeated=outage_told))
                 outage_told = True
