@@ -1,10 +1,11 @@
 // The session dashboard: lists the server's sessions with live stats, asks queries, plots
-// objects top-down. Plain browser JavaScript, no build step, no dependencies.
+// objects top-down, shows each session's page for a phone as a QR code. A plain ES module, no
+// build step; its one dependency, the vendored QR generator, comes through session-qr.mjs.
 //
 // Safety rule for this file: text from the server (session names, object labels, error
 // details) is user data. It only ever reaches the page through textContent, attributes set
 // with setAttribute on fixed names, or canvas fillText; never through innerHTML.
-"use strict";
+import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
 
 (() => {
   const POLL_MS = 2000; // the list and stats refresh period (the brief's "about 2 s")
@@ -489,6 +490,8 @@
       this.objectsSeq = null; // update_seq the plotted objects are from
       this.createdAt = 0;
       this.loaded = false; // stats arrived at least once
+      this.phoneUrl = null; // the /xr link its QR code shows now
+      this.showPhoneLink();
       $(".query-form", this.root).addEventListener("submit", (event) => {
         event.preventDefault();
         this.query($(".query-input", this.root).value.trim());
@@ -512,7 +515,25 @@
       node.hidden = !message;
     }
 
+    // The session's page for a phone, as a link and a QR code. The token goes in only when
+    // this tab holds the session's own (never the API key, which opens every session).
+    showPhoneLink() {
+      const token = auth.tokens()[this.sid] || "";
+      const url = sessionPageUrl(location.origin, this.sid, token);
+      if (url === this.phoneUrl) return;
+      this.phoneUrl = url;
+      $(".phone-qr", this.root).setAttribute("src", qrDataUrl(url));
+      $(".phone-link", this.root).setAttribute("href", url);
+      this.setText(
+        ".phone-token",
+        token
+          ? "It holds the session's token: show it to your own phone only."
+          : "No token in it: the phone asks for one where the server needs it.",
+      );
+    }
+
     async refresh() {
+      this.showPhoneLink(); // a token added or forgotten since
       let stats;
       try {
         stats = await api(this.path(), auth.forSession(this.sid));

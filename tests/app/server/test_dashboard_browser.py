@@ -4,10 +4,12 @@ a real headless Chromium against a real server with a streamed scene."""
 from __future__ import annotations
 
 import asyncio
+import io
 import re
 import shutil
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
 
 import httpx
 import pytest
@@ -18,6 +20,12 @@ from relation_scene import SCENE as RELATION_SCENE
 from relation_scene import scene_export
 
 from app.server.routes.pages import STATIC_DIR
+
+try:  # a QR decoder (a dev dependency): without it only the QR code's reading is skipped
+    import zxingcpp
+    from PIL import Image
+except ImportError:
+    zxingcpp = None
 
 try:  # optional: without playwright only the browser tests skip
     from playwright.sync_api import expect, sync_playwright
@@ -130,12 +138,22 @@ def _without_comments(path: Path) -> str:
 
 
 def test_the_pages_load_nothing_from_outside_the_server():
-    files = sorted(p for p in STATIC_DIR.iterdir() if p.suffix in (".html", ".js", ".css"))
-    assert {p.name for p in files} >= {"index.html", "app.js", "style.css"}
+    files = sorted(p for p in STATIC_DIR.iterdir() if p.suffix in (".html", ".js", ".mjs", ".css"))
+    assert {p.name for p in files} >= {"index.html", "app.js", "session-qr.mjs", "style.css"}
     for path in files:
         # absolute URLs, and protocol-relative ones starting a string or url(...)
         found = re.findall(r"https?://\S*|[\"'(]//\S*", _without_comments(path))
         assert not found, f"{path.name} references {found}"
+
+
+def test_the_qr_module_loads_only_the_vendored_generator():
+    code = _without_comments(STATIC_DIR / "session-qr.mjs")
+    imports = re.findall(r"^import .* from \"(.*)\";", code, flags=re.M)
+    assert imports == ["./vendor/qrcode-generator@2.0.4/dist/qrcode.mjs"]
+    assert (STATIC_DIR / "vendor" / "qrcode-generator@2.0.4" / "dist" / "qrcode.mjs").is_file()
+    assert re.findall(
+        r"^import .* from \"(.*)\";", _without_comments(STATIC_DIR / "app.js"), re.M
+    ) == ["./session-qr.mjs"]
 
 
 def test_the_script_never_writes_html():
@@ -259,7 +277,7 @@ def test_with_an_api_key_the_page_asks_for_it_and_shows_names_as_text(live_serve
     page.locator("#token-form button[type=submit]").click()
     card = page.locator(f'article[data-sid="{sid}"]')
     expect(card.locator(".session-name")).to_have_text(hostile)
-    expect(card.locator("img")).to_have_count(0)
+    expect(card.locator(".session-name img")).to_have_count(0)
 
     # A wrong token for another session: its card shows the server's refusal.
     page.locator("#token-sid").fill("not-a-session")
@@ -446,3 +464,56 @@ def test_the_dashboard_says_a_relational_answer_in_words_and_plots_its_anchor(li
     card.locator(".query-button").click()
     expect(rows.first.locator("td.label")).to_have_text("sofa")
     expect(card.locator(".plot-label.anchor")).to_have_count(0)
+
+
+# --- the session's page for a phone --------------------------------------------------------
+
+
+def read_qr(locator) -> list[str]:
+    """What the QR code shown by `locator` (an element) says, read from a screenshot."""
+    if zxingcpp is None:
+        pytest.skip("zxing-cpp is not installed (pip install -e '.[dev]')")
+    picture = Image.open(io.BytesIO(locator.screenshot())).convert("L")
+    return [barcode.text for barcode in zxingcpp.read_barcodes(picture)]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_each_card_shows_a_qr_code_of_its_phone_page_with_the_token_in_the_fragment_only(
+    live_server, page
+):
+    server = live_server(api_key="sesame")
+    key = {"Authorization": "Bearer sesame"}
+    created = httpx.post(f"{server.url}/v1/sessions", json={"name": "hall"}, headers=key).json()
+    sid, token = created["session_id"], created["token"]
+    requested: list[str] = []
+    page.on("request", lambda request: requested.append(request.url))
+    page.goto(server.url)
+
+    # The API key alone lists the session: its code opens the page without any credential.
+    page.locator("#api-key").fill("sesame")
+    page.locator("#key-form button[type=submit]").click()
+    card = page.locator(f'article[data-sid="{sid}"]')
+    qr = card.locator(".phone-qr")
+    expect(qr).to_have_attribute("src", re.compile(r"^data:image/gif;base64,"))
+    bare = f"{server.url}/xr#session={sid}"
+    expect(card.locator(".phone-link")).to_have_attribute("href", bare)
+    assert read_qr(qr) == [bare]
+    expect(card.locator(".phone-token")).to_contain_text("No token in it")
+
+    # With the session's own token held, the code carries it, in the fragment only.
+    page.locator("#token-sid").fill(sid)
+    page.locator("#token-value").fill(token)
+    page.locator("#token-form button[type=submit]").click()
+    with_token = f"{bare}&token={token}"
+    expect(card.locator(".phone-link")).to_have_attribute("href", with_token)
+    screenshot(page, "dashboard_phone_qr.png")
+    (scanned,) = read_qr(qr)
+    assert scanned == with_token
+    parts = urlsplit(scanned)
+    assert (parts.path, parts.query) == ("/xr", "")
+    assert parse_qs(parts.fragment) == {"session": [sid], "token": [token]}
+    assert "sesame" not in scanned  # never the API key
+
+    assert all(url.startswith((server.url, "data:")) for url in requested), requested
+    assert not any(token in url for url in requested)  # a fragment never leaves the page
