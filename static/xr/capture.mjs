@@ -138,6 +138,7 @@ export class Capture {
         depthWidth: depthInfo.width,
         depthHeight: depthInfo.height,
         stride: 4,
+        bottomUp: true, // a GL texture's rows (gpu-depth.mjs)
         normDepthFromNormView: Array.from(depthInfo.normDepthBufferFromNormView.matrix),
         depthProjection: Array.from(depthInfo.projectionMatrix || view.projectionMatrix),
         depthTransform: Array.from(depthInfo.transform ? depthInfo.transform.matrix : view.transform.matrix),
@@ -146,7 +147,7 @@ export class Capture {
       poseSkewS: (this.videoTimeMs - nearest.timeMs) / 1000,
     };
     this.inFlight.set(id, job);
-    this.gpuDepth.start(depthInfo, { id, part: "depth" });
+    this.gpuDepth.start(depthInfo, this.depthFormat, { id, part: "depth" });
     createImageBitmap(this.video).then(
       (bitmap) => this._part(id, "colour", { kind: "bitmap", bitmap }),
       (error) => this._fail(id, `the camera frame could not be read: ${error}`),

@@ -52,7 +52,8 @@ export function resampleCpuDepth({ values, depthWidth, depthHeight, rawValueToMe
  * colour camera), on the colour image's grid divided by `ratio`.
  *
  * depth: Float32Array metres, depthWidth x depthHeight, row 0 = normalized depth-buffer y 0
- * (every `stride`-th value: a GL readback of RGBA texels has stride 4);
+ * (every `stride`-th value: a GL readback of RGBA texels has stride 4), or row 0 = the
+ * bottom (`bottomUp`: a GL texture's rows, as a headset's GPU depth comes);
  * normDepthFromNormView: the depth information's matrix (column-major); depthProjection and
  * depthTransform: the depth view's projectionMatrix and transform.matrix (column-major,
  * WebXR's camera: -z forward, +y up); camera: the colour camera in the protocol's convention
@@ -61,7 +62,7 @@ export function resampleCpuDepth({ values, depthWidth, depthHeight, rawValueToMe
  * projects to, and the one nearest the block's centre pixel is kept (ties: the nearer
  * surface), so no depth is invented between surfaces. Returns Float32Array metres.
  */
-export function reprojectDepth({ depth, depthWidth, depthHeight, stride = 1, normDepthFromNormView, depthProjection, depthTransform }, camera, width, height, ratio) {
+export function reprojectDepth({ depth, depthWidth, depthHeight, stride = 1, bottomUp = false, normDepthFromNormView, depthProjection, depthTransform }, camera, width, height, ratio) {
   const w = Math.floor(width / ratio);
   const h = Math.floor(height / ratio);
   const out = new Float32Array(w * h);
@@ -77,7 +78,7 @@ export function reprojectDepth({ depth, depthWidth, depthHeight, stride = 1, nor
       const z = depth[(r * depthWidth + c) * stride];
       if (!(z > 0) || !Number.isFinite(z)) continue;
       const bx = (c + 0.5) / depthWidth;
-      const by = (r + 0.5) / depthHeight;
+      const by = bottomUp ? 1 - (r + 0.5) / depthHeight : (r + 0.5) / depthHeight;
       const xn = inv[0] * bx + inv[2] * by + inv[4];
       const yn = inv[1] * bx + inv[3] * by + inv[5];
       const xNdc = 2 * xn - 1;

@@ -1,10 +1,15 @@
 // GPU depth (WebXR Depth Sensing, "gpu-optimized", XRWebGLBinding.getDepthInformation) read
 // back as metres. Quest Browser offers only this: a texture array, one layer per view
-// (`imageIndex`), whose values are not metres but window-space depth of the depth view's own
-// projection (its `depthNear`/`depthFar`, or its `projectionMatrix`), so they are linearised
-// here; a runtime whose values are metric (value x rawValueToMeters, as the spec words it)
-// is read as such. One full-screen pass writes metres into a float target, read back
-// asynchronously (readback.mjs).
+// (`imageIndex`), whose values (raw x rawValueToMeters) are not metres but window-space depth
+// of the depth view's own projection (OpenXR's XR_META_environment_depth: "the same format as
+// described in XR_KHR_composition_layer_depth"; the depth information carries its
+// `depthNear`/`depthFar` and `projectionMatrix`), so they are linearised here; a runtime
+// whose values are metric (value x rawValueToMeters, as the spec words it) is read as such.
+// Texel rows are a GL texture's, bottom row first (OpenXR's depth view "is never flipped",
+// and Quest Browser's normDepthBufferFromNormView is the identity): reprojectDepth is told so.
+// One full-screen pass writes metres into a float target, read back asynchronously
+// (readback.mjs). Formats: float32 (a float texture) and luminance-alpha (two bytes of a
+// 16-bit value, low byte in luminance).
 
 const VERTEX = `#version 300 es
 void main() {
@@ -19,19 +24,22 @@ precision highp int;
 uniform highp ${array ? "sampler2DArray" : "sampler2D"} depthTexture;
 uniform int layer;
 uniform int windowDepth;     // 1: [0, 1] window depth of the depth view's projection
+uniform int packed16;        // 1: luminance-alpha, a 16-bit value in two normalized bytes
 uniform float rawValueToMeters;
 uniform float projA;         // the projection's [2][2] and [3][2] (column-major 10 and 14)
 uniform float projB;
 out vec4 metres;
 void main() {
   ivec2 texel = ivec2(gl_FragCoord.xy);
-  float raw = texelFetch(depthTexture, ${array ? "ivec3(texel, layer)" : "texel"}, 0).r;
+  vec4 t = texelFetch(depthTexture, ${array ? "ivec3(texel, layer)" : "texel"}, 0);
+  float raw = packed16 == 1 ? floor(t.r * 255.0 + 0.5) + 256.0 * floor(t.a * 255.0 + 0.5) : t.r;
+  float value = raw * rawValueToMeters;
   float m;
   if (windowDepth == 1) {
-    float zNdc = 2.0 * raw - 1.0;
-    m = (raw <= 0.0 || raw >= 1.0) ? 0.0 : projB / (zNdc + projA);
+    float zNdc = 2.0 * value - 1.0;
+    m = (value <= 0.0 || value >= 1.0) ? 0.0 : projB / (zNdc + projA);
   } else {
-    m = raw * rawValueToMeters;
+    m = value;
   }
   metres = vec4(m, 0.0, 0.0, 1.0);
 }`;
@@ -96,8 +104,9 @@ export class GpuDepthReader {
   /** Start reading `info` (an XRWebGLDepthInformation) as metres; `tag` comes back with a
    * Float32Array of RGBA texels, metres in red (row 0 = depth-buffer row 0), from
    * readback.collect(). */
-  start(info, tag) {
+  start(info, format, tag) {
     const gl = this.gl;
+    if (format !== "float32" && format !== "luminance-alpha") throw new Error(`GPU depth in ${format} is not read by this page (float32 or luminance-alpha)`);
     const array = info.textureType === "texture-array";
     const { width, height } = info;
     this._ensureTarget(width, height);
@@ -122,6 +131,7 @@ export class GpuDepthReader {
     gl.uniform1i(gl.getUniformLocation(program, "layer"), info.imageIndex || 0);
     const windowDepth = isWindowDepth(info);
     gl.uniform1i(gl.getUniformLocation(program, "windowDepth"), windowDepth ? 1 : 0);
+    gl.uniform1i(gl.getUniformLocation(program, "packed16"), format === "luminance-alpha" ? 1 : 0);
     gl.uniform1f(gl.getUniformLocation(program, "rawValueToMeters"), info.rawValueToMeters || 1);
     const { a, b } = windowDepth ? depthTerms(info) : { a: 0, b: 0 };
     gl.uniform1f(gl.getUniformLocation(program, "projA"), a);

@@ -95,7 +95,8 @@ function upstreamKbits() {
 /** What tests and benchmarks read: the page's own counts, as it shows them. */
 window.semanticxr = {
   get counters() {
-    return state.xr ? { ...state.xr.stream.counters } : null;
+    const xr = state.xr || state.lastXr; // after AR ends, what it sent
+    return xr ? { ...xr.stream.counters } : null;
   },
   get costs() {
     return [...state.costs];
@@ -376,6 +377,7 @@ function endAr(xr) {
   xr.renderer.dispose();
   document.body.classList.remove("in-ar");
   if (state.xr === xr) state.xr = null;
+  state.lastXr = xr;
   setConnection("not streaming", "idle");
   if (state.sid) chooseSession(state.sid);
 }
