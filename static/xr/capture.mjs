@@ -40,6 +40,7 @@ export class Capture {
     this.video = video;
     this.videoTimeMs = null; // the newest video frame's time, on the performance clock
     this.gpuDepth = this.depthUsage === "gpu-optimized" ? new GpuDepthReader(gl, this.readback) : null;
+    this.runtimeMs = 0; // time spent inside the XR runtime's own calls (its work, not ours)
     this.completed = [];
     this.failures = [];
     this.closed = false;
@@ -86,10 +87,11 @@ export class Capture {
     const gl = this.gl;
     const view = viewerPose.views.find((v) => v.camera);
     if (!view) return false;
+    const asked = performance.now();
     const depthInfo = frame.getDepthInformation(view);
-    if (!depthInfo) return false;
-    const texture = this.binding.getCameraImage(view.camera);
-    if (!texture) return false;
+    const texture = depthInfo ? this.binding.getCameraImage(view.camera) : null;
+    this.runtimeMs += performance.now() - asked;
+    if (!depthInfo || !texture) return false;
     const { width, height } = view.camera;
     const id = this.nextJob++;
     const job = {
@@ -122,7 +124,9 @@ export class Capture {
   _beginHeadset(viewerPose, timeMs) {
     if (!this.video || this.videoTimeMs === null || this.video.readyState < 2) return false;
     const view = viewerPose.views[0];
+    const asked = performance.now();
     const depthInfo = this.binding.getDepthInformation(view);
+    this.runtimeMs += performance.now() - asked;
     if (!depthInfo) return false;
     const nearest = this._poseNearest(this.videoTimeMs) || { timeMs, matrix: viewerPose.transform.matrix };
     const cameraMatrix = multiply(nearest.matrix, this.calibration.cameraFromViewer);

@@ -41,7 +41,8 @@ const state = {
   xr: null, // the running AR: {session, gl, space, capture, stream, ...}
   follower: null,
   answer: null,
-  costs: [], // main-thread ms of each XR frame that captured, collected or sent
+  costs: [], // main-thread ms the page spent in each XR frame that captured, collected or sent
+  runtimeCosts: [], // of those frames, ms inside the runtime's getCameraImage / getDepthInformation
   upstream: [], // [timeMs, messageBytes, payloadBytes] samples
 };
 
@@ -100,6 +101,9 @@ window.semanticxr = {
   },
   get costs() {
     return [...state.costs];
+  },
+  get runtimeCosts() {
+    return [...state.runtimeCosts];
   },
   get streaming() {
     return Boolean(state.xr && state.xr.streaming);
@@ -281,6 +285,7 @@ function onXrFrame(xr, time, frame) {
   const pose = frame.getViewerPose(xr.space);
   if (pose) {
     const started = performance.now();
+    const runtimeBefore = xr.capture.runtimeMs;
     let worked = false;
     xr.capture.notePose(time, pose);
     const p = pose.transform.position;
@@ -300,8 +305,12 @@ function onXrFrame(xr, time, frame) {
       }
     }
     if (worked) {
-      state.costs.push(performance.now() - started);
+      // The page's own work: what the runtime spends producing an image or depth is not ours.
+      const runtime = xr.capture.runtimeMs - runtimeBefore;
+      state.costs.push(performance.now() - started - runtime);
+      state.runtimeCosts.push(runtime);
       if (state.costs.length > COST_HISTORY) state.costs.shift();
+      if (state.runtimeCosts.length > COST_HISTORY) state.runtimeCosts.shift();
     }
     drawAnswer(xr, pose);
   }
