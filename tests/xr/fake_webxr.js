@@ -28,8 +28,9 @@
  *                        (the 'local-floor' origin until a reset)
  *   xrFramesPerSceneFrame  XR animation frames each scene frame is held for
  *   onWalkEnd            "hold" (keep showing the last frame) | "end" (end the session)
- *   display, displayEvery  composite passthrough + the app's layer onto a visible canvas,
- *                        every n-th XR frame
+ *   display, displayEvery, displayScale  composite passthrough + the app's layer onto a
+ *                        visible canvas (#fakexr-display) every n-th XR frame, at this fraction
+ *                        of the layer's resolution
  *   prefetch             scene frames fetched ahead
  *   requireUserActivation  requestSession needs transient activation (as Chrome does)
  *   videoFps, videoDelaySceneFrames  getUserMedia pushes frames at this rate, showing the scene
@@ -37,15 +38,22 @@
  *   routePrefix          same-origin path of the feed: GET <routePrefix>frame/<i>
  *
  * Test API, window.fakeXR:
- *   config, session (the live XRSession or null), xrFrames (XR frames delivered),
- *   sceneFrame (scene frame of the last XR frame), done (the walk has ended), stalls (ticks
- *   that waited for a scene frame to arrive), frameLog [{xrFrame, time, sceneFrame}],
- *   videoLog [{time, sceneFrame}], errors [strings], pause() / resume() (no XR frames while
- *   paused), resetReferenceSpace(transform?) (a tracking discontinuity: 'reset' fires on every
- *   reference space before the next XR frame, whose poses use the new origin; transform is
- *   {position, orientation} of the new origin in the old, default a 25 degree turn and a
- *   step), resets [{xrFrame, transform}], whenSceneFrame(i) (a promise: scene frame i has been
- *   delivered), whenDone().
+ *   config               the config in use
+ *   session              the live XRSession, or null
+ *   xrFrames             XR animation frames delivered this session
+ *   sceneFrame           the scene frame of the latest XR frame
+ *   done                 the walk has ended (the last scene frame was held its full time)
+ *   stalls               window frames that waited for a scene frame still on its way
+ *   frameLog             [{xrFrame, time, sceneFrame, sceneTime}] (sceneTime: the walk's clock)
+ *   videoLog             [{time, sceneFrame}]: when the getUserMedia video turned to a frame
+ *   errors               [string]: feed fetches that failed
+ *   pause(), resume()    no XR frames while paused (the video keeps its frame)
+ *   resetReferenceSpace(transform?)  a tracking discontinuity: 'reset' fires on every reference
+ *                        space before the next XR frame, whose poses use the new origin;
+ *                        transform {position, orientation}: the new origin in the old one
+ *                        (default: a 25 degree turn and a step)
+ *   resets               [{xrFrame, transform}]
+ *   whenSceneFrame(i), whenDone()  promises
  *
  * Timing: one XR animation frame per window animation frame while the page has an XR frame
  * callback pending; XR frame k shows scene frame floor(k / xrFramesPerSceneFrame), so the walk
@@ -1197,7 +1205,7 @@
 
   const display = {
     canvas: null,
-    layerCanvas: null,
+    image: null,
     show() {
       if (!CONFIG.display || this.canvas) return;
       const [w, h] = CONFIG.framebuffer;
@@ -1209,52 +1217,79 @@
       if (this.canvas) this.canvas.remove();
       this.canvas = null;
     },
-    /** Passthrough in each view's viewport, then the layer over it. WebXR: "The XR Compositor
-     * will assume the opaque framebuffer contains colors with premultiplied alpha". */
-    composite(data, layer) {
-      if (!this.canvas) return;
+    /** RGBA, top row first, of what the device's cameras show in each view's viewport (cached
+     * per scene frame). A software canvas: SwiftShader's 2D canvas takes ~30 ms a draw. */
+    passthrough(data, width, height) {
+      const key = `${width}x${height}`;
+      if (data.passthrough && data.passthrough.key === key) return data.passthrough.pixels;
+      const canvas = new OffscreenCanvas(width, height);
+      const ctx = canvas.getContext("2d", { willReadFrequently: true });
       const [W, H] = CONFIG.framebuffer;
-      const ctx = this.canvas.getContext("2d");
-      ctx.fillStyle = "#000";
-      ctx.fillRect(0, 0, W, H);
+      ctx.scale(width / W, height / H);
       CONFIG.views.forEach((view, k) => {
         const [x, y, w, h] = view.viewport;
-        const top = H - (y + h);
+        const top = H - (y + h); // viewports are in GL window coordinates
         if (CONFIG.profile === "android") {
           ctx.save();
-          ctx.translate(0, top + h);
+          ctx.translate(0, 2 * top + h);
           ctx.scale(1, -1); // the camera bitmap is stored bottom row first
-          ctx.drawImage(data.images.camera, x, 0, w, h);
+          ctx.drawImage(data.images.camera, x, top, w, h);
           ctx.restore();
         } else if (data.images[`eye${k}`]) ctx.drawImage(data.images[`eye${k}`], x, top, w, h);
       });
-      if (!layer) return;
-      const s = slots(layer);
-      const gl = s.gl;
-      s.pixels ??= new Uint8Array(s.width * s.height * 4);
-      preserving(gl, () => {
-        gl.bindFramebuffer(gl.FRAMEBUFFER, s.framebuffer);
-        gl.readPixels(0, 0, s.width, s.height, gl.RGBA, gl.UNSIGNED_BYTE, s.pixels);
-      });
-      const px = s.pixels;
-      const opaque = !s.options.alpha;
-      for (let i = 0; i < px.length; i += 4) {
-        const a = px[i + 3];
-        if (opaque) px[i + 3] = 255;
-        else if (a > 0 && a < 255) {
-          px[i] = Math.min(255, (px[i] * 255) / a);
-          px[i + 1] = Math.min(255, (px[i + 1] * 255) / a);
-          px[i + 2] = Math.min(255, (px[i + 2] * 255) / a);
+      data.passthrough = { key, pixels: ctx.getImageData(0, 0, width, height).data };
+      return data.passthrough.pixels;
+    },
+    /** The layer over the passthrough. WebXR: "The XR Compositor will assume the opaque
+     * framebuffer contains colors with premultiplied alpha": out = layer + (1 - a) * camera. */
+    composite(data, layer) {
+      if (!this.canvas) return;
+      const s = layer ? slots(layer) : null;
+      const [layerWidth, layerHeight] = s ? [s.width, s.height] : CONFIG.framebuffer;
+      const scale = CONFIG.displayScale ?? 1;
+      const width = Math.max(1, Math.round(layerWidth * scale));
+      const height = Math.max(1, Math.round(layerHeight * scale));
+      if (this.canvas.width !== width || this.canvas.height !== height) Object.assign(this.canvas, { width, height });
+      const background = this.passthrough(data, width, height);
+      if (!this.image || this.image.width !== width || this.image.height !== height) this.image = new ImageData(width, height);
+      const out = this.image.data;
+      if (!s) out.set(background);
+      else {
+        const gl = s.gl;
+        s.pixels ??= new Uint8Array(layerWidth * layerHeight * 4);
+        preserving(gl, () => {
+          gl.bindFramebuffer(gl.FRAMEBUFFER, s.framebuffer);
+          gl.readPixels(0, 0, layerWidth, layerHeight, gl.RGBA, gl.UNSIGNED_BYTE, s.pixels);
+        });
+        const px = s.pixels;
+        const opaque = !s.options.alpha;
+        const sourceColumn = Array.from({ length: width }, (_, col) => Math.min(layerWidth - 1, Math.floor(col / scale)) * 4);
+        for (let row = 0; row < height; row++) {
+          let i = row * width * 4;
+          // readPixels gives the bottom row first
+          const sourceRow = (layerHeight - 1 - Math.min(layerHeight - 1, Math.floor(row / scale))) * layerWidth * 4;
+          for (let col = 0; col < width; col++, i += 4) {
+            const j = sourceRow + sourceColumn[col];
+            const a = opaque ? 255 : px[j + 3];
+            if (a === 0) {
+              out[i] = background[i];
+              out[i + 1] = background[i + 1];
+              out[i + 2] = background[i + 2];
+            } else if (a === 255) {
+              out[i] = px[j];
+              out[i + 1] = px[j + 1];
+              out[i + 2] = px[j + 2];
+            } else {
+              const rest = (255 - a) / 255;
+              out[i] = px[j] + background[i] * rest;
+              out[i + 1] = px[j + 1] + background[i + 1] * rest;
+              out[i + 2] = px[j + 2] + background[i + 2] * rest;
+            }
+            out[i + 3] = 255;
+          }
         }
       }
-      this.layerCanvas ??= document.createElement("canvas");
-      Object.assign(this.layerCanvas, { width: s.width, height: s.height });
-      this.layerCanvas.getContext("2d").putImageData(new ImageData(new Uint8ClampedArray(px.buffer), s.width, s.height), 0, 0);
-      ctx.save();
-      ctx.translate(0, H);
-      ctx.scale(1, -1); // readPixels gives the bottom row first
-      ctx.drawImage(this.layerCanvas, 0, 0, W, H);
-      ctx.restore();
+      this.canvas.getContext("2d").putImageData(this.image, 0, 0);
     },
   };
 
@@ -1378,7 +1413,7 @@
         if (t.depth) t.gl.deleteTexture(t.depth);
       }
       if (CONFIG.display && this.xrFrame % CONFIG.displayEvery === 0) display.composite(data, slots(s.renderState).baseLayer);
-      api.frameLog.push({ xrFrame: this.xrFrame, time, sceneFrame: scene });
+      api.frameLog.push({ xrFrame: this.xrFrame, time, sceneFrame: scene, sceneTime: data.t_s });
       this.xrFrame++;
       this.waiters = this.waiters.filter((w) => {
         if (w.scene === undefined || w.scene > scene) return true;

@@ -186,12 +186,13 @@ class SceneFeed:
         eyes = [viewer @ offset for offset in quest.eye_from_viewer()]
         sensors = [eye @ offset for eye, offset in zip(eyes, quest.depth_from_eyes(), strict=True)]
         camera = viewer @ quest.color_from_viewer.matrix()
+        shown = quest.eye_pinholes() if self.options.display else []  # only the display needs them
         small = [
             p.scaled(
                 max(1, round(p.width * quest.passthrough_scale)),
                 max(1, round(p.height * quest.passthrough_scale)),
             )
-            for p in quest.eye_pinholes()
+            for p in shown
         ]
         return SceneFrame(
             index,
@@ -202,7 +203,7 @@ class SceneFeed:
             self._image(camera, quest.color),
             sensors,
             [self._depth(s, p) for s, p in zip(sensors, quest.depth_pinholes(), strict=True)],
-            [self._image(e, p) for e, p in zip(eyes, small, strict=True)],
+            [self._image(e, p) for e, p in zip(eyes, small, strict=False)],
         )
 
     def _render_view(self, pose: np.ndarray, pinhole: Pinhole):

@@ -293,7 +293,7 @@ def test_each_scene_frame_is_held_then_the_walk_holds_its_last(xr_page, phone_fe
 
 
 def test_the_display_shows_the_camera_under_the_apps_layer(xr_page, phone_feed):
-    open_probe(xr_page, phone_feed)
+    open_probe(xr_page, phone_feed, displayEvery=1)
     features = xr_page.evaluate(
         "() => probe.start({requiredFeatures: ['dom-overlay', 'local-floor'], "
         "domOverlay: {root: document.getElementById('overlay')}})"

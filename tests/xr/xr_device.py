@@ -319,6 +319,7 @@ class Phone:
             },
             "userMedia": None,
             "interactionMode": "screen-space",
+            "displayScale": 1.0,
         }
 
 
@@ -390,6 +391,7 @@ class Quest3:
             },
             "userMedia": {"width": self.color.width, "height": self.color.height},
             "interactionMode": "world-space",
+            "displayScale": 0.5,
         }
 
 
@@ -404,8 +406,12 @@ class RuntimeOptions:
     session after the last one."""
     display: bool = True
     """Composite the passthrough and the app's layer onto a visible canvas."""
-    display_every: int = 1
-    """Composite every n-th XR frame (readback costs on a software GPU)."""
+    display_every: int = 6
+    """Composite every n-th XR frame: each composite makes the browser re-raster the page on
+    a software GPU (at 1 the phone's XR frame rate fell from 60 to ~16 fps here)."""
+    display_scale: float | None = None
+    """The display's resolution relative to the layer's (None: the device's, 1 for the phone,
+    0.5 for the Quest's two eyes side by side)."""
     prefetch: int = 6
     """Scene frames fetched ahead of the one shown."""
     require_user_activation: bool = True
@@ -425,6 +431,7 @@ class RuntimeOptions:
             "onWalkEnd": self.on_walk_end,
             "display": self.display,
             "displayEvery": self.display_every,
+            **({} if self.display_scale is None else {"displayScale": self.display_scale}),
             "prefetch": self.prefetch,
             "requireUserActivation": self.require_user_activation,
             "videoFps": self.video_fps,
