@@ -20,7 +20,8 @@
  *                        normDepthBufferFromNormView {position, orientation}, rawValueToMeters16
  *                        (16-bit formats), encoding "metres" | "window", alignedWithView;
  *                        window encoding also: pinholes (one per view), near, far (null:
- *                        infinite), bottomRowFirst, textureType
+ *                        infinite), bottomRowFirst, textureType; staleSceneFrames: how old
+ *                        the depth is when the page sets matchDepthView false
  *   userMedia            {width, height} of the getUserMedia camera (quest) or null
  *   interactionMode      XRSession.interactionMode
  *   frameCount           scene frames in the walk; sceneFps: the walk's own clock
@@ -539,12 +540,26 @@
    * the 16-bit formats scale back to [0, 1] -- not metres either way. */
   const rawValueToMeters = (format) => (format === "float32" ? 1 : CONFIG.depth.rawValueToMeters16);
 
-  /** The phone's depth, aligned with its one view: the same transform and projection. */
+  /** The scene frame whose depth a frame gets. Depth sensing: with matchDepthView true "the
+   * XRSystem SHOULD return depth information that reflects the current frame. If this is
+   * false, the XRSystem MAY return depth information that was captured at an earlier point in
+   * time" -- here depth.staleSceneFrames earlier, with that moment's sensor pose as its
+   * transform ("the sensor's pose at time"). */
+  function depthSource(frame) {
+    const f = slots(frame);
+    const stale = CONFIG.depth.staleSceneFrames ?? 0;
+    if (slots(f.session).depth.matchDepthView !== false || !stale) return f.data;
+    return loader.ready(Math.max(0, f.data.index - stale)) ?? f.data;
+  }
+
+  /** The phone's depth, aligned with its one view: the same transform and projection (unless
+   * it is an earlier frame's, see depthSource). */
   function cpuDepthInformation(frame, view) {
     const f = slots(frame);
     const v = slots(view);
     const session = slots(f.session);
     const format = session.depth.format;
+    const source = depthSource(frame);
     const info = new XRCPUDepthInformation(INTERNAL);
     state.set(info, {
       frame,
@@ -554,8 +569,8 @@
       height: CONFIG.depth.height,
       normDepthBufferFromNormView: rigid(poseOf(CONFIG.depth.normDepthBufferFromNormView)),
       rawValueToMeters: rawValueToMeters(format),
-      data: cpuDepthBuffer(f.data, v.index, format).slice(0), // [SameObject], the page's own copy
-      transform: view.transform,
+      data: cpuDepthBuffer(source, v.index, format).slice(0), // [SameObject], the page's own copy
+      transform: source === f.data ? view.transform : rigid(poseIn(v.referenceSpace, f, source.depthSensors[v.index])),
       projectionMatrix: view.projectionMatrix,
     });
     return info;
@@ -614,9 +629,10 @@
     const session = slots(f.session);
     const format = session.depth.format;
     const { near, far, width, height } = CONFIG.depth;
-    const aligned = CONFIG.depth.alignedWithView;
+    const source = depthSource(frame);
+    const aligned = CONFIG.depth.alignedWithView && source === f.data;
     const info = new XRWebGLDepthInformation(INTERNAL);
-    const sensor = aligned ? null : poseIn(v.referenceSpace, f, f.data.depthSensors[v.index]);
+    const sensor = poseIn(v.referenceSpace, f, source.depthSensors[v.index]);
     state.set(info, {
       frame,
       view,
@@ -625,7 +641,7 @@
       height,
       normDepthBufferFromNormView: rigid(poseOf(CONFIG.depth.normDepthBufferFromNormView)),
       rawValueToMeters: rawValueToMeters(format),
-      texture: depthTexture(binding, frame, format),
+      texture: depthTexture(binding, frame, source, format),
       textureType: CONFIG.depth.textureType ?? "texture",
       // Depth sensing: imageIndex is 1 for the right eye's view and 0 otherwise.
       imageIndex: (CONFIG.depth.textureType ?? "texture") === "texture-array" ? (v.eye === "right" ? 1 : 0) : null,
@@ -865,15 +881,14 @@
     "luminance-alpha": (gl) => [gl.LUMINANCE_ALPHA, gl.LUMINANCE_ALPHA, gl.UNSIGNED_BYTE],
   };
 
-  function depthTexture(binding, frame, format) {
+  function depthTexture(binding, frame, source, format) {
     const textures = frameTextures(binding, frame);
     if (textures.depth) return textures.depth;
     const gl = slots(binding).gl;
     if (!isGL2(gl)) throw domError("InvalidStateError", "texture-array depth needs a WebGL2 context");
-    const f = slots(frame);
     const { width, height } = CONFIG.depth;
     const layers = CONFIG.views.map((_, index) => {
-      const d = windowDepthLayer(f.data, index);
+      const d = windowDepthLayer(source, index);
       if (format === "float32") return d;
       const u16 = new Uint16Array(d.length);
       for (let i = 0; i < d.length; i++) u16[i] = Math.round(d[i] / CONFIG.depth.rawValueToMeters16);
@@ -1068,6 +1083,7 @@
             // Depth sensing: without a depthSensing key, or with no supported configuration, a
             // required feature is unresolved and an optional one is ignored.
             depth = init.depthSensing ? findDepthConfiguration(init.depthSensing) : null;
+            if (depth) depth.matchDepthView = init.depthSensing.matchDepthView !== false;
             return depth !== null;
           }
           if (feature === "dom-overlay") return !!(init.domOverlay && init.domOverlay.root);

@@ -324,18 +324,26 @@ def test_the_display_shows_the_camera_under_the_apps_layer(xr_page, phone_feed):
 # --- the Quest: GPU depth, no camera-access, colour from getUserMedia ---------------------------
 
 
+@pytest.mark.parametrize("match_depth_view", [True, False])
 def test_quest_gpu_depth_lifted_with_the_depth_views_geometry_lies_on_the_surfaces(
-    xr_page, quest_feed
+    xr_page, quest_feed, match_depth_view
 ):
     open_probe(xr_page, quest_feed)
     info = start(
-        xr_page, {"requiredFeatures": ["depth-sensing", "local-floor"], "depthSensing": GPU_DEPTH}
+        xr_page,
+        {
+            "requiredFeatures": ["depth-sensing", "local-floor"],
+            "depthSensing": {**GPU_DEPTH, "matchDepthView": match_depth_view},
+        },
     )
     assert (info["depthUsage"], info["depthDataFormat"]) == ("gpu-optimized", "float32")
 
     read = xr_page.evaluate("skip => probe.gpuDepth(8, skip)", 3)
 
-    frame = quest_feed.frame(read["scene"])
+    # Unmatched, the depth may be older than the frame: the pose it was captured from comes with it.
+    captured = read["scene"] - (0 if match_depth_view else QUEST.stale_depth_scene_frames)
+    assert read["scene"] >= 1
+    frame = quest_feed.frame(captured)
     for k, view in enumerate(read["views"]):
         assert (view["eye"], view["textureType"], view["imageIndex"]) == (
             ("left", "right")[k],

@@ -276,6 +276,8 @@ class Phone:
     )
     framebuffer_scale: float = 1.0
     """The layer's framebuffer per view, relative to the view's pinhole."""
+    stale_depth_scene_frames: int = 0
+    """How many scene frames old the depth is when the page sets matchDepthView false."""
 
     @property
     def depth_view(self) -> Pinhole:
@@ -316,6 +318,7 @@ class Phone:
                 "rawValueToMeters16": self.raw_value_to_meters_16bit,
                 "encoding": "metres",
                 "alignedWithView": True,
+                "staleSceneFrames": self.stale_depth_scene_frames,
             },
             "userMedia": None,
             "interactionMode": "screen-space",
@@ -346,6 +349,8 @@ class Quest3:
     of the page passes the page's own calibration)."""
     color_from_viewer: Pose = Pose((-0.032, -0.012, -0.07), axis_angle((1, 0, 0), -8.0))
     """The passthrough camera's pose in the viewer's space (WebXR axes: it looks down -Z)."""
+    stale_depth_scene_frames: int = 1
+    """How many scene frames old the depth is when the page sets matchDepthView false."""
     passthrough_scale: float = 0.25
     """Resolution of the per-eye passthrough the display composites, relative to the eye."""
     features: tuple[str, ...] = ("viewer", "local", "local-floor", "depth-sensing")
@@ -388,6 +393,7 @@ class Quest3:
                 "bottomRowFirst": self.depth_bottom_row_first,
                 "textureType": "texture-array",
                 "alignedWithView": False,
+                "staleSceneFrames": self.stale_depth_scene_frames,
             },
             "userMedia": {"width": self.color.width, "height": self.color.height},
             "interactionMode": "world-space",
