@@ -96,15 +96,15 @@ def https_banner(settings: ServerSettings, certificate: Certificate, color: bool
     (`https://<LAN address>:<port>/xr`) and a QR code of it (nothing secret: no key, no
     token), what a phone will say of a self-signed certificate, and the clients' --tls-ca.
     color: draw the code in ANSI white on black (a terminal with a light theme)."""
-    from app.server.edges import WILDCARD_BINDS
-    from app.server.tls import LOOPBACK_NAMES, page_host, url_host
+    from app.server.edges import LOOPBACK_HOSTS, WILDCARD_BINDS
+    from app.server.tls import page_host, url_host
 
     host = page_host(settings.host, certificate.names)
     origin = f"https://{url_host(host)}:{settings.port}"
     wildcard = settings.host in WILDCARD_BINDS
     where = "every interface, IPv4 and IPv6" if settings.host == "" else settings.host
     lines = [f"SemanticXR on {origin}  (listening on {where}; data in {settings.data_dir})"]
-    if settings.host in LOOPBACK_NAMES:
+    if settings.host in LOOPBACK_HOSTS:
         lines.append("  this machine only: leave out --host for a phone on the network to reach it")
     lines += [
         f"Open this on a phone on the same network: {origin}/xr",
@@ -113,7 +113,7 @@ def https_banner(settings: ServerSettings, certificate: Certificate, color: bool
     others = [
         f"https://{url_host(name)}:{settings.port}/xr"
         for name in certificate.names
-        if wildcard and name not in (host, *LOOPBACK_NAMES) and not name.startswith("*")
+        if wildcard and name not in (host, *LOOPBACK_HOSTS) and not name.startswith("*")
     ]
     if others:
         lines.append(f"  also: {', '.join(others)}")

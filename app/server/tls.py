@@ -28,11 +28,12 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from app.server.edges import LOOPBACK_HOSTS, WILDCARD_BINDS
+
 TLS_DIR = "tls"
 """The folder of data_dir that holds the self-signed certificate and its key."""
 CERT_FILE = "cert.pem"
 KEY_FILE = "key.pem"
-LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 VALIDITY_DAYS = 397
 """How long a made certificate is valid: browsers refuse server certificates valid for more
 than 398 days."""
@@ -74,7 +75,7 @@ def machine_names(hostname: str, addresses: Iterable[str]) -> list[str]:
     """localhost, 127.0.0.1, ::1, `hostname` and every non-loopback address of `addresses`,
     once each, in that order. IPv6 link-local addresses (fe80::/10) are left out: a browser's
     URL cannot carry the zone they need."""
-    names = [*LOOPBACK_NAMES, hostname.strip().lower()]
+    names = [*LOOPBACK_HOSTS, hostname.strip().lower()]
     for text in addresses:
         address = ipaddress.ip_address(text.split("%", 1)[0])
         if address.is_loopback or (address.version == 6 and address.is_link_local):
@@ -99,9 +100,9 @@ def page_address(names: Sequence[str]) -> str | None:
 def page_host(bind_host: str, names: Sequence[str]) -> str:
     """The host of the start-up URL: the bind address when it is one, else (a wildcard bind)
     `page_address(names)`, else the first name that is neither loopback nor a wildcard."""
-    if bind_host not in ("", "0.0.0.0", "::"):
+    if bind_host not in WILDCARD_BINDS:
         return bind_host
-    others = [n for n in names if n not in LOOPBACK_NAMES and not n.startswith("*")]
+    others = [n for n in names if n not in LOOPBACK_HOSTS and not n.startswith("*")]
     return page_address(names) or (others[0] if others else "localhost")
 
 
