@@ -289,6 +289,21 @@ def test_each_scene_frame_is_held_then_the_walk_holds_its_last(xr_page, phone_fe
     ]
 
 
+def test_a_walk_set_to_end_ends_the_session_after_its_last_frame(xr_page, phone_feed):
+    open_probe(xr_page, phone_feed, onWalkEnd="end")
+    start(xr_page, {}, "local")
+    scenes = xr_page.evaluate(
+        """() => new Promise((resolve) => {
+            const session = probe.session;
+            session.addEventListener("end", () => resolve(fakeXR.frameLog.map((e) => e.sceneFrame)));
+            const onFrame = () => session.requestAnimationFrame(onFrame);
+            onFrame();
+        })"""
+    )
+    assert scenes == [k // HOLD for k in range(len(phone_feed) * HOLD)]
+    assert xr_page.evaluate("fakeXR.session === null && fakeXR.done") is True
+
+
 # --- the display --------------------------------------------------------------------------------
 
 
@@ -385,17 +400,19 @@ def test_quest_refuses_camera_access_and_has_no_camera_on_its_views(xr_page, que
     assert cameras == [None, None]
 
 
+@pytest.mark.parametrize("delay", [0, 1])
 def test_quest_getusermedia_shows_the_passthrough_camera_of_the_current_scene_frame(
-    xr_page, quest_feed
+    xr_page, quest_feed, delay
 ):
-    open_probe(xr_page, quest_feed)
+    open_probe(xr_page, quest_feed, videoDelaySceneFrames=delay)
     before = xr_page.evaluate("probe.video()")  # no session yet: the walk's first frame
     assert (before["width"], before["height"]) == (QUEST.color.width, QUEST.color.height)
     assert before["scene"] == 0
     start(xr_page, {}, "local")
     xr_page.evaluate("probe.inFrame(() => fakeXR.pause(), 5)")
     during = xr_page.evaluate("probe.video()")
-    assert during["scene"] == 5 // HOLD
+    # The video shows the camera `delay` scene frames behind the pose of the XR frame.
+    assert during["scene"] == 5 // HOLD - delay
     for shown in (before, during):
         image = rgba(shown)[:, :, :3].astype(int)
         truth = quest_feed.frame(shown["scene"]).camera_rgb.astype(int)
