@@ -47,7 +47,7 @@
  *   stalls               window frames that waited for a scene frame still on its way
  *   frameLog             [{xrFrame, time, sceneFrame, sceneTime}] (sceneTime: the walk's clock)
  *   videoLog             [{time, sceneFrame}]: when the getUserMedia video turned to a frame
- *   errors               [string]: feed fetches that failed
+ *   errors               [string]: feed fetches that failed, deleteTexture on an opaque texture
  *   pause(), resume()    no XR frames while paused (the video keeps its frame)
  *   resetReferenceSpace(transform?)  a tracking discontinuity: 'reset' fires on every reference
  *                        space before the next XR frame, whose poses use the new origin;
@@ -656,6 +656,7 @@
   // --- WebGL: layers, bindings, opaque textures ----------------------------------------------
 
   const xrCompatible = new WeakSet();
+  const opaqueTextures = new WeakSet();
   const isGL2 = (gl) => typeof WebGL2RenderingContext !== "undefined" && gl instanceof WebGL2RenderingContext;
   const isGL = (gl) => isGL2(gl) || (typeof WebGLRenderingContext !== "undefined" && gl instanceof WebGLRenderingContext);
 
@@ -815,8 +816,8 @@
       throw domError("NotSupportedError", "the fake XR device has no layers module");
     }
     /** Raw camera access, "obtain camera image", with its checks; the texture is an opaque
-     * texture ("valid only during the requestAnimationFrame callback"): deleted when the frame
-     * ends. Orientation: the spec leaves the texture's layout open ("Should we specify more
+     * texture (WebXR Layers: "considered invalid outside of a requestAnimationFrame() callback
+     * for its session"): deleted when the frame ends. Orientation: the spec leaves the texture's layout open ("Should we specify more
      * information about the returned WebGLTexture?"), but requires it "aligned" with the view
      * ("the camera pose is the same as the XRView's pose, and the camera's viewing frustum has
      * the same shape"); Chromium's camera-access-barebones sample derives intrinsics from the
@@ -847,6 +848,7 @@
           gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
           return texture;
         });
+        opaqueTextures.add(textures.camera);
       }
       return textures.camera;
     }
@@ -906,6 +908,7 @@
       gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
       return texture;
     });
+    opaqueTextures.add(textures.depth);
     return textures.depth;
   }
 
@@ -1070,8 +1073,9 @@
       const activated = navigator.userActivation ? navigator.userActivation.isActive : true;
       return new Promise((resolve, reject) => {
         if (mode !== "immersive-ar") return reject(domError("NotSupportedError", `the fake XR device (${CONFIG.profile}) supports immersive-ar only, not '${mode}'`));
-        // WebXR requestSession: an immersive session not "triggered by user activation" is a
-        // SecurityError; one while another is pending or active is an InvalidStateError.
+        // WebXR, "immersive session request is allowed": false "If the request was not made
+        // while the global object has transient activation" (a SecurityError); a request while
+        // another immersive session is pending or active is an InvalidStateError.
         if (CONFIG.requireUserActivation && !activated) return reject(domError("SecurityError", "requestSession('immersive-ar') needs user activation"));
         if (runtime.session || runtime.pending) return reject(domError("InvalidStateError", "an immersive session is already active"));
         const required = [...new Set(["viewer", "local", ...(init.requiredFeatures ?? [])])];
@@ -1091,7 +1095,9 @@
         };
         const granted = [];
         for (const feature of required) {
-          // WebXR: a required feature the device cannot grant rejects with NotSupportedError.
+          // WebXR: "If any feature listed in the requiredFeatures array is not supported by the
+          // XR device ... the XRSession will not be created" (NotSupportedError); unknown or
+          // unsupported optional features are ignored.
           if (!grant(feature)) return reject(domError("NotSupportedError", `required feature '${feature}' is not supported by the fake ${CONFIG.profile} device`));
           granted.push(feature);
         }
@@ -1425,8 +1431,10 @@
       f.active = false;
       for (const t of f.textures) {
         // Opaque textures live only for their frame's callbacks.
-        if (t.camera) t.gl.deleteTexture(t.camera);
-        if (t.depth) t.gl.deleteTexture(t.depth);
+        for (const texture of [t.camera, t.depth].filter(Boolean)) {
+          opaqueTextures.delete(texture);
+          t.gl.deleteTexture(texture);
+        }
       }
       if (CONFIG.display && this.xrFrame % CONFIG.displayEvery === 0) display.composite(data, slots(s.renderState).baseLayer);
       api.frameLog.push({ xrFrame: this.xrFrame, time, sceneFrame: scene, sceneTime: data.t_s });
@@ -1557,6 +1565,20 @@
         return Promise.resolve();
       },
     });
+  }
+  // WebXR Layers: "A call to deleteTexture with an opaque texture MUST generate an
+  // INVALID_OPERATION error" -- a script cannot raise a GL error, so it is reported instead.
+  for (const proto of [window.WebGLRenderingContext, window.WebGL2RenderingContext].filter(Boolean).map((c) => c.prototype)) {
+    const deleteTexture = proto.deleteTexture;
+    proto.deleteTexture = function (texture) {
+      if (texture && opaqueTextures.has(texture)) {
+        const message = "fakeXR: deleteTexture on an XR opaque texture (INVALID_OPERATION on a device)";
+        api.errors.push(message);
+        console.error(message);
+        return;
+      }
+      return deleteTexture.call(this, texture);
+    };
   }
   for (const proto of [window.HTMLCanvasElement, window.OffscreenCanvas].filter(Boolean).map((c) => c.prototype)) {
     const getContext = proto.getContext;

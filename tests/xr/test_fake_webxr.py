@@ -196,6 +196,9 @@ def test_phone_camera_image_is_the_view_with_its_bottom_row_first(xr_page, phone
     assert (image[:, :, 3] == 255).all()
     assert read["sameCamera"] and read["sameTexture"]
     assert read["textureAfterFrame"] is False  # an opaque texture lives for its frame only
+    deleted = xr_page.evaluate("probe.deleteCameraTexture()")
+    assert deleted["stillATexture"] is True
+    assert any("INVALID_OPERATION" in e for e in deleted["errors"])
 
 
 # --- poses and projections -------------------------------------------------------------------

@@ -152,6 +152,15 @@ window.probe = (() => {
     return result.then(async (out) => ({ ...out, textureAfterFrame: await inFrame(() => gl.isTexture(texture)) }));
   }
 
+  /** What a page that deletes the camera texture gets told. */
+  function deleteCameraTexture() {
+    return inFrame((time, frame, pose) => {
+      const texture = binding.getCameraImage(pose.views[0].camera);
+      gl.deleteTexture(texture);
+      return { stillATexture: gl.isTexture(texture), errors: [...fakeXR.errors] };
+    });
+  }
+
   /** Pixel coordinates (OpenCV: centres at integers, row 0 at the top) of points in the
    * reference space, through each view's transform, projectionMatrix and viewport. */
   function project(points, skip = 0) {
@@ -326,5 +335,5 @@ window.probe = (() => {
     return { liveSession: fakeXR.session !== null };
   }
 
-  return { start, refusal, inFrame, cpuDepth, cameraImage, project, gpuDepth, poses, paint, video, end, get session() { return session; } };
+  return { start, refusal, inFrame, cpuDepth, cameraImage, deleteCameraTexture, project, gpuDepth, poses, paint, video, end, get session() { return session; } };
 })();
