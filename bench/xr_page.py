@@ -27,7 +27,6 @@ from __future__ import annotations
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import httpx
@@ -44,7 +43,7 @@ from client_sim.sources.base import SourceFrame
 _TESTS = Path(__file__).resolve().parents[1] / "tests"
 sys.path[:0] = [str(_TESTS / "xr"), str(_TESTS)]
 
-from fake_xr_browser import launch_chromium, open_with_fake_xr  # noqa: E402
+from fake_xr_browser import launch_chromium, open_with_fake_xr, wait_until  # noqa: E402
 from scene_feed import SceneFeed  # noqa: E402
 from xr_device import CV_FROM_XR_AXES, Phone, Pinhole, Quest3, RuntimeOptions  # noqa: E402
 
@@ -66,14 +65,6 @@ addEventListener("DOMContentLoaded", () => {
   }
 });
 """
-
-
-def wait_until(page, predicate: str, timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not page.evaluate(predicate):
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"not true within {timeout_s:.0f} s: {predicate}")
-        page.wait_for_timeout(100)
 
 
 def page_run(feed: SceneFeed, server_url: str) -> dict:

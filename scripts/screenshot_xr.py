@@ -17,14 +17,13 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "xr"), str(ROOT / "tests")]
 
 import httpx  # noqa: E402
-from fake_xr_browser import launch_chromium, open_with_fake_xr  # noqa: E402
+from fake_xr_browser import launch_chromium, open_with_fake_xr, wait_until  # noqa: E402
 from room_map import room_export  # noqa: E402
 from scene_feed import SceneFeed  # noqa: E402
 from xr_device import Phone, RuntimeOptions  # noqa: E402
@@ -32,14 +31,6 @@ from xr_device import Phone, RuntimeOptions  # noqa: E402
 from app.perception.models.tiny import write_tiny_models  # noqa: E402
 from app.server.runner import ServerThread  # noqa: E402
 from app.server.settings import ServerSettings  # noqa: E402
-
-
-def wait_until(page, predicate: str, timeout_s: float = 120) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not page.evaluate(predicate):
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"not true within {timeout_s:.0f} s: {predicate}")
-        page.wait_for_timeout(100)
 
 
 def main() -> int:

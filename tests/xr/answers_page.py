@@ -6,30 +6,15 @@ the three modules on `window.xr` and adds a few helpers that return plain JSON."
 from __future__ import annotations
 
 import base64
-import shutil
 
 import numpy as np
-import pytest
 
 from app.server.routes.pages import SECURITY_HEADERS
-
-try:  # optional: without playwright only the browser tests skip
-    from playwright.sync_api import sync_playwright
-except ImportError:
-    sync_playwright = None
 
 PAGE_PATH = "/__test/answers.html"
 MODULE_PATH = "/__test/answers_page.mjs"
 CANVAS_PX = 200
 """The test canvas is CANVAS_PX x CANVAS_PX."""
-CHROMIUM_ARGS = [
-    "--no-sandbox",  # tests may run as root in a container, where the sandbox cannot start
-    "--use-angle=swiftshader",  # WebGL2 without a GPU (--disable-gpu would turn WebGL off)
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",  # no internet here: no update checks, no telemetry
-    "--disable-component-update",
-    "--no-first-run",
-]
 
 PAGE_HTML = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>xr answers test page</title>
@@ -126,26 +111,6 @@ window.xr = {
 };
 document.documentElement.dataset.ready = "yes";
 """
-
-
-def chromium_path() -> str | None:
-    """Debian's chromium (Playwright's own download needs internet)."""
-    for name in ("chromium", "chromium-headless-shell", "chromium-browser"):
-        path = shutil.which(name)
-        if path:
-            return path
-    return None
-
-
-def launch_browser(playwright):
-    return playwright.chromium.launch(executable_path=chromium_path(), args=CHROMIUM_ARGS)
-
-
-def skip_without_browser() -> None:
-    if sync_playwright is None:
-        pytest.skip("playwright is not installed (pip install -e '.[dev]')")
-    if chromium_path() is None:
-        pytest.skip("no chromium on PATH (Debian: apt-get install chromium)")
 
 
 def open_answers_page(page, server_url: str) -> None:

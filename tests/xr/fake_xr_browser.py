@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -81,3 +82,14 @@ def open_with_fake_xr(page, url: str, feed: SceneFeed, **overrides) -> dict:
     config = install_fake_xr(page, feed, **overrides)
     page.goto(url)
     return config
+
+
+def wait_until(page, predicate: str, timeout_s: float = 60.0) -> None:
+    """Poll a JavaScript function on the page until it returns true. Playwright's
+    wait_for_function compiles its predicate with eval, which the pages' CSP (script-src
+    'self') forbids, and the CSP stays on: the pages must work under it."""
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(predicate):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"not true within {timeout_s:.0f} s: {predicate}")
+        page.wait_for_timeout(100)

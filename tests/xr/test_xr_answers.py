@@ -19,13 +19,11 @@ import pytest
 from answers_page import (
     column_major,
     image_of,
-    launch_browser,
     look_from,
     near_face_rect,
     open_answers_page,
     perspective,
     pixel_of,
-    skip_without_browser,
 )
 from devices import stream_in_step
 from living_world import AFTER, BEFORE, BOOK, KNOBS, WALK_2_T, walk
@@ -38,23 +36,12 @@ from app.server.runner import ServerThread
 BROWSER_TIMEOUT_MS = 30_000
 
 
-@pytest.fixture(scope="module")
-def browser():
-    skip_without_browser()
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as playwright:
-        browser = launch_browser(playwright)
-        yield browser
-        browser.close()
-
-
 @pytest.fixture
-def context(browser):
+def context(xr_browser):
     # The test page is fulfilled by Playwright, not fetched from 127.0.0.1, so Chromium's Local
     # Network Access checks would take its calls to the server as reaching into the local
     # network and block them (the real /xr page is served by the server itself).
-    context = browser.new_context(permissions=["local-network-access"])
+    context = xr_browser.new_context(permissions=["local-network-access"])
     yield context
     context.close()
 

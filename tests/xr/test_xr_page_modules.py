@@ -7,7 +7,6 @@ from __future__ import annotations
 import io
 import math
 import re
-import shutil
 
 import msgpack
 import numpy as np
@@ -18,39 +17,12 @@ from app.keyframes import is_keyframe
 from app.mapping.geometry import project_to_pixels
 from app.server.routes.pages import STATIC_DIR
 
-try:
-    from playwright.sync_api import sync_playwright
-except ImportError:  # optional: without playwright only the browser tests skip
-    sync_playwright = None
-
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-]
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if sync_playwright is None:
-        pytest.skip("playwright is not installed (pip install -e '.[dev]')")
-    executable = shutil.which("chromium")
-    if executable is None:
-        pytest.skip("no chromium on PATH (Debian: apt-get install chromium)")
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=executable, args=CHROMIUM_ARGS)
-        yield browser
-        browser.close()
-
 
 @pytest.fixture
-def modules(browser, live_server):
+def modules(xr_browser, live_server):
     """A page on the server's origin that can import /static/xr/*.mjs."""
     server = live_server()
-    page = browser.new_page()
+    page = xr_browser.new_page()
     page.goto(f"{server.url}/healthz")
     yield page
     page.close()

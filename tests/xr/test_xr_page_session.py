@@ -4,25 +4,13 @@ tracking reset stopping the stream rather than mapping into a moved frame."""
 
 from __future__ import annotations
 
-import time
-
 import httpx
 import pytest
-from fake_xr_browser import open_with_fake_xr
+from fake_xr_browser import open_with_fake_xr, wait_until
 from scene_feed import SceneFeed
 from xr_device import Phone, RuntimeOptions
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
-
-
-def wait_until(page, predicate: str, timeout_s: float = 60.0) -> None:
-    """Poll a JavaScript function (Playwright's wait_for_function needs eval, which the page's
-    CSP forbids)."""
-    deadline = time.monotonic() + timeout_s
-    while not page.evaluate(predicate):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"not true within {timeout_s:.0f} s: {predicate}")
-        page.wait_for_timeout(100)
 
 
 def test_a_server_without_models_refuses_the_pages_session_and_the_page_names_the_flag(

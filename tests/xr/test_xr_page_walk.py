@@ -11,7 +11,7 @@ import time
 import httpx
 import numpy as np
 import pytest
-from fake_xr_browser import open_with_fake_xr
+from fake_xr_browser import open_with_fake_xr, wait_until
 from room_map import room_export
 from scene_feed import SceneFeed, project
 from xr_device import Phone, Pinhole, Pose, Quest3, RuntimeOptions, quaternion_of
@@ -44,17 +44,6 @@ def quest_as_the_page_calibrates_it(page) -> Quest3:
     m = np.asarray(cal["matrix"], np.float64).reshape(4, 4).T  # column-major
     pose = Pose(tuple(m[:3, 3]), tuple(quaternion_of(m[:3, :3])))
     return Quest3(color=Pinhole(640, 480, fx, fy, cx, cy), color_from_viewer=pose)
-
-
-def wait_until(page, predicate: str, timeout_s: float = 60.0) -> None:
-    """Poll a JavaScript function until it returns true. Playwright's wait_for_function
-    compiles its predicate with eval, which the page's CSP (script-src 'self') forbids, and the
-    CSP stays on: the page must work under it."""
-    deadline = time.monotonic() + timeout_s
-    while not page.evaluate(predicate):
-        if time.monotonic() > deadline:
-            raise AssertionError(f"not true within {timeout_s:.0f} s: {predicate}")
-        page.wait_for_timeout(100)
 
 
 def start_walk(page, server, device, n_frames=24):
