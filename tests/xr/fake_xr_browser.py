@@ -4,11 +4,8 @@ before any page script and a scene feed (scene_feed.SceneFeed) answering its fra
     feed = SceneFeed(Phone(), n_frames=40).prerender()
     open_with_fake_xr(page, f"{server.url}/xr", feed)
     page.click("#start")                       # requestSession needs user activation
-    while not page.evaluate("fakeXR.done"):    # drive with Playwright calls, never time.sleep:
-        page.wait_for_timeout(100)             # the feed answers only while Playwright runs
-
-page.wait_for_function compiles its predicate with eval, which a page's CSP without
-'unsafe-eval' refuses; page.evaluate is not subject to it.
+    wait_until(page, "() => fakeXR.done")      # never time.sleep: the feed answers only
+                                               # while Playwright runs
 
 WebGL needs SwiftShader here (`--use-angle=swiftshader`), not `--disable-gpu`.
 """
