@@ -30,6 +30,8 @@ def test_joining_a_session_reads_its_perception_and_warnings_first(xr_page, live
     server = live_server()
     created = httpx.post(f"{server.url}/v1/sessions", json={"name": "hall"}, timeout=10).json()
     sid, token = created["session_id"], created["token"]
+    requested: list[str] = []
+    xr_page.on("request", lambda request: requested.append(request.url))
     open_with_fake_xr(
         xr_page, f"{server.url}/xr#session={sid}&token={token}", SceneFeed(Phone(), n_frames=2)
     )
@@ -41,6 +43,9 @@ def test_joining_a_session_reads_its_perception_and_warnings_first(xr_page, live
     assert "create a session for this page" in info
     # The token left the address bar (kept in the tab's storage, as the dashboard keeps it).
     assert token not in xr_page.url and f"session={sid}" in xr_page.url
+    # Everything the page loaded came from this server (its modules, the vendored msgpack).
+    assert any(url.endswith("/msgpack-msgpack@3.1.3/dist.esm/index.mjs") for url in requested)
+    assert all(url.startswith(server.url) or url.startswith("data:") for url in requested)
 
 
 def test_a_tracking_reset_stops_the_stream_instead_of_mapping_a_moved_frame(
