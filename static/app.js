@@ -5,16 +5,14 @@
 // Safety rule for this file: text from the server (session names, object labels, error
 // details) is user data. It only ever reaches the page through textContent, attributes set
 // with setAttribute on fixed names, or canvas fillText; never through innerHTML.
+import { auth } from "./common/auth.mjs";
+import { agoWords, CONFIDENT_DEGREE, CONFIDENT_RELEVANCE, relationWords } from "./common/words.mjs";
 import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
 
 (() => {
   const POLL_MS = 2000; // the list and stats refresh period (the brief's "about 2 s")
   const QUERY_K = 5;
   const CHANGES_SHOWN = 20; // the newest changes the timeline lists
-  const CONFIDENT_RELEVANCE = 0.5; // app.mapping.relevance.CONFIDENT: a confident match from here
-  const CONFIDENT_DEGREE = 0.5; // a hit stands in its relation from here (viewer/app.py says the same)
-  const STORE_API_KEY = "semanticxr.apiKey";
-  const STORE_TOKENS = "semanticxr.tokens"; // {session id: token}
 
   const $ = (selector, root = document) => root.querySelector(selector);
 
@@ -53,36 +51,6 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
     return body;
   }
 
-  // --- credentials (this tab only) -------------------------------------------------------
-
-  const auth = {
-    apiKey() {
-      return sessionStorage.getItem(STORE_API_KEY) || "";
-    },
-    setApiKey(key) {
-      if (key) sessionStorage.setItem(STORE_API_KEY, key);
-      else sessionStorage.removeItem(STORE_API_KEY);
-    },
-    tokens() {
-      try {
-        const parsed = JSON.parse(sessionStorage.getItem(STORE_TOKENS) || "{}");
-        return parsed && typeof parsed === "object" && !Array.isArray(parsed) ? parsed : {};
-      } catch {
-        return {};
-      }
-    },
-    setToken(sid, token) {
-      const tokens = auth.tokens();
-      if (token) tokens[sid] = token;
-      else delete tokens[sid];
-      sessionStorage.setItem(STORE_TOKENS, JSON.stringify(tokens));
-    },
-    // A session's own token wins; the API key is accepted for every session too.
-    forSession(sid) {
-      return auth.tokens()[sid] || auth.apiKey();
-    },
-  };
-
   // --- formatting ------------------------------------------------------------------------
 
   function formatBytes(n) {
@@ -118,16 +86,6 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
 
   // --- the living map in words (app/cli/sessions.py says the same) ------------------------
 
-  // How long ago, from seconds of the device clock: "just now", "40 s ago", "10 min ago".
-  function agoWords(seconds) {
-    const s = Math.max(0, seconds);
-    if (s < 5) return "just now";
-    if (s < 90) return `${Math.round(s)} s ago`;
-    if (s < 5400) return `${Math.round(s / 60)} min ago`;
-    if (s < 172800) return `${Math.round(s / 3600)} h ago`;
-    return `${Math.round(s / 86400)} days ago`;
-  }
-
   // A place ({relation, id, label}) in words: "on the dining table", "near the sofa"; where
   // a removed thing was: "from the desk", "from near the sofa". "" without one.
   function placeWords(place, removed = false) {
@@ -159,37 +117,6 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
   }
 
   // --- relational answers in words (viewer/scene.py `relation_words` says the same) ---------
-
-  const RELATION_PHRASES = {
-    next_to: "next to",
-    left_of: "left of",
-    right_of: "right of",
-    in_front_of: "in front of",
-    closest: "closest to",
-    farthest: "farthest from",
-  };
-  const TO_THE_ASKER = { // measured from the asker: "the lamp closest to me"
-    near: "near you",
-    next_to: "next to you",
-    left_of: "on your left",
-    right_of: "on your right",
-    in_front_of: "in front of you",
-    behind: "behind you",
-    closest: "closest to you",
-    farthest: "farthest from you",
-  };
-  const SUPERLATIVES_WITHIN_CATEGORY = new Set(["biggest", "smallest", "highest", "lowest"]);
-
-  // "on the desk", "between the chair and the sofa", "closest to you", "the biggest"; a kind
-  // this page does not know is said with its name.
-  function relationWords(kind, anchorLabels) {
-    const name = String(kind);
-    if (SUPERLATIVES_WITHIN_CATEGORY.has(name)) return `the ${name}`;
-    if (anchorLabels.length === 0) return TO_THE_ASKER[name] || `${name.replaceAll("_", " ")} you`;
-    const names = anchorLabels.map((label) => `the ${label}`);
-    const listed = names.length === 1 ? names[0] : `${names.slice(0, -1).join(", ")} and ${names.at(-1)}`;
-    return `${RELATION_PHRASES[name] || name.replaceAll("_", " ")} ${listed}`;
-  }
 
   // The relation a hit is in, null for a plain hit (or from a server without relations).
   function relationOf(hit) {

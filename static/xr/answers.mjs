@@ -8,10 +8,11 @@
 // whose label shares a word with the question, best first. It has no calibrated relevance
 // (`relevance` is null) and no relations; `note` says so.
 
+import { agoWords, CONFIDENT_DEGREE, CONFIDENT_RELEVANCE, relationWords } from "../common/words.mjs";
 import { ApiError, request } from "./api.mjs";
 
-export const CONFIDENT_RELEVANCE = 0.5; // app.mapping.relevance.CONFIDENT: a confident match from here
-export const CONFIDENT_DEGREE = 0.5; // a hit stands in its relation from here (static/app.js says the same)
+export { CONFIDENT_DEGREE, CONFIDENT_RELEVANCE, relationWords };
+
 export const ASK_TIMEOUT_MS = 4000; // longer than this, the server is taken as out of reach
 const UNREACHABLE_STATUS = new Set([502, 503, 504]); // a gateway or shard that cannot answer now
 
@@ -155,36 +156,6 @@ export function answerByLabelWords(text, objects, k = 5) {
 
 // --- in words (static/app.js and viewer/scene.py say the same) -------------------------------
 
-const RELATION_PHRASES = {
-  next_to: "next to",
-  left_of: "left of",
-  right_of: "right of",
-  in_front_of: "in front of",
-  closest: "closest to",
-  farthest: "farthest from",
-};
-const TO_THE_ASKER = {
-  near: "near you",
-  next_to: "next to you",
-  left_of: "on your left",
-  right_of: "on your right",
-  in_front_of: "in front of you",
-  behind: "behind you",
-  closest: "closest to you",
-  farthest: "farthest from you",
-};
-const SUPERLATIVES_WITHIN_CATEGORY = new Set(["biggest", "smallest", "highest", "lowest"]);
-
-/** "on the desk", "between the chair and the sofa", "closest to you", "the biggest". */
-export function relationWords(kind, anchorLabels) {
-  const name = String(kind);
-  if (SUPERLATIVES_WITHIN_CATEGORY.has(name)) return `the ${name}`;
-  if (anchorLabels.length === 0) return TO_THE_ASKER[name] || `${name.replaceAll("_", " ")} you`;
-  const names = anchorLabels.map((label) => `the ${label}`);
-  const listed = names.length === 1 ? names[0] : `${names.slice(0, -1).join(", ")} and ${names.at(-1)}`;
-  return `${RELATION_PHRASES[name] || name.replaceAll("_", " ")} ${listed}`;
-}
-
 /**
  * How strongly a hit answers, in [0, 1]: its relevance, times its relation's degree in a
  * relational answer (the mug on the shelf is no answer to "the mug on the desk"); null for a
@@ -227,14 +198,6 @@ function whereWhen(hit, nowT) {
   return parts.join(", ");
 }
 
-function agoWords(seconds) {
-  const s = Math.max(0, seconds);
-  if (s < 5) return "just now";
-  if (s < 90) return `${Math.round(s)} s ago`;
-  if (s < 5400) return `${Math.round(s / 60)} min ago`;
-  if (s < 172800) return `${Math.round(s / 3600)} h ago`;
-  return `${Math.round(s / 86400)} days ago`;
-}
 
 /**
  * The answer as one sentence for the page to show:

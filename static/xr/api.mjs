@@ -1,37 +1,9 @@
 // The page's REST and WebSocket addresses and credentials (wire protocol v1, docs/protocol.md).
-// Credentials are kept as the dashboard keeps them: the API key and each session's token in
-// sessionStorage under the same keys, so a token given to one page serves the other too.
-// A session's own token wins; the API key is accepted for every session.
+// Credentials: static/common/auth.mjs, shared with the dashboard.
 
-const STORE_API_KEY = "semanticxr.apiKey";
-const STORE_TOKENS = "semanticxr.tokens"; // {session id: token}
+import { auth } from "../common/auth.mjs";
 
-export const auth = {
-  apiKey() {
-    return sessionStorage.getItem(STORE_API_KEY) || "";
-  },
-  setApiKey(key) {
-    if (key) sessionStorage.setItem(STORE_API_KEY, key);
-    else sessionStorage.removeItem(STORE_API_KEY);
-  },
-  tokens() {
-    try {
-      const parsed = JSON.parse(sessionStorage.getItem(STORE_TOKENS) || "{}");
-      return parsed && typeof parsed === "object" ? parsed : {};
-    } catch {
-      return {};
-    }
-  },
-  setToken(sid, token) {
-    const tokens = auth.tokens();
-    if (token) tokens[sid] = token;
-    else delete tokens[sid];
-    sessionStorage.setItem(STORE_TOKENS, JSON.stringify(tokens));
-  },
-  credential(sid) {
-    return (sid && auth.tokens()[sid]) || auth.apiKey();
-  },
-};
+export { auth };
 
 /** An HTTP answer that was not 2xx: `status` and the server's own words (`detail`). */
 export class ApiError extends Error {
@@ -61,7 +33,7 @@ export async function request(method, path, { sid = null, body = undefined, para
   const url = new URL(path, location.origin);
   for (const [key, value] of Object.entries(params || {})) url.searchParams.set(key, String(value));
   const headers = { Accept: "application/json" };
-  const credential = auth.credential(sid);
+  const credential = auth.forSession(sid);
   if (credential) headers.Authorization = `Bearer ${credential}`;
   if (body !== undefined) headers["Content-Type"] = "application/json";
   const response = await fetch(url, {
@@ -86,7 +58,7 @@ export function socketUrl(path, { sid = null, params = null } = {}) {
   const url = new URL(path, location.origin);
   url.protocol = location.protocol === "https:" ? "wss:" : "ws:";
   for (const [key, value] of Object.entries(params || {})) url.searchParams.set(key, String(value));
-  const credential = auth.credential(sid);
+  const credential = auth.forSession(sid);
   if (credential) url.searchParams.set("token", credential);
   return url.toString();
 }

@@ -151,9 +151,12 @@ def test_the_qr_module_loads_only_the_vendored_generator():
     imports = re.findall(r"^import .* from \"(.*)\";", code, flags=re.M)
     assert imports == ["./vendor/qrcode-generator@2.0.4/dist/qrcode.mjs"]
     assert (STATIC_DIR / "vendor" / "qrcode-generator@2.0.4" / "dist" / "qrcode.mjs").is_file()
+    # Besides the QR module, app.js imports only the modules it shares with the /xr page.
     assert re.findall(
         r"^import .* from \"(.*)\";", _without_comments(STATIC_DIR / "app.js"), re.M
-    ) == ["./session-qr.mjs"]
+    ) == ["./common/auth.mjs", "./common/words.mjs", "./session-qr.mjs"]
+    for shared in ("auth.mjs", "words.mjs"):
+        assert not re.findall(r"^import ", _without_comments(STATIC_DIR / "common" / shared), re.M)
 
 
 def test_the_script_never_writes_html():
