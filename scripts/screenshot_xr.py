@@ -57,7 +57,9 @@ def main() -> int:
                 f"{server.url}/v1/sessions", json={"perception": "models"}, timeout=30
             )
             feed = SceneFeed(
-                Phone(), n_frames=args.frames, options=RuntimeOptions(on_walk_end="hold")
+                Phone(),
+                n_frames=args.frames,
+                options=RuntimeOptions(on_walk_end="hold", display_every=1),
             )
             room = room_export(feed, probe.json()["embedding"])
             imported = httpx.post(f"{server.url}/v1/sessions/import", json=room, timeout=60).json()

@@ -126,7 +126,9 @@ def test_the_answer_is_drawn_over_the_thing_in_the_room(xr_page, live_server, ti
     matches, and the local answer by label words is one."""
     server = live_server(perception="models", models_dir=tiny_models)
     probe = httpx.post(f"{server.url}/v1/sessions", json={"perception": "models"}, timeout=30)
-    feed = SceneFeed(Phone(), n_frames=16, options=RuntimeOptions(on_walk_end="hold"))
+    feed = SceneFeed(
+        Phone(), n_frames=16, options=RuntimeOptions(on_walk_end="hold", display_every=1)
+    )
     room = room_export(feed, probe.json()["embedding"])
     imported = httpx.post(f"{server.url}/v1/sessions/import", json=room, timeout=60).json()
     sid, token = imported["session_id"], imported["token"]
