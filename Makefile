@@ -25,6 +25,7 @@ bench: setup
 	$(PY) -m bench.server --out out
 	$(PY) -m bench.device --out out
 	$(PY) -m bench.local_map --out out
+	$(PY) -m bench.xr_page --out out
 
 clean:
 	rm -rf .venv out .pytest_cache .hypothesis
