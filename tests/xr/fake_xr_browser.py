@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -48,15 +48,29 @@ def chromium_path() -> str | None:
 
 
 @contextmanager
-def launch_chromium() -> Iterator:
-    """A headless Chromium that can run WebGL 2, or a pytest skip naming what is missing."""
+def playwright_session() -> Iterator:
+    """Playwright's sync API, or a pytest skip naming what is missing. Start it once: a second
+    one on the same thread fails while the first runs; launch every browser from this one."""
     if sync_playwright is None:
         pytest.skip("playwright is not installed (pip install -e '.[dev]')")
-    executable = chromium_path()
-    if executable is None:
+    if chromium_path() is None:
         pytest.skip("no chromium on PATH (Debian: apt-get install chromium)")
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=executable, args=CHROMIUM_ARGS)
+        yield playwright
+
+
+def launch(playwright, extra_args: Sequence[str] = ()):
+    """A headless Chromium that can run WebGL 2, with `extra_args` after CHROMIUM_ARGS (e.g.
+    tests/spoken.py's fake microphone); close it when done."""
+    args = [*CHROMIUM_ARGS, *extra_args]
+    return playwright.chromium.launch(executable_path=chromium_path(), args=args)
+
+
+@contextmanager
+def launch_chromium(extra_args: Sequence[str] = ()) -> Iterator:
+    """`launch` in a Playwright of its own (scripts and benches), or a pytest skip."""
+    with playwright_session() as playwright:
+        browser = launch(playwright, extra_args)
         try:
             yield browser
         finally:
