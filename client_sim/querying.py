@@ -171,6 +171,13 @@ class QueryAnswer:
     verdict: bool | None = None
     """The answer's own `match` where it has one: the server's (SQ), or a relational LQ's
     (its best score >= relational.MATCH_MIN_SCORE); None: from the hits' relevance."""
+    transcript: str | None = None
+    """A spoken question (`QueryRouter.ask_aloud`): what the server heard; None for a typed
+    one."""
+    confidence: float | None = None
+    """A spoken question: the recogniser's confidence in the transcript, where it gives one."""
+    asr_ms: float | None = None
+    """A spoken question: the server's time recognising it (within `latency_ms`)."""
 
     @property
     def match(self) -> bool:
@@ -259,6 +266,35 @@ class QueryRouter:
                 reason = f"SQ failed ({type(exc).__name__}: {exc}); fell back to LQ"
         return await self._local_query(text, k, reason, start_s, rtt)
 
+    async def ask_aloud(self, audio: bytes, content_type: str, k: int = 5) -> QueryAnswer:
+        """A spoken question (a whole audio file of `content_type`), recognised and answered
+        by the server whatever the RTT: the device cannot recognise speech, so there is no
+        LQ. Asked from where the device stands, as SQ asks. Mode "none", no results and the
+        server's words in `reason` when it refuses the audio (415, 413, 400, 422, 503) or does
+        not answer."""
+        start_s = time.perf_counter()
+        rtt = self.rtt_ms()
+        try:
+            answer = await self.api.query_speech(
+                audio, content_type, k, from_xyz=self.local_map.user_position
+            )
+        except Exception as exc:  # refused or unreachable: said, not raised
+            return _unanswered("", f"not answered: {exc}", start_s, rtt)
+        now_s = time.perf_counter()
+        return QueryAnswer(
+            text=answer["text"],
+            mode=SQ,
+            results=answer["results"],
+            latency_ms=(now_s - start_s) * 1e3,
+            reason="spoken: recognised on the server (offline)",
+            total_ms=(now_s - start_s) * 1e3,
+            rtt_ms=rtt,
+            verdict=answer["match"],
+            transcript=answer["transcript"],
+            confidence=answer["confidence"],
+            asr_ms=answer["asr_ms"],
+        )
+
     async def aclose(self) -> None:
         await self.api.aclose()
 
@@ -324,16 +360,7 @@ class QueryRouter:
                 return await self._server_query(text, k, off, start_s, rtt)
             except Exception as exc:
                 problem = f"SQ failed ({type(exc).__name__}: {exc})"
-        now_s = time.perf_counter()
-        return QueryAnswer(
-            text=text,
-            mode=NONE,
-            results=[],
-            latency_ms=(now_s - start_s) * 1e3,
-            reason=f"{problem}; {off}",
-            total_ms=(now_s - start_s) * 1e3,
-            rtt_ms=rtt,
-        )
+        return _unanswered(text, f"{problem}; {off}", start_s, rtt)
 
     async def _probe_rtt_ms(self) -> tuple[float | None, str | None]:
         """(RTT of one GET /healthz in ms, None) or (None, what went wrong)."""
@@ -435,6 +462,20 @@ class QueryRouter:
             rtt_ms=rtt,
             verdict=relational.is_match(hits),
         )
+
+
+def _unanswered(text: str, reason: str, start_s: float, rtt: float | None) -> QueryAnswer:
+    """Mode "none": no answer, and why, after the whole call's time."""
+    took_ms = (time.perf_counter() - start_s) * 1e3
+    return QueryAnswer(
+        text=text,
+        mode=NONE,
+        results=[],
+        latency_ms=took_ms,
+        reason=reason,
+        total_ms=took_ms,
+        rtt_ms=rtt,
+    )
 
 
 def _prepare(encoder: TextEncoder, phrases: list[str], labels: list[str]) -> None:

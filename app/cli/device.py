@@ -6,14 +6,16 @@
 It creates (or joins) a session, streams the source's frames at --fps (every --send-every-th
 frame), keeps a local copy of the map from the session's updates, prints progress on stderr
 about once a second, and at the end asks each --query (SQ or LQ, see client_sim/querying.py)
-and prints the answers. Ctrl-C stops it cleanly (the summary is still written).
+and prints the answers, then each --ask-audio recording, which the server recognises and
+answers. Ctrl-C stops it cleanly (the summary is still written).
 
 Local queries need the session's text encoder (the model the session announces in
 `embedding`): MiniLM is packaged; CLIP's text tower (sessions on `--perception models`)
 comes from `--models-dir DIR`, the folder the server's `--models-dir` holds (text tower
 only). Without it the device says once that local queries are off and asks the server.
-Exit status: 0 when streaming worked and every query got an answer, 1 when a query got none,
-2 on a set-up error, 130 on Ctrl-C.
+Exit status: 0 when streaming worked and every query got an answer, 1 when a query (typed or
+spoken) got none, 2 on a set-up error (a missing --ask-audio file or one of unknown type among
+them), 130 on Ctrl-C.
 
 The device itself is client_sim (DeviceClient, QueryRouter, the local map); this module is
 the command around it: flags, progress line, answers and the summary.
@@ -30,11 +32,12 @@ import os
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from app.cli.common import frames_words, write_json
 from app.client import ApiError, http_base_url
-from app.client.rest import parsed_answer
+from app.client.rest import AUDIO_TYPES, audio_type, parsed_answer
 from app.config import Knobs, updated_knobs
 from app.flags import (
     add_knob_flags,
@@ -133,6 +136,15 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         metavar="TEXT",
         help="ask this at the end (repeatable); prints mode, latency and top results",
     )
+    parser.add_argument(
+        "--ask-audio",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="ask this recorded question at the end, after the --query ones (repeatable): the "
+        "server recognises it offline and answers as a typed query is answered; prints what "
+        "it heard and the answer. Its type comes from the extension: " + ", ".join(AUDIO_TYPES),
+    )
     parser.add_argument("-k", type=int, default=3, help="results per query")
     parser.add_argument(
         "--models-dir",
@@ -230,13 +242,15 @@ def run(args: argparse.Namespace) -> int:
     try:
         http_base_url(args.server)
         encoder_options_from_args(args)
-        # The source first: a wrong path should not leave an empty session behind.
+        # The source and the recordings first: a wrong path should not leave an empty
+        # session behind.
         source = make_device_source(args.source, args.frames, args.source_max_side)
+        recordings = read_recordings(args.ask_audio)
     except (ValueError, OSError) as exc:
         print(f"semanticxr device: {exc}", file=sys.stderr)
         return 2
     try:
-        return asyncio.run(_run(args, source))
+        return asyncio.run(_run(args, source, recordings))
     except (ApiError, DeviceError, SourceError) as exc:  # SourceError: a frame that cannot be read
         print(f"semanticxr device: {exc}", file=sys.stderr)
         return 2
@@ -264,6 +278,32 @@ def make_device_source(
     if max_side_px < 0:
         raise ValueError(f"--source-max-side must be >= 0 (0: full size), got {max_side_px}")
     return make_source(spec, max_side_px=max_side_px or None)
+
+
+@dataclasses.dataclass(frozen=True)
+class Recording:
+    """A recorded question to ask (--ask-audio)."""
+
+    path: str
+    content_type: str
+    """Its type by its extension (`app.client.rest.audio_type`), e.g. "audio/wav"."""
+    audio: bytes
+
+
+def read_recordings(paths: list[str]) -> list[Recording]:
+    """Each --ask-audio file, read whole with its type; ValueError for an unknown extension,
+    OSError naming a file that cannot be read."""
+    recordings = []
+    for path in paths:
+        try:
+            content_type = audio_type(path)  # before reading: the extension is the first check
+            audio = Path(path).read_bytes()
+        except ValueError as exc:
+            raise ValueError(f"--ask-audio {exc}") from None
+        except OSError as exc:
+            raise OSError(f"--ask-audio {path}: {exc.strerror or exc}") from None
+        recordings.append(Recording(path, content_type, audio))
+    return recordings
 
 
 async def _join_session(
@@ -348,6 +388,20 @@ def _print_answer(answer: QueryAnswer) -> None:
         )
 
 
+def _print_spoken(recording: Recording, answer: QueryAnswer) -> None:
+    """What the server heard of a recording, then its answer as a typed one's is printed."""
+    if answer.transcript is None:
+        print(f"{recording.path}: {answer.reason}", flush=True)
+        return
+    sure = "" if answer.confidence is None else f", confidence {answer.confidence:.2f}"
+    print(
+        f"{recording.path}: heard {answer.transcript!r} (recognised on the server in "
+        f"{answer.asr_ms:.0f} ms{sure})",
+        flush=True,
+    )
+    _print_answer(answer)
+
+
 def _local_queries(
     args: argparse.Namespace, embedding: dict
 ) -> tuple[Callable[[], TextEncoder] | None, str | None]:
@@ -365,7 +419,7 @@ def _local_queries(
         return None, str(exc)
 
 
-async def _run(args: argparse.Namespace, source: FrameSource) -> int:
+async def _run(args: argparse.Namespace, source: FrameSource, recordings: list[Recording]) -> int:
     from client_sim.querying import NONE, EncoderMismatchError, QueryRouter
     from client_sim.streaming import DeviceClient, make_local_map
 
@@ -423,7 +477,7 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
             except (EncoderMismatchError, OSError, ValueError) as exc:  # refused, or unreadable
                 local_off = f"{exc}"
                 print(f"semanticxr device: error: {exc}", file=sys.stderr)
-        if args.query:
+        if args.query or recordings:
             async with QueryRouter(
                 args.server,
                 sid,
@@ -439,6 +493,11 @@ async def _run(args: argparse.Namespace, source: FrameSource) -> int:
                 for text in args.query:
                     answers.append(await router.query(text, args.k))
                     _print_answer(answers[-1])
+                for recording in recordings:
+                    answers.append(
+                        await router.ask_aloud(recording.audio, recording.content_type, args.k)
+                    )
+                    _print_spoken(recording, answers[-1])
     except asyncio.CancelledError:  # Ctrl-C: asyncio.run cancels us, then raises KeyboardInterrupt
         interrupted = True
         raise

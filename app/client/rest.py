@@ -18,6 +18,17 @@ from app.protocol.rest import R
 
 REST_TIMEOUT_S = 10.0
 """Longest wait for one REST call, whole (connect, send, answer)."""
+SPEECH_TIMEOUT_S = 60.0
+"""Longest wait for a spoken question, whole: its upload (up to the server's
+`--max-audio-bytes`, about 4 MiB) and its recognition."""
+AUDIO_TYPES = {
+    ".wav": "audio/wav",
+    ".webm": "audio/webm",
+    ".ogg": "audio/ogg",
+    ".m4a": "audio/mp4",
+    ".mp4": "audio/mp4",
+}
+"""The Content-Type of an audio file by its extension, for `POST .../query/speech`."""
 
 
 class ApiError(RuntimeError):
@@ -28,6 +39,18 @@ class ApiError(RuntimeError):
         super().__init__(message)
         self.status = status
         """The HTTP status, when the server answered."""
+
+
+def audio_type(path: str | Path) -> str:
+    """The Content-Type of a recorded question, from its file's extension (case ignored);
+    ValueError naming the extensions known."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in AUDIO_TYPES:
+        known = " ".join(AUDIO_TYPES)
+        raise ValueError(
+            f"{path}: cannot tell the audio type of {suffix or 'no extension'}: use {known}"
+        )
+    return AUDIO_TYPES[suffix]
 
 
 def http_client(
@@ -279,6 +302,33 @@ class SessionApi:
         answer = await self._call("GET", f"{self.session_url}/query", params=params)
         return _result(answer)
 
+    async def query_speech(
+        self,
+        audio: bytes,
+        content_type: str,
+        k: int = 5,
+        *,
+        include: str | None = None,
+        from_xyz: Sequence[float] | None = None,
+    ) -> dict:
+        """POST /v1/sessions/{sid}/query/speech: `audio` (a whole file of `content_type`:
+        audio/wav, audio/webm, audio/ogg or audio/mp4; `audio_type` of its name) recognised by
+        the server and answered as `query_result` answers the text it heard: that dict plus
+        "transcript", "confidence" (None when the recogniser gives none) and "asr_ms" (the
+        recognition's own time). Bounded by SPEECH_TIMEOUT_S, not the session's timeout."""
+        params = _query_params(None, k, include, from_xyz)
+        answer = await request(
+            self._client(),
+            "POST",
+            f"{self.session_url}/query/speech",
+            timeout_s=SPEECH_TIMEOUT_S,
+            timeout=SPEECH_TIMEOUT_S,  # each phase too: the answer waits for the recognition
+            params=params,
+            content=audio,
+            headers={"Content-Type": content_type},
+        )
+        return _spoken_result(answer)
+
     async def changes(
         self,
         *,
@@ -352,10 +402,12 @@ def parsed_answer(model: type[R], answer: Any, call: str) -> R:
 
 
 def _query_params(
-    text: str, k: int, include: str | None = None, from_xyz: Sequence[float] | None = None
+    text: str | None, k: int, include: str | None = None, from_xyz: Sequence[float] | None = None
 ) -> dict[str, Any]:
+    """A query's parameters; text None for a spoken question (its text is in the audio)."""
     # Points left out: the device and the viewer already hold the geometry they need.
-    params: dict[str, Any] = {"text": text, "k": k, "points": "false"}
+    params: dict[str, Any] = {} if text is None else {"text": text}
+    params.update(k=k, points="false")
     if include is not None:
         params["include"] = include
     if from_xyz is not None:
@@ -372,3 +424,21 @@ def _result(answer: Any) -> dict:
     except InputError as exc:
         raise ApiError(f"a malformed query answer: {exc}") from exc
     return result.model_dump(exclude={"results": {"__all__": {"points"}}})
+
+
+def _spoken_result(answer: Any) -> dict:
+    """A spoken question's answer: `_result` of its query part, with what was heard."""
+    result = _result(answer)
+    transcript, confidence, asr_ms = (
+        answer.get(key) for key in ("transcript", "confidence", "asr_ms")
+    )
+    if not isinstance(transcript, str):
+        raise ApiError("a malformed spoken answer: transcript must be a string")
+    for name, value, optional in (("confidence", confidence, True), ("asr_ms", asr_ms, False)):
+        if (value is None and not optional) or not (value is None or _is_number(value)):
+            raise ApiError(f"a malformed spoken answer: {name} must be a number")
+    return {**result, "transcript": transcript, "confidence": confidence, "asr_ms": asr_ms}
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
