@@ -6,7 +6,9 @@
 // details) is user data. It only ever reaches the page through textContent, attributes set
 // with setAttribute on fixed names, or canvas fillText; never through innerHTML.
 import { auth } from "./common/auth.mjs";
-import { agoWords, CONFIDENT_DEGREE, CONFIDENT_RELEVANCE, relationWords } from "./common/words.mjs";
+import { PushToTalk } from "./common/push-to-talk.mjs";
+import { microphoneProblem, recordedQuestion, recordingErrorWords, startRecording } from "./common/recorder.mjs";
+import { agoWords, CONFIDENT_DEGREE, CONFIDENT_RELEVANCE, heardWords, relationWords } from "./common/words.mjs";
 import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
 
 (() => {
@@ -19,8 +21,9 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
   // --- HTTP -----------------------------------------------------------------------------
 
   class HttpError extends Error {
-    constructor(status, detail) {
-      super(status ? `HTTP ${status}: ${detail}` : `server unreachable: ${detail}`);
+    constructor(status, detail, retryAfterS = null) {
+      const again = retryAfterS ? `; try again in ${retryAfterS} s` : "";
+      super(status ? `HTTP ${status}: ${detail}${again}` : `server unreachable: ${detail}`);
       this.status = status;
     }
   }
@@ -32,23 +35,29 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
     return fallback || "no detail";
   }
 
-  async function api(path, credential) {
+  // A GET, or a POST of `body`: a Blob sent as it is, typed by its own type (a recorded
+  // question's "audio/webm;codecs=opus").
+  async function api(path, credential, { method = "GET", body = undefined } = {}) {
     const headers = { Accept: "application/json" };
     if (credential) headers.Authorization = `Bearer ${credential}`;
+    if (body !== undefined) headers["Content-Type"] = body.type;
     let response;
     try {
-      response = await fetch(path, { headers, cache: "no-store" });
+      response = await fetch(path, { method, headers, body, cache: "no-store" });
     } catch (err) {
       throw new HttpError(0, err.message || "network error");
     }
-    let body = null;
+    let answer = null;
     try {
-      body = await response.json();
+      answer = await response.json();
     } catch {
-      body = null; // an error page that is not JSON: the status text says enough
+      answer = null; // an error page that is not JSON: the status text says enough
     }
-    if (!response.ok) throw new HttpError(response.status, formatDetail(body, response.statusText));
-    return body;
+    if (!response.ok) {
+      const retryAfterS = Number(response.headers.get("Retry-After")) || null; // 503: busy
+      throw new HttpError(response.status, formatDetail(answer, response.statusText), retryAfterS);
+    }
+    return answer;
   }
 
   // --- formatting ------------------------------------------------------------------------
@@ -423,6 +432,13 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
         event.preventDefault();
         this.query($(".query-input", this.root).value.trim());
       });
+      // Spoken questions: recorded here, recognised by the server (offline), answered as typed.
+      this.talk = new PushToTalk($(".query-mic", this.root), {
+        start: ({ onLimit }) => startRecording({ onLimit }),
+        onCaptured: (captured) => this.askAloud(recordedQuestion(captured)),
+        onError: (error) => this.setHeard(`not asked: ${recordingErrorWords(error)}`, true),
+      });
+      this.talk.setUnavailable(microphoneProblem());
       new ResizeObserver(() => this.redraw()).observe($(".plot-canvas", this.root));
     }
 
@@ -535,15 +551,47 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
 
     async query(text) {
       if (!text) return;
+      this.setHeard("");
+      const params = new URLSearchParams({ text });
+      await this.ask(params, () => api(this.path(`/query?${params}`), auth.forSession(this.sid)));
+    }
+
+    // A recorded question: the server recognises it and answers what it heard, which is
+    // shown ("heard …") and put in the query box, where it can be corrected and asked again.
+    async askAloud(audio) {
+      this.setHeard("recognising on the server…");
+      const params = new URLSearchParams();
+      const call = () => api(this.path(`/query/speech?${params}`), auth.forSession(this.sid), { method: "POST", body: audio });
+      const answer = await this.ask(params, call);
+      if (!answer) {
+        this.setHeard("");
+        return;
+      }
+      this.setHeard(heardWords(answer, "server"));
+      $(".query-input", this.root).value = answer.transcript;
+    }
+
+    setHeard(text, error = false) {
+      const node = $(".query-heard", this.root);
+      node.textContent = text;
+      node.classList.toggle("error", error);
+      node.hidden = !text;
+    }
+
+    // Ask the map with `call` (the query's other parameters added to `params`) and show the
+    // answer, typed or spoken alike; the answer, or null when it failed (said in the meta line).
+    async ask(params, call) {
       const meta = $(".query-meta", this.root);
       const button = $(".query-button", this.root);
       meta.classList.remove("error");
       meta.textContent = "asking…";
       button.disabled = true;
-      const params = new URLSearchParams({ text, k: String(QUERY_K), points: "false" });
+      params.set("k", String(QUERY_K));
+      params.set("points", "false");
       if ($(".query-removed", this.root).checked) params.set("include", "removed");
+      let answer = null;
       try {
-        const answer = await api(this.path(`/query?${params}`), auth.forSession(this.sid));
+        answer = await call();
         this.hits = answer.results;
         this.match = Boolean(answer.match);
         this.nowT = answer.now_t;
@@ -554,6 +602,7 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
         meta.classList.toggle("no-match", !answer.match);
         meta.textContent = answer.match ? found : `no confident match · ${found}`;
       } catch (err) {
+        answer = null;
         this.hits = [];
         this.match = false;
         this.renderResults();
@@ -564,6 +613,7 @@ import { qrDataUrl, sessionPageUrl } from "./session-qr.mjs";
         button.disabled = false;
       }
       this.redraw();
+      return answer;
     }
 
     renderResults() {

@@ -45,3 +45,20 @@ export function agoWords(seconds) {
   if (s < 172800) return `${Math.round(s / 3600)} h ago`;
   return `${Math.round(s / 86400)} days ago`;
 }
+
+/** Where a spoken question was recognised, as the pages say it. */
+export const RECOGNISED = {
+  server: "recognised on the server (offline)", // the server's own recogniser: no cloud service
+  device: "recognised on this device", // the browser's on-device recognition (processLocally)
+};
+
+/**
+ * What was heard of a spoken question, and where: "heard “where is the fridge” (0.82) ·
+ * recognised on the server (offline) in 412 ms". `confidence` and `asr_ms` are said when
+ * known (the answer of POST /v1/sessions/{sid}/query/speech carries them).
+ */
+export function heardWords({ transcript, confidence = null, asr_ms = null }, where = "server") {
+  const sure = typeof confidence === "number" ? ` (${confidence.toFixed(2)})` : "";
+  const took = typeof asr_ms === "number" ? ` in ${Math.round(asr_ms)} ms` : "";
+  return `heard “${transcript}”${sure} · ${RECOGNISED[where]}${took}`;
+}

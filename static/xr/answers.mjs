@@ -50,6 +50,32 @@ export async function ask(text, { sid, follower = null, k = 5, from = null, time
   return answerFromServer(body, objects);
 }
 
+export const ASK_ALOUD_TIMEOUT_MS = 30000; // an upload and its recognition take longer than a typed question
+
+/**
+ * Ask the map aloud: `audio`, a Blob typed as it was recorded ("audio/webm;codecs=opus"),
+ * goes to `POST /v1/sessions/{sid}/query/speech`, which recognises it offline and answers
+ * the text it heard as `ask` answers typed text (`k`, `from` as there). Resolves to that
+ * answer (`source: "server"`) with what was heard: `transcript`, `confidence` (null when the
+ * recogniser gives none), `asr_ms`, and `recognised: "server"`. There is no local answer:
+ * the page cannot recognise speech by itself, so a refusal (415 type, 413 size, 400 empty or
+ * undecodable, 422 too long or no speech, 503 busy with `retryAfterS`) throws the ApiError,
+ * a network down a TypeError, and a server silent for `timeoutMs` a TimeoutError.
+ */
+export async function askAloud(audio, { sid, follower = null, k = 5, from = null, timeoutMs = ASK_ALOUD_TIMEOUT_MS } = {}) {
+  const params = { k, points: "true" };
+  if (from !== null) params.from = fromParam(from);
+  const path = `/v1/sessions/${encodeURIComponent(sid)}/query/speech`;
+  const body = await request("POST", path, { sid, params, body: audio, signal: AbortSignal.timeout(timeoutMs) });
+  return {
+    ...answerFromServer(body, follower ? follower.objects : new Map()),
+    transcript: body.transcript,
+    confidence: body.confidence ?? null,
+    asr_ms: body.asr_ms ?? null,
+    recognised: "server",
+  };
+}
+
 /** "x,y,z" of a position: each number's shortest round-trip text (Python's repr does the same). */
 export function fromParam(from) {
   const xyz = Array.isArray(from) || ArrayBuffer.isView(from) ? Array.from(from) : [from?.x, from?.y, from?.z];

@@ -5,12 +5,14 @@ import { auth } from "../common/auth.mjs";
 
 export { auth };
 
-/** An HTTP answer that was not 2xx: `status` and the server's own words (`detail`). */
+/** An HTTP answer that was not 2xx: `status`, the server's own words (`detail`) and, when
+ * the server said when to try again (503 busy), `retryAfterS`. */
 export class ApiError extends Error {
-  constructor(status, detail) {
+  constructor(status, detail, retryAfterS = null) {
     super(detail);
     this.status = status;
     this.detail = detail;
+    this.retryAfterS = retryAfterS;
   }
 }
 
@@ -26,8 +28,9 @@ function detailOf(body, fallback) {
 
 /**
  * A REST call on this page's own origin. `sid` picks the credential (the session's token,
- * else the API key); `body` is sent as JSON. Throws ApiError naming what the server said, or
- * a TypeError when the network is down.
+ * else the API key); `body` is sent as JSON, or as it is when it is a Blob (typed by the
+ * blob's own type: a recorded question's "audio/webm;codecs=opus"). Throws ApiError naming
+ * what the server said, or a TypeError when the network is down.
  */
 export async function request(method, path, { sid = null, body = undefined, params = null, signal } = {}) {
   const url = new URL(path, location.origin);
@@ -35,11 +38,12 @@ export async function request(method, path, { sid = null, body = undefined, para
   const headers = { Accept: "application/json" };
   const credential = auth.forSession(sid);
   if (credential) headers.Authorization = `Bearer ${credential}`;
-  if (body !== undefined) headers["Content-Type"] = "application/json";
+  const binary = body instanceof Blob;
+  if (body !== undefined) headers["Content-Type"] = binary ? body.type : "application/json";
   const response = await fetch(url, {
     method,
     headers,
-    body: body === undefined ? undefined : JSON.stringify(body),
+    body: body === undefined || binary ? body : JSON.stringify(body),
     signal,
   });
   const text = await response.text();
@@ -49,7 +53,10 @@ export async function request(method, path, { sid = null, body = undefined, para
   } catch {
     parsed = null;
   }
-  if (!response.ok) throw new ApiError(response.status, detailOf(parsed, `${response.status} ${response.statusText}`));
+  if (!response.ok) {
+    const retryAfterS = Number(response.headers.get("Retry-After")) || null;
+    throw new ApiError(response.status, detailOf(parsed, `${response.status} ${response.statusText}`), retryAfterS);
+  }
   return parsed;
 }
 

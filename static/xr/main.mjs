@@ -4,12 +4,14 @@
 // (stream.mjs) -> follow the updates (updates.mjs) -> answer (answers.mjs, draw.mjs).
 
 import { ApiError, auth, request, sessionFromFragment } from "./api.mjs";
-import { ask, answerWords } from "./answers.mjs";
+import { heardWords } from "../common/words.mjs";
+import { ask, askAloud, answerWords } from "./answers.mjs";
 import { Capture } from "./capture.mjs";
 import { AnswerRenderer } from "./draw.mjs";
 import { FrameSampler, isKeyframe } from "./keyframes.mjs";
 import { FrameStream } from "./stream.mjs";
 import { MapFollower } from "./updates.mjs";
+import { wireVoice } from "./voice.mjs";
 
 /** The Python device's defaults (client_sim/encoder.py, `semanticxr device`), so a page and
  * the emulator send alike: 5 frames a second sampled, JPEG quality 50, depth in 1 cm units,
@@ -44,6 +46,7 @@ const state = {
   costs: [], // main-thread ms the page spent in each XR frame that captured, collected or sent
   runtimeCosts: [], // of those frames, ms inside the runtime's getCameraImage / getDepthInformation
   upstream: [], // [timeMs, messageBytes, payloadBytes] samples
+  voice: null, // the push-to-talk (voice.mjs)
 };
 
 // ------------------------------------------------------------------ page state, for people and tests
@@ -141,6 +144,7 @@ async function listSessions() {
 async function chooseSession(sid) {
   state.sid = sid || null;
   state.record = null;
+  state.voice.setSession(state.sid);
   $("#start-ar").disabled = true;
   if (!sid) {
     $("#session-info").textContent = "No session chosen.";
@@ -392,15 +396,65 @@ function endAr(xr) {
 }
 
 // ------------------------------------------------------------------ asking
-async function onAsk(text) {
-  if (!state.sid || !text) return;
-  const from = state.xr && state.xr.lastPosition ? state.xr.lastPosition : null;
-  const answer = await ask(text, { sid: state.sid, follower: state.follower, k: 5, from });
+// A typed question and a spoken one end alike: the answer in words, drawn in the room.
+function showAnswer(answer) {
   state.answer = answer;
   const line = $("#answer");
   line.textContent = answerWords(answer);
   line.dataset.match = String(Boolean(answer.match));
   if (state.xr) state.xr.renderer.setAnswer(answer, state.follower);
+}
+
+/** What was heard of a spoken question (or why nothing was), null to hide the line. */
+function showHeard(text, error = false) {
+  const line = $("#heard");
+  line.textContent = text || "";
+  line.dataset.error = String(error);
+  line.hidden = !text;
+}
+
+function askerPosition() {
+  return state.xr && state.xr.lastPosition ? state.xr.lastPosition : null;
+}
+
+async function onAsk(text) {
+  if (!state.sid || !text) return;
+  const answer = await ask(text, { sid: state.sid, follower: state.follower, k: 5, from: askerPosition() });
+  showHeard(null);
+  showAnswer(answer);
+}
+
+// Recorded: the server recognises it and answers what it heard.
+async function onAskAloud(audio) {
+  if (!state.sid) return;
+  showHeard("recognising on the server…");
+  let answer;
+  try {
+    answer = await askAloud(audio, { sid: state.sid, follower: state.follower, k: 5, from: askerPosition() });
+  } catch (error) {
+    showHeard(`not answered: ${spokenErrorWords(error)}`, true);
+    return;
+  }
+  showHeard(heardWords(answer, "server"));
+  showAnswer(answer);
+}
+
+// Recognised on the device: asked as typed text is (from the page's copy when offline).
+async function onRecognised({ transcript, confidence }) {
+  if (!state.sid) return;
+  const answer = await ask(transcript, { sid: state.sid, follower: state.follower, k: 5, from: askerPosition() });
+  showHeard(heardWords({ transcript, confidence }, "device"));
+  showAnswer({ ...answer, transcript, confidence, asr_ms: null, recognised: "device" });
+}
+
+function spokenErrorWords(error) {
+  if (error instanceof ApiError) {
+    const again = error.retryAfterS ? `; try again in ${error.retryAfterS} s` : "";
+    return `${error.detail} (${error.status})${again}`;
+  }
+  if (error.name === "TimeoutError") return "the server did not answer in time";
+  // The page cannot recognise speech by itself: a typed question is answered from its copy.
+  return `the server is out of reach (${error.message}); type the question instead`;
 }
 
 // ------------------------------------------------------------------ start
@@ -427,6 +481,14 @@ function wire() {
   $("#ask-form").addEventListener("submit", (event) => {
     event.preventDefault();
     onAsk($("#ask-text").value.trim()).catch((error) => showBanner(`The question could not be asked: ${error.message}`));
+  });
+  state.voice = wireVoice({
+    button: $("#talk"),
+    onDevice: $("#on-device"),
+    note: $("#voice-note"),
+    onRecorded: onAskAloud,
+    onRecognised,
+    onError: (message) => showHeard(`not answered: ${message}`, true),
   });
   setInterval(renderStats, 1000);
 }

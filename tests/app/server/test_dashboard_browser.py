@@ -7,13 +7,16 @@ import asyncio
 import io
 import re
 import shutil
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 import httpx
 import pytest
 from analytic_world import Rect
+from browser_pages import checked_page
 from devices import frame_message, stream_in_step
 from living_world import AFTER, BEFORE, KNOBS, WALK_2_T, walk
 from relation_scene import SCENE as RELATION_SCENE
@@ -33,8 +36,7 @@ except ImportError:
     expect = sync_playwright = None
 
 ARTIFACTS = Path(__file__).resolve().parents[3] / "out" / "test-artifacts"
-BROWSER_TIMEOUT_MS = 30_000
-"""Longest wait for the page to show something (it polls the server every 2 s)."""
+VIEWPORT = {"width": 1280, "height": 900}
 CHROMIUM_ARGS = [
     "--no-sandbox",  # tests may run as root in a container, where the sandbox cannot start
     "--disable-gpu",
@@ -64,28 +66,37 @@ def chromium_path() -> str | None:
 
 
 @pytest.fixture(scope="module")
-def browser():
+def dashboard_playwright():
+    """This module's one Playwright (a second on the same thread fails while one runs): every
+    browser here is launched from it."""
     if sync_playwright is None:
         pytest.skip("playwright is not installed (pip install -e '.[dev]')")
-    executable = chromium_path()
-    if executable is None:
+    if chromium_path() is None:
         pytest.skip("no chromium on PATH (Debian: apt-get install chromium)")
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=executable, args=CHROMIUM_ARGS)
+        yield playwright
+
+
+@contextmanager
+def launched(playwright, extra_args: Sequence[str] = ()) -> Iterator:
+    """A headless Chromium with CHROMIUM_ARGS and `extra_args`, closed after."""
+    args = [*CHROMIUM_ARGS, *extra_args]
+    browser = playwright.chromium.launch(executable_path=chromium_path(), args=args)
+    try:
         yield browser
+    finally:
         browser.close()
+
+
+@pytest.fixture(scope="module")
+def browser(dashboard_playwright):
+    with launched(dashboard_playwright) as browser:
+        yield browser
 
 
 @pytest.fixture
 def page(browser):
-    context = browser.new_context(viewport={"width": 1280, "height": 900})
-    page = context.new_page()
-    page.set_default_timeout(BROWSER_TIMEOUT_MS)
-    errors: list[str] = []
-    page.on("pageerror", lambda exc: errors.append(str(exc)))
-    yield page
-    context.close()
-    assert not errors, f"JavaScript errors on the page: {errors}"
+    yield from checked_page(browser, VIEWPORT)
 
 
 def screenshot(page, name: str) -> None:
@@ -154,8 +165,14 @@ def test_the_qr_module_loads_only_the_vendored_generator():
     # Besides the QR module, app.js imports only the modules it shares with the /xr page.
     assert re.findall(
         r"^import .* from \"(.*)\";", _without_comments(STATIC_DIR / "app.js"), re.M
-    ) == ["./common/auth.mjs", "./common/words.mjs", "./session-qr.mjs"]
-    for shared in ("auth.mjs", "words.mjs"):
+    ) == [
+        "./common/auth.mjs",
+        "./common/push-to-talk.mjs",
+        "./common/recorder.mjs",
+        "./common/words.mjs",
+        "./session-qr.mjs",
+    ]
+    for shared in ("auth.mjs", "push-to-talk.mjs", "recorder.mjs", "words.mjs"):
         assert not re.findall(r"^import ", _without_comments(STATIC_DIR / "common" / shared), re.M)
 
 
