@@ -26,15 +26,12 @@ from __future__ import annotations
 
 import statistics
 import sys
-import tempfile
 from pathlib import Path
 
 import httpx
 import msgpack
 import numpy as np
 
-from app.server.runner import ServerThread
-from app.server.settings import ServerSettings
 from bench.common import bench_parser, check, machine, write_outputs
 from client_sim.encoder import FrameEncoder
 from client_sim.sources.base import SourceFrame
@@ -44,6 +41,7 @@ _TESTS = Path(__file__).resolve().parents[1] / "tests"
 sys.path[:0] = [str(_TESTS / "xr"), str(_TESTS)]
 
 from fake_xr_browser import launch_chromium, open_with_fake_xr, wait_until  # noqa: E402
+from models_server import tiny_models_server  # noqa: E402
 from scene_feed import SceneFeed  # noqa: E402
 from xr_device import CV_FROM_XR_AXES, Phone, Pinhole, Quest3, RuntimeOptions  # noqa: E402
 
@@ -164,23 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(f"[bench.xr_page] rendering {len(feed)} frames of the walk ({args.path})", flush=True)
     python = device_bytes(feed)
-    with tempfile.TemporaryDirectory() as tmp:
-        from app.perception.models.tiny import write_tiny_models
-
-        models = write_tiny_models(Path(tmp) / "models")
-        settings = ServerSettings(
-            host="127.0.0.1",
-            port=0,
-            data_dir=str(Path(tmp) / "data"),
-            perception="models",
-            models_dir=str(models),
-        )
-        thread = ServerThread(settings).start()
-        try:
-            print("[bench.xr_page] walking the page through it in headless Chromium", flush=True)
-            page = page_run(feed, thread.url)
-        finally:
-            thread.stop()
+    with tiny_models_server() as server:
+        print("[bench.xr_page] walking the page through it in headless Chromium", flush=True)
+        page = page_run(feed, server.url)
 
     counters = page["counters"]
     keyframes = counters["keyframes"]

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,13 +23,10 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "xr"), str(ROOT / "tests")]
 
 import httpx  # noqa: E402
 from fake_xr_browser import launch_chromium, open_with_fake_xr, wait_until  # noqa: E402
+from models_server import tiny_models_server  # noqa: E402
 from room_map import room_export  # noqa: E402
 from scene_feed import SceneFeed  # noqa: E402
 from xr_device import Phone, RuntimeOptions  # noqa: E402
-
-from app.perception.models.tiny import write_tiny_models  # noqa: E402
-from app.server.runner import ServerThread  # noqa: E402
-from app.server.settings import ServerSettings  # noqa: E402
 
 
 def main() -> int:
@@ -42,46 +38,30 @@ def main() -> int:
     parser.add_argument("--at", type=int, default=14, help="scene frame at which to ask")
     parser.add_argument("--out", default=str(ROOT / "docs" / "img" / "xr.png"))
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        models = write_tiny_models(Path(tmp) / "models")
-        settings = ServerSettings(
-            host="127.0.0.1",
-            port=0,
-            data_dir=str(Path(tmp) / "data"),
-            perception="models",
-            models_dir=str(models),
+    with tiny_models_server() as server:
+        probe = httpx.post(f"{server.url}/v1/sessions", json={"perception": "models"}, timeout=30)
+        feed = SceneFeed(
+            Phone(),
+            n_frames=args.frames,
+            options=RuntimeOptions(on_walk_end="hold", display_every=1),
         )
-        server = ServerThread(settings).start()
-        try:
-            probe = httpx.post(
-                f"{server.url}/v1/sessions", json={"perception": "models"}, timeout=30
-            )
-            feed = SceneFeed(
-                Phone(),
-                n_frames=args.frames,
-                options=RuntimeOptions(on_walk_end="hold", display_every=1),
-            )
-            room = room_export(feed, probe.json()["embedding"])
-            imported = httpx.post(f"{server.url}/v1/sessions/import", json=room, timeout=60).json()
-            sid, token = imported["session_id"], imported["token"]
-            with launch_chromium() as browser:
-                page = browser.new_page(
-                    viewport={"width": 540, "height": 720}, device_scale_factor=1
-                )
-                open_with_fake_xr(page, f"{server.url}/xr#session={sid}&token={token}", feed)
-                wait_until(page, "() => !document.querySelector('#start-ar').disabled")
-                page.click("#start-ar")
-                wait_until(page, f"() => window.semanticxr.objects >= {len(room['objects'])}")
-                wait_until(page, f"() => fakeXR.sceneFrame >= {args.at}")
-                page.route("**/v1/sessions/*/query*", lambda route: route.abort())
-                page.fill("#ask-text", args.question)
-                page.click("#ask-form button[type=submit]")
-                wait_until(page, "() => window.semanticxr.answer !== null")
-                wait_until(page, f"() => fakeXR.sceneFrame >= {args.at + 3}")
-                page.screenshot(path=args.out)
-                print(f"[screenshot] {page.inner_text('#answer')!r} -> {args.out}")
-        finally:
-            server.stop()
+        room = room_export(feed, probe.json()["embedding"])
+        imported = httpx.post(f"{server.url}/v1/sessions/import", json=room, timeout=60).json()
+        sid, token = imported["session_id"], imported["token"]
+        with launch_chromium() as browser:
+            page = browser.new_page(viewport={"width": 540, "height": 720}, device_scale_factor=1)
+            open_with_fake_xr(page, f"{server.url}/xr#session={sid}&token={token}", feed)
+            wait_until(page, "() => !document.querySelector('#start-ar').disabled")
+            page.click("#start-ar")
+            wait_until(page, f"() => window.semanticxr.objects >= {len(room['objects'])}")
+            wait_until(page, f"() => fakeXR.sceneFrame >= {args.at}")
+            page.route("**/v1/sessions/*/query*", lambda route: route.abort())
+            page.fill("#ask-text", args.question)
+            page.click("#ask-form button[type=submit]")
+            wait_until(page, "() => window.semanticxr.answer !== null")
+            wait_until(page, f"() => fakeXR.sceneFrame >= {args.at + 3}")
+            page.screenshot(path=args.out)
+            print(f"[screenshot] {page.inner_text('#answer')!r} -> {args.out}")
     return 0
 
 

@@ -522,9 +522,9 @@
     get imageIndex() {
       return slots(this).imageIndex;
     }
-    /** Not in the spec: Quest Browser's planes of the depth data (immersive-web/depth-sensing
-     * issue 43, "we need to communicate the near and far clip plane"; three.js and IWER read
-     * them). Infinity for an infinite far plane. */
+    /** Not in the spec: Quest Browser's planes of the depth data (immersive-web/depth-sensing#43,
+     * "we need to communicate the near and far clip plane"; three.js and IWER read them).
+     * Infinity for an infinite far plane. */
     get depthNear() {
       return slots(this).depthNear;
     }
@@ -603,7 +603,7 @@
    * GL textures start at the bottom row; IWER flips its rows so, and three.js samples the
    * texture at gl_FragCoord / size (bottom-left origin) while Quest Browser's
    * normDepthBufferFromNormView is the identity ("Quest browser always returns the identity
-   * matrix", depth-sensing issue 37). So texel row 0 is the bottom of the depth view when
+   * matrix", immersive-web/depth-sensing#37). So texel row 0 is the bottom of the depth view when
    * depth.bottomRowFirst (the default), although the identity transform read literally would
    * put the view's top there. To metres: z = near / (1 - d) (infinite far) or
    * z = far * near / (far - d * (far - near)), or un-project (2x - 1, 1 - 2y, 2d - 1) with the
