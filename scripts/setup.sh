@@ -16,7 +16,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   # pip.conf on this machine lists local indexes that may be absent; drop that noise.
   .venv/bin/pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | grep -v "is ignored" || true
   .venv/bin/pip install -q --disable-pip-version-check -e ".[dev]" 2>&1 | grep -v "is ignored" || true
-  .venv/bin/python -c "import torch, numpy, fastapi, msgpack, av, lzfse" # fail loudly if the install failed
+  .venv/bin/python -c "import torch, numpy, fastapi, msgpack, av, lzfse, pocketsphinx" # fail loudly if the install failed
   touch "$stamp"
 fi
 
@@ -52,5 +52,9 @@ postgres_found() {
 }
 if [ "${SEMANTICXR_SKIP_POSTGRES:-0}" != "1" ] && ! postgres_found; then
   install_optional postgresql "the PostgreSQL store's tests"
+fi
+# Spoken-question tests and `eval --scenario speech` synthesise speech with Debian's espeak-ng.
+if [ "${SEMANTICXR_SKIP_SPEECH:-0}" != "1" ] && ! command -v espeak-ng >/dev/null; then
+  install_optional espeak-ng "the spoken-question tests and eval"
 fi
 echo "[setup] ok"

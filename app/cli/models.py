@@ -29,6 +29,16 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     tiny.add_argument("--out", required=True, metavar="DIR", help="folder to write (created)")
     tiny.add_argument("--seed", type=int, default=0, help="random seed of the weights")
     tiny.set_defaults(func=run_tiny)
+    whisper = sub.add_parser(
+        "tiny-whisper",
+        help="write a small random Whisper for --asr whisper:DIR (offline, for tests)",
+        description="Write a small randomly initialised Whisper, with its processor and a "
+        "tokenizer trained here, in the layout --asr whisper:DIR loads. Its transcripts are "
+        "noise: recognition needs real weights (e.g. openai/whisper-base.en).",
+    )
+    whisper.add_argument("--out", required=True, metavar="DIR", help="folder to write (created)")
+    whisper.add_argument("--seed", type=int, default=0, help="random seed of the weights")
+    whisper.set_defaults(func=run_tiny_whisper)
     listing = sub.add_parser(
         "list",
         help="the models the backend needs and how to fetch them",
@@ -49,6 +59,20 @@ def run_tiny(args: argparse.Namespace) -> int:
     print(
         f"tiny random models written to {out} in {time.perf_counter() - t0:.1f} s; "
         f"serve them with: semanticxr serve --perception models --models-dir {out}"
+    )
+    return 0
+
+
+def run_tiny_whisper(args: argparse.Namespace) -> int:
+    import time
+
+    from app.speech.whisper import write_tiny_whisper
+
+    t0 = time.perf_counter()
+    out = write_tiny_whisper(args.out, seed=args.seed)
+    print(
+        f"tiny random Whisper written to {out} in {time.perf_counter() - t0:.1f} s; "
+        f"serve it with: semanticxr serve --asr whisper:{out}"
     )
     return 0
 

@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from app.server.app import create_app
     from app.server.runner import tls_ready, uvicorn_config
     from app.server.tls import TlsError
+    from app.speech import AsrSettingError, check_asr
 
     settings = settings_from_args(args)
     if not check_ports("serve", (settings.host, settings.port, "--port")):
@@ -76,9 +77,10 @@ def run(args: argparse.Namespace) -> int:
     if settings.cluster is not None:
         return run_cluster(settings)
     try:
+        check_asr(settings.asr)  # before any model loads: a missing Whisper stops us at once
         load_backends(settings)
         settings, certificate = tls_ready(settings)
-    except (MissingModelsError, TlsError) as exc:
+    except (MissingModelsError, TlsError, AsrSettingError) as exc:
         print(f"semanticxr serve: {exc}", file=sys.stderr)
         return 2
     if certificate is None:

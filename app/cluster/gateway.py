@@ -38,7 +38,7 @@ from app import __version__
 from app.cluster.routing import NoLiveShard, ShardDirectory
 from app.protocol import SIGHTINGS_SUBPROTOCOL
 from app.server.edges import HostOriginMiddleware
-from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware
+from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware, body_limits
 from app.server.routes.ws import (
     CLOSE_POLICY,
     CLOSE_SERVICE_RESTART,
@@ -135,7 +135,9 @@ def create_gateway_app(settings: ServerSettings, store: Store | None = None) -> 
 
     app = FastAPI(title="SemanticXR gateway", version=__version__, lifespan=lifespan)
     app.state.metrics = metrics = _Metrics()
-    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(
+        BodyLimitMiddleware, **body_limits(settings.max_body_bytes, settings.max_audio_bytes)
+    )
     app.add_middleware(SocketLimitMiddleware, max_sockets=settings.max_connections)
     app.add_middleware(
         HostOriginMiddleware,

@@ -543,3 +543,19 @@ class _Parser:
                 words.append(w)
             j += 1
         return _Phrase(words, j) if words else None
+
+
+def question_phrases() -> dict[str, list[str]]:
+    """The phrases this reader knows, by role: "scaffolds" (question words before the target:
+    "where did i leave", "show me"), "relations" (with and without an anchor: "on top of",
+    "to my left"), "superlatives", "determiners", "fillers" and "tails". A speech recogniser
+    shapes its vocabulary with them, so that what it hears is what the reader reads."""
+    relations = [*_RELATIONS.values(), *_RELATIONS_FROM_ASKER.values()]
+    return {
+        "scaffolds": [" ".join(p) for p in _SCAFFOLDS],
+        "relations": list(dict.fromkeys(" ".join(p) for ps in relations for p in ps)),
+        "superlatives": list(_SUPERLATIVES),
+        "determiners": sorted(_DETERMINERS),
+        "fillers": [" ".join(p) for p in _FILLERS],
+        "tails": [" ".join(p) for p in _TAILS],
+    }

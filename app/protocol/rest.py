@@ -354,6 +354,20 @@ class QueryResult(Record):
     seen ... ago" counts from; null before the first keyframe."""
 
 
+class SpokenQueryResult(QueryResult):
+    """`POST /v1/sessions/{sid}/query/speech`: the answer to the recognised text, as
+    `GET .../query?text=<transcript>` answers it (`text` is the transcript too), and what
+    was heard."""
+
+    transcript: str
+    """What the recogniser heard, the question answered."""
+    confidence: float | None = None
+    """The recogniser's confidence in the transcript, in [0, 1]; null when it has none."""
+    asr_ms: float
+    """Decoding and recognising the audio, from the whole body received to the transcript
+    (`latency_ms` stays the query's own)."""
+
+
 def parse_query_result(body: Any) -> QueryResult:
     """The `QueryResult` of a decoded JSON query answer; InputError naming the first wrong
     field (e.g. `results[0].bbox`)."""

@@ -19,11 +19,12 @@ from app.semantics import TextEncoder, get_text_encoder
 from app.server.auth import require_api_key
 from app.server.docs import install_docs
 from app.server.edges import HostOriginMiddleware
-from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware
+from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware, body_limits
 from app.server.metrics import HttpMetricsMiddleware, Metrics, make_metrics
-from app.server.routes import pages, rest, ws
+from app.server.routes import pages, rest, speech, ws
 from app.server.sessions import SessionManager
 from app.server.settings import ServerSettings
+from app.speech import RecogniserPool, parse_asr
 from app.store import open_store, redact_url
 
 log = logging.getLogger("semanticxr")
@@ -46,6 +47,10 @@ def create_app(
         manager = SessionManager(settings, store, encoder or get_text_encoder(), make_metrics())
         restored = manager.restore()
         app.state.settings, app.state.manager = settings, manager
+        # Recogniser processes start, and load, on the first spoken question.
+        app.state.speech = RecogniserPool(
+            parse_asr(settings.asr), settings.asr_workers, settings.asr_timeout_s
+        )
         if settings.api_key is None and settings.https:  # served to the LAN, as a rule
             log.warning(
                 "no API key set: anyone on your network can create sessions and read their "
@@ -67,6 +72,7 @@ def create_app(
                 await storage_watch
             with contextlib.suppress(Exception):  # a broken encoder fails its queries instead
                 await rater_warm_up
+            app.state.speech.close()
             manager.close()
             store.close()
 
@@ -81,7 +87,9 @@ def create_app(
     install_docs(app)
 
     app.add_middleware(HttpMetricsMiddleware)  # innermost: it sees the matched route
-    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(
+        BodyLimitMiddleware, **body_limits(settings.max_body_bytes, settings.max_audio_bytes)
+    )
     app.add_middleware(SocketLimitMiddleware, max_sockets=settings.max_connections)
     allowed_hosts = settings.allowed_host_list()
     if allowed_hosts is None and settings.allowed_hosts is None:
@@ -172,6 +180,7 @@ def create_app(
         return Response(manager.metrics.render(), media_type=Metrics.CONTENT_TYPE)
 
     app.include_router(rest.router)
+    app.include_router(speech.router)
     app.include_router(ws.router)
     app.include_router(pages.router)
     return app

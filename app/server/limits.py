@@ -10,24 +10,51 @@ buffered.
 from __future__ import annotations
 
 import json
+import re
+from dataclasses import dataclass
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+SPEECH_PATH = re.compile(r"/v1/sessions/[^/]+/query/speech")
+"""The spoken query's path: its body is audio, under --max-audio-bytes instead."""
+
+
+@dataclass(frozen=True)
+class PathLimit:
+    """A body limit of its own for the paths `pattern` matches in full."""
+
+    pattern: re.Pattern
+    max_bytes: int
+    flag: str
+    """The setting's flag, named in the 413."""
+    what: str = "request body"
+
 
 class BodyLimitMiddleware:
-    """Pure ASGI middleware: 413 for HTTP request bodies over `max_bytes`."""
+    """Pure ASGI middleware: 413 for HTTP request bodies over `max_bytes`, or over the limit
+    of the first of `path_limits` whose pattern matches the path."""
 
-    def __init__(self, app: ASGIApp, max_bytes: int):
+    def __init__(self, app: ASGIApp, max_bytes: int, path_limits: tuple[PathLimit, ...] = ()):
         self.app = app
         self.max_bytes = max_bytes
+        self.path_limits = path_limits
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        limit = next(
+            (p for p in self.path_limits if p.pattern.fullmatch(scope.get("path", ""))), None
+        )
+        max_bytes = self.max_bytes if limit is None else limit.max_bytes
+        detail = (
+            f"request body over {max_bytes} bytes"
+            if limit is None
+            else f"{limit.what} over {max_bytes} bytes ({limit.flag})"
+        )
         length = dict(scope["headers"]).get(b"content-length")
-        if length is not None and (not length.isdigit() or int(length) > self.max_bytes):
-            await self._refuse(send)
+        if length is not None and (not length.isdigit() or int(length) > max_bytes):
+            await send_json(send, "http.response", 413, detail)
             return
 
         received = 0
@@ -40,10 +67,10 @@ class BodyLimitMiddleware:
             message = await receive()
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
-                if received > self.max_bytes:
+                if received > max_bytes:
                     refused = True
                     if not started:
-                        await self._refuse(send)
+                        await send_json(send, "http.response", 413, detail)
                     return {"type": "http.disconnect"}  # the app stops reading here
             return message
 
@@ -56,8 +83,12 @@ class BodyLimitMiddleware:
 
         await self.app(scope, counted_receive, guarded_send)
 
-    async def _refuse(self, send: Send) -> None:
-        await send_json(send, "http.response", 413, f"request body over {self.max_bytes} bytes")
+
+def body_limits(max_body_bytes: int, max_audio_bytes: int) -> dict:
+    """The BodyLimitMiddleware options of a server or gateway: REST bodies under
+    --max-body-bytes, spoken questions under --max-audio-bytes."""
+    audio = PathLimit(SPEECH_PATH, max_audio_bytes, "--max-audio-bytes", "audio")
+    return {"max_bytes": max_body_bytes, "path_limits": (audio,)}
 
 
 SOCKETS_FULL_RETRY_AFTER_S = 1

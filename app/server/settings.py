@@ -11,6 +11,7 @@ from pathlib import Path
 from app.perception import BACKENDS, DEFAULT_BACKEND
 from app.protocol import MAX_INSTANCES_PER_FRAME
 from app.server.edges import default_allowed_hosts
+from app.speech.recognisers import AsrSettingError, parse_asr
 from app.store import StoreURLError, check_store_url, sqlite_url
 
 STORE_FILE = "semanticxr.sqlite3"
@@ -66,6 +67,20 @@ class ServerSettings:
     """Consecutive bad frames before a stream is closed as abusive (code 1008)."""
     max_query_k: int = 100
     """Largest k a query may ask for."""
+    asr: str = "pocketsphinx"
+    """Speech recogniser of spoken questions (POST .../query/speech): 'pocketsphinx'
+    (embedded, offline, its vocabulary shaped by each session's labels) or 'whisper:DIR' (a
+    Whisper model and processor saved with transformers' save_pretrained in DIR, loaded
+    from it only)."""
+    asr_workers: int = 1
+    """Recogniser processes (each loads the recogniser on its first question); a question
+    finding all busy is answered 503 with Retry-After."""
+    asr_timeout_s: float = 20.0
+    """Longest a question may take to decode and recognise; past it its recogniser process
+    is killed and restarted, and the question answered 503 with Retry-After."""
+    max_audio_bytes: int = 4 << 20
+    """Largest spoken question (POST .../query/speech body): 30 s of browser audio can pass
+    --max-body-bytes."""
     log_level: str = "info"
     """uvicorn log level."""
     allowed_hosts: str | None = None
@@ -176,6 +191,12 @@ class ServerSettings:
                 f"perception: unknown backend {', '.join(map(repr, unknown)) or repr('')}; "
                 f"available: {', '.join(BACKENDS)}"
             )
+        if not self.asr_timeout_s > 0:
+            raise SettingsError(f"asr_timeout_s must be over 0 seconds, got {self.asr_timeout_s}")
+        try:
+            parse_asr(self.asr)
+        except AsrSettingError as exc:
+            raise SettingsError(str(exc)) from None
         try:
             check_store_url(self.store_url)
         except StoreURLError as exc:
@@ -247,6 +268,8 @@ _POSITIVE = (
     "max_connections",
     "max_bad_frames",
     "max_query_k",
+    "asr_workers",
+    "max_audio_bytes",
     "max_tombstones",
     "shards",
 )

@@ -324,6 +324,32 @@ MAX_FROM_CHARS = 100
 """Longest `from` a query may carry (three numbers)."""
 
 
+QueryK = Annotated[
+    int, Query(ge=1, description="how many results (at most the server's max_query_k)")
+]
+QueryPoints = Annotated[bool, Query(description="include each result's points")]
+QueryInclude = Annotated[Literal["removed"] | None, Query(description=INCLUDE_DOC)]
+QueryFrom = Annotated[
+    str | None,
+    Query(
+        alias="from",
+        max_length=MAX_FROM_CHARS,
+        description="where the asker stands, 'x,y,z' in world metres, for questions seen "
+        "from the asker ('the lamp closest to me', 'the chair on the left of the sofa'); "
+        "default: the camera of the session's newest frame",
+    ),
+]
+"""The query parameters a typed and a spoken question share."""
+
+
+def checked_query_options(request: Request, k: int, from_: str | None) -> np.ndarray | None:
+    """422 for a k over the server's max_query_k or a bad `from`; the asker's position."""
+    max_k = manager(request).settings.max_query_k
+    if k > max_k:
+        raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
+    return None if from_ is None else _position("from", from_)
+
+
 @router.get(
     "/sessions/{sid}/query",
     response_model=protocol.QueryResult,
@@ -336,36 +362,40 @@ def query(
     text: str = Query(
         ..., min_length=1, max_length=protocol.MAX_QUERY_CHARS, description="what to look for"
     ),
-    k: int = Query(5, ge=1, description="how many results (at most the server's max_query_k)"),
-    points: bool = Query(True, description="include each result's points"),
-    include: Literal["removed"] | None = Query(None, description=INCLUDE_DOC),
-    from_: str | None = Query(
-        None,
-        alias="from",
-        max_length=MAX_FROM_CHARS,
-        description="where the asker stands, 'x,y,z' in world metres, for questions seen "
-        "from the asker ('the lamp closest to me', 'the chair on the left of the sofa'); "
-        "default: the camera of the session's newest frame",
-    ),
+    k: QueryK = 5,
+    points: QueryPoints = True,
+    include: QueryInclude = None,
+    from_: QueryFrom = None,
 ) -> protocol.QueryResult:
-    max_k = manager(request).settings.max_query_k
-    if k > max_k:
-        raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
-    asker = None if from_ is None else _position("from", from_)
-    t0 = time.perf_counter()
+    asker = checked_query_options(request, k, from_)
     with session_in_use(request, sid) as session:
-        # A question about how things stand is answered from the relation index; a plain
-        # one (or one whose anchors the map lacks) as always, as is any with include=removed.
-        related = session.relational_query(text, k, asker) if include is None else None
-        if related is not None:
-            result = _relational_result(session, text, *related, points)
-            result.latency_ms = (time.perf_counter() - t0) * 1e3
-            manager(request).metrics.query_latency.observe(result.latency_ms / 1e3)
-            return result
-        removed = manager(request).removed_objects(session) if include == "removed" else None
-        hits, rating = session.rated_query(text, k, removed)
-        now_t = session.engine.last_t
-        places = _places_of(session, [h.object.centroid for h in hits], [h.object.id for h in hits])
+        return answer_query(request, session, text, k, points, include, asker)
+
+
+def answer_query(
+    request: Request,
+    session: Session,
+    text: str,
+    k: int,
+    points: bool,
+    include: str | None,
+    asker: np.ndarray | None,
+) -> protocol.QueryResult:
+    """The answer to `text` from a session in use: relational when the question says how
+    things stand, plain otherwise (or with include=removed); `latency_ms` is its own."""
+    t0 = time.perf_counter()
+    # A question about how things stand is answered from the relation index; a plain one
+    # (or one whose anchors the map lacks) as always, as is any with include=removed.
+    related = session.relational_query(text, k, asker) if include is None else None
+    if related is not None:
+        result = _relational_result(session, text, *related, points)
+        result.latency_ms = (time.perf_counter() - t0) * 1e3
+        manager(request).metrics.query_latency.observe(result.latency_ms / 1e3)
+        return result
+    removed = manager(request).removed_objects(session) if include == "removed" else None
+    hits, rating = session.rated_query(text, k, removed)
+    now_t = session.engine.last_t
+    places = _places_of(session, [h.object.centroid for h in hits], [h.object.id for h in hits])
     max_points = session.knobs.max_object_points_client
     results = [
         protocol.QueryHit(
