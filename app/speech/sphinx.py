@@ -25,7 +25,7 @@ import numpy as np
 
 from app.speech.audio import SAMPLE_RATE_HZ
 from app.speech.recognisers import Transcript
-from app.speech.vocabulary import session_corpus, vocabulary_key, words_of
+from app.speech.vocabulary import background_corpus, session_corpus, vocabulary_key, words_of
 
 log = logging.getLogger("semanticxr.speech")
 _NOT_WORDS = re.compile(r"<s>|</s>|<sil>|\[|\+")
@@ -115,7 +115,7 @@ class SphinxRecogniser:
 
         lines = session_corpus(labels)
         repeat = -(-CORPUS_MIN_WORDS // max(sum(len(line.split()) for line in lines), 1))
-        corpus = "\n".join(lines * repeat)
+        corpus = "\n".join(lines * repeat + background_corpus())
         words_path = Path(self._dir.name) / f"{key}.words"
         words_path.write_text("\n".join(self._background) + "\n")
         model = ArpaBoLM(text=corpus, add_start=True, word_file=str(words_path))

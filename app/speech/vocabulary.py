@@ -68,7 +68,7 @@ def session_corpus(labels: Sequence[str]) -> list[str]:
     """Sentences a trigram model learns the session's questions from: each label in the
     common question forms, in relations to other labels (every relation phrase of the
     grammar, the anchors rotating through the labels), with superlatives; every scaffold,
-    filler and tail once; each indoor tag after "the". Deterministic for a set of labels."""
+    filler and tail once. Deterministic for a set of labels."""
     labels = normalised_labels(labels)
     phrases = question_phrases()
     lines = [form.format(label) for label in labels for form in COMMON_QUESTIONS]
@@ -83,5 +83,10 @@ def session_corpus(labels: Sequence[str]) -> list[str]:
         superlative = superlatives[i % len(superlatives)]
         lines.append(f"the {superlative} {label}")
         lines.append(f"the {label} {superlative} to {anchors[(i * 7 + 3) % len(anchors)]}")
-    lines += [f"the {tag}" for tag in indoor_tags()]
     return lines
+
+
+def background_corpus() -> list[str]:
+    """What any session may be asked about without the map holding it yet: each indoor tag
+    after "the" (weighed below the session's own labels)."""
+    return [f"the {tag}" for tag in indoor_tags()]

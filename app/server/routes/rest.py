@@ -48,14 +48,13 @@ def _errors(**codes: str) -> dict[int | str, dict[str, Any]]:
     }
 
 
-router = APIRouter(
-    prefix="/v1",
-    responses=_errors(
-        _401="missing API key or session token (with an API key configured)",
-        _403="wrong API key or token, or (with an API key configured) no such session",
-        _413="request body over the server's max_body_bytes",
-    ),
+ROUTER_ERRORS = _errors(
+    _401="missing API key or session token (with an API key configured)",
+    _403="wrong API key or token, or (with an API key configured) no such session",
+    _413="request body over the server's max_body_bytes",
 )
+"""What every /v1 call may answer."""
+router = APIRouter(prefix="/v1", responses=ROUTER_ERRORS)
 SESSION_ERRORS = _errors(
     _404="no such session (server without an API key)",
     _422="a query parameter of the wrong type or out of range",

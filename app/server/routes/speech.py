@@ -18,6 +18,7 @@ from starlette.requests import ClientDisconnect
 
 from app import protocol
 from app.server.routes.rest import (
+    ROUTER_ERRORS,
     SESSION_ERRORS,
     QueryFrom,
     QueryInclude,
@@ -40,7 +41,7 @@ from app.speech import (
 BUSY_RETRY_AFTER_S = 1
 """Retry-After (seconds) of a 503 when every recogniser is busy or one was restarted."""
 
-router = APIRouter(prefix="/v1")
+router = APIRouter(prefix="/v1", responses=ROUTER_ERRORS)
 
 AUDIO_BODY = {
     "requestBody": {

@@ -106,6 +106,9 @@ def test_following_a_link_with_the_session_token_alone_reaches_the_session(live_
                 headers={"Authorization": values["header.Authorization"]},
                 json={"min_observations": 3} if method == "patch" else None,
             )
+            if path.endswith("/query/speech"):  # needs speech: past the credentials is reached
+                assert answer.status_code == 415, (name, answer.status_code, answer.text)
+                continue
             assert answer.is_success, (name, answer.status_code, answer.text)
 
 
