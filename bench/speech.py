@@ -96,7 +96,13 @@ def main() -> int:
 
     engine, category, observed = build_map(args.scene, args.frames, args.seed)
     folder = Path(tempfile.mkdtemp(prefix="semanticxr-speech-"))
-    settings = ServerSettings(port=0, data_dir=str(folder / "data"), asr=args.asr, asr_timeout_s=60)
+    settings = ServerSettings(
+        port=0,
+        data_dir=str(folder / "data"),
+        asr=args.asr,
+        asr_timeout_s=60,
+        max_body_bytes=1 << 28,
+    )
     server = ServerThread(settings, get_text_encoder()).start()
     rows, times_ms = [], []
     try:
