@@ -65,7 +65,12 @@ def export_body(engine) -> bytes:
     header = {
         "format": EXPORT_FORMAT,
         "version": EXPORT_VERSION,
-        "session": {"name": "speech-bench", "mode": "semanticxr", "knobs": {}},
+        "session": {
+            "name": "speech-bench",
+            "mode": "semanticxr",
+            "knobs": {},
+            "embedding": {"model": engine.encoder.model_id, "dim": engine.encoder.dim},
+        },
     }
     return b"".join(export_json_chunks(header, engine.confirmed_objects(), [], [], True))
 
