@@ -173,7 +173,7 @@ def main() -> int:
     n = len(rows)
     typed_pct = 100 * sum(r["typed_top1"] == r["category"] for r in rows) / n
     spoken_pct = 100 * sum(r["spoken_top1"] == r["category"] for r in rows) / n
-    p50, p95 = np.percentile(times_ms, [50, 95])
+    p50, p95 = (float(p) for p in np.percentile(times_ms, [50, 95]))
     print(
         f"\n{n} spoken questions ({args.asr}, {args.voices} voices), {len(observed)} categories in view"
     )
@@ -193,7 +193,7 @@ def main() -> int:
             "typed_top1": typed_pct,
             "spoken_top1": spoken_pct,
             "answer_ms": {"p50": p50, "p95": p95},
-            "checks": checks,
+            "checks": [c | {"ok": bool(c["ok"])} for c in checks],
             "rows": rows,
         },
     )
