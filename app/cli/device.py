@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 from app.cli.common import frames_words, write_json
 from app.client import ApiError, http_base_url
-from app.client.rest import AUDIO_TYPES, audio_type, parsed_answer
+from app.client.rest import AUDIO_FILE_TYPES, audio_type, parsed_answer
 from app.config import Knobs, updated_knobs
 from app.flags import (
     add_knob_flags,
@@ -143,7 +143,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         metavar="FILE",
         help="ask this recorded question at the end, after the --query ones (repeatable): the "
         "server recognises it offline and answers as a typed query is answered; prints what "
-        "it heard and the answer. Its type comes from the extension: " + ", ".join(AUDIO_TYPES),
+        "it heard and the answer. Its type comes from the extension: "
+        + ", ".join(AUDIO_FILE_TYPES),
     )
     parser.add_argument("-k", type=int, default=3, help="results per query")
     parser.add_argument(

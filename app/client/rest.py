@@ -13,7 +13,13 @@ import httpx
 
 from app.client.connection import auth_headers, http_base_url
 from app.errors import InputError
-from app.protocol import SessionStats, SessionSummary, parse_query_result, parse_record
+from app.protocol import (
+    SessionStats,
+    SessionSummary,
+    SpokenQueryResult,
+    parse_query_result,
+    parse_record,
+)
 from app.protocol.rest import R
 
 REST_TIMEOUT_S = 10.0
@@ -21,7 +27,7 @@ REST_TIMEOUT_S = 10.0
 SPEECH_TIMEOUT_S = 60.0
 """Longest wait for a spoken question, whole: its upload (up to the server's
 `--max-audio-bytes`, about 4 MiB) and its recognition."""
-AUDIO_TYPES = {
+AUDIO_FILE_TYPES = {
     ".wav": "audio/wav",
     ".webm": "audio/webm",
     ".ogg": "audio/ogg",
@@ -45,12 +51,12 @@ def audio_type(path: str | Path) -> str:
     """The Content-Type of a recorded question, from its file's extension (case ignored);
     ValueError naming the extensions known."""
     suffix = Path(path).suffix.lower()
-    if suffix not in AUDIO_TYPES:
-        known = " ".join(AUDIO_TYPES)
+    if suffix not in AUDIO_FILE_TYPES:
+        known = " ".join(AUDIO_FILE_TYPES)
         raise ValueError(
             f"{path}: cannot tell the audio type of {suffix or 'no extension'}: use {known}"
         )
-    return AUDIO_TYPES[suffix]
+    return AUDIO_FILE_TYPES[suffix]
 
 
 def http_client(
@@ -317,17 +323,18 @@ class SessionApi:
         "transcript", "confidence" (None when the recogniser gives none) and "asr_ms" (the
         recognition's own time). Bounded by SPEECH_TIMEOUT_S, not the session's timeout."""
         params = _query_params(None, k, include, from_xyz)
+        url = f"{self.session_url}/query/speech"
         answer = await request(
             self._client(),
             "POST",
-            f"{self.session_url}/query/speech",
+            url,
             timeout_s=SPEECH_TIMEOUT_S,
             timeout=SPEECH_TIMEOUT_S,  # each phase too: the answer waits for the recognition
             params=params,
             content=audio,
             headers={"Content-Type": content_type},
         )
-        return _spoken_result(answer)
+        return _spoken_result(answer, f"POST {url}")
 
     async def changes(
         self,
@@ -426,19 +433,13 @@ def _result(answer: Any) -> dict:
     return result.model_dump(exclude={"results": {"__all__": {"points"}}})
 
 
-def _spoken_result(answer: Any) -> dict:
-    """A spoken question's answer: `_result` of its query part, with what was heard."""
-    result = _result(answer)
-    transcript, confidence, asr_ms = (
-        answer.get(key) for key in ("transcript", "confidence", "asr_ms")
-    )
-    if not isinstance(transcript, str):
-        raise ApiError("a malformed spoken answer: transcript must be a string")
-    for name, value, optional in (("confidence", confidence, True), ("asr_ms", asr_ms, False)):
-        if (value is None and not optional) or not (value is None or _is_number(value)):
-            raise ApiError(f"a malformed spoken answer: {name} must be a number")
-    return {**result, "transcript": transcript, "confidence": confidence, "asr_ms": asr_ms}
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+def _spoken_result(answer: Any, call: str) -> dict:
+    """A spoken question's answer: `_result` of its query part, with what was heard
+    (`SpokenQueryResult`: transcript, confidence, asr_ms)."""
+    heard = parsed_answer(SpokenQueryResult, answer, call)
+    return {
+        **_result(answer),
+        "transcript": heard.transcript,
+        "confidence": heard.confidence,
+        "asr_ms": heard.asr_ms,
+    }
