@@ -13,6 +13,10 @@ from pathlib import Path
 
 import pytest
 
+ASR_TIMEOUT_S = 60
+"""`asr_timeout_s` for a test server that recognises speech: generous, since its first
+question starts the recogniser's process and loads it, on a busy machine."""
+
 
 def speak(text: str, path: Path, *, voice: str = "en-us", words_per_minute: int = 150) -> Path:
     """`text` spoken by espeak-ng into the WAV file `path`; a pytest skip naming the package

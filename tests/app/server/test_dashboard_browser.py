@@ -21,6 +21,7 @@ from devices import frame_message, stream_in_step
 from living_world import AFTER, BEFORE, KNOBS, WALK_2_T, walk
 from relation_scene import SCENE as RELATION_SCENE
 from relation_scene import scene_export
+from spoken import ASR_TIMEOUT_S, fake_microphone_args, speak
 
 from app.server.routes.pages import STATIC_DIR
 
@@ -334,8 +335,9 @@ def test_the_api_docs_render_offline_and_offer_authorize(live_server, page):
     expect(operations.first).to_be_visible()
     expect(
         # the text query exactly (its spoken sibling, .../query/speech, is another operation)
-        page.locator(".opblock-summary-path", has_text=re.compile(r"/query$"))
-        .filter(has_text="/v1/sessions/{sid}/")
+        page.locator(".opblock-summary-path", has_text=re.compile(r"/query$")).filter(
+            has_text="/v1/sessions/{sid}/"
+        )
     ).to_have_count(1)
     assert operations.count() >= 8
     page.locator(".auth-wrapper .authorize").click()
@@ -539,3 +541,98 @@ def test_each_card_shows_a_qr_code_of_its_phone_page_with_the_token_in_the_fragm
 
     assert all(url.startswith((server.url, "data:")) for url in requested), requested
     assert not any(token in url for url in requested)  # a fragment never leaves the page
+
+
+# --- asking aloud: the mic button with a fake microphone ---------------------------------
+
+SPOKEN = "where is the refrigerator"
+SPEAKING_MS = 2500
+"""How long the person talks: the synthesised question lasts about 1.5 s, silence after."""
+
+
+@pytest.fixture(scope="module")
+def mic_browser(dashboard_playwright, tmp_path_factory):
+    """A Chromium whose microphone says SPOKEN at the start of every recording."""
+    wav = speak(SPOKEN, tmp_path_factory.mktemp("speech") / "question.wav")
+    with launched(dashboard_playwright, fake_microphone_args(wav)) as browser:
+        yield browser
+
+
+@pytest.fixture
+def mic_page(mic_browser):
+    yield from checked_page(mic_browser, VIEWPORT)
+
+
+def speech_requests(page) -> list:
+    """The page's POSTs to the speech endpoint, as Playwright sees them leave."""
+    sent: list = []
+    page.on("request", lambda r: sent.append(r) if "/query/speech" in r.url else None)
+    return sent
+
+
+def ask_aloud_with_taps(page, card) -> None:
+    """Tap the card's mic button, talk, tap it again."""
+    mic = card.locator(".query-mic")
+    expect(mic).to_be_enabled()
+    mic.click()
+    expect(mic).to_have_attribute("data-state", "listening")
+    page.wait_for_timeout(SPEAKING_MS)  # the person talking: not a wait on the page
+    mic.click()
+
+
+def result_rows(card) -> list[str]:
+    return card.locator(".results tbody tr").all_inner_texts()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_the_mic_button_asks_aloud_and_shows_the_answer_as_a_typed_ones(live_server, mic_page):
+    server = live_server(asr_timeout_s=ASR_TIMEOUT_S)
+    sid = map_the_scene(server)
+    sent = speech_requests(mic_page)
+    mic_page.goto(server.url)
+    card = mic_page.locator(f'article[data-sid="{sid}"]')
+    expect(card.locator(".stat-objects")).to_have_text("2")
+
+    ask_aloud_with_taps(mic_page, card)
+    heard = card.locator(".query-heard")
+    expect(heard).to_contain_text("recognised on the server (offline)")
+    expect(card.locator(".query-mic")).to_have_attribute("data-state", "idle")
+    (request,) = sent
+    assert request.method == "POST"
+    headers = request.all_headers()  # a Blob body is in neither post_data nor sizes()
+    assert headers["content-type"].startswith("audio/webm")  # Chromium's Opus in WebM
+    assert int(headers["content-length"]) > 2000  # 2.5 s of Opus
+    assert parse_qs(urlsplit(request.url).query) == {"k": ["5"], "points": ["false"]}
+    transcript = card.locator(".query-input").input_value()
+    assert transcript and f"heard “{transcript}”" in heard.inner_text()
+    assert "refrigerator" in transcript
+    spoken_rows = result_rows(card)
+    assert spoken_rows[0].split("\t")[2] == "refrigerator"
+    screenshot(mic_page, "dashboard_spoken_query.png")
+
+    # The same words typed get the same answer, shown the same way.
+    meta = card.locator(".query-meta")
+    spoken_meta = meta.inner_text()
+    card.locator(".query-button").click()
+    expect(meta).not_to_have_text("asking…")
+    assert meta.inner_text().rsplit(" in ", 1)[0] == spoken_meta.rsplit(" in ", 1)[0]  # not latency
+    assert result_rows(card) == spoken_rows
+    expect(heard).to_be_hidden()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_the_dashboard_shows_the_servers_words_for_audio_it_refuses(live_server, mic_page):
+    server = live_server(asr_timeout_s=ASR_TIMEOUT_S)
+    sid = map_the_scene(server)
+    # The recording garbled on its way: the server cannot decode it.
+    mic_page.route("**/query/speech?*", lambda route: route.continue_(post_data=b"not audio"))
+    mic_page.goto(server.url)
+    card = mic_page.locator(f'article[data-sid="{sid}"]')
+    ask_aloud_with_taps(mic_page, card)
+    meta = card.locator(".query-meta")
+    expect(meta).to_contain_text("HTTP 400")
+    expect(meta).to_have_class(re.compile(r"\berror\b"))
+    expect(card.locator(".query-heard")).to_be_hidden()
+    expect(card.locator(".results")).to_be_hidden()
