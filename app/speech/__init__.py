@@ -1,4 +1,4 @@
-"""Spoken questions (issue 34, DESIGN "Ask aloud"): audio in, the question's text out.
+"""Spoken questions (docs/architecture.md): audio in, the question's text out.
 
     audio.py        bytes of a MIME type -> 16 kHz mono float32 (`decode_audio`, `AudioError`)
     recognisers.py  `--asr`: `parse_asr`, `check_asr`, the `Recogniser` interface, `Transcript`

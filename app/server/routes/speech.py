@@ -1,5 +1,5 @@
 """Ask aloud: `POST /v1/sessions/{sid}/query/speech`, a spoken question answered as the typed
-one (DESIGN "Ask aloud", issue 34).
+one (docs/protocol.md, "Spoken questions").
 
 The caller is authorised before the body is read; the audio then goes to a recogniser
 worker process (`app.speech.RecogniserPool`), which decodes it, measures it and hears it
