@@ -36,20 +36,17 @@ from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
 from app.mapping.relevance import CONFIDENT
 from app.protocol import SessionStats, unpack_update
+from viewer.palette import Rgb
 from viewer.scene import (
     ANCHORS_GROUP,
     HITS_GROUP,
-    PANEL_PX,
     RELATION_LINES_NODE,
     DeltaError,
-    FloorGrid,
     RelationHighlight,
-    Rgb,
     SceneModel,
-    floor_grid,
-    frame_view,
-    relation_words,
 )
+from viewer.shapes import PANEL_PX, FloorGrid, floor_grid, frame_view
+from viewer.words import relation_words
 
 MAX_PATH_POINTS = 5000
 """Device path vertices kept (one per update that moved more than 1 cm)."""

@@ -47,17 +47,29 @@ full snapshot (which never carries changes) clears what no longer applies.
 
 from __future__ import annotations
 
-import colorsys
-import zlib
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
 from app.protocol import ChangeEntry, DeltaError, parse_delta
-
-Rgb = tuple[int, int, int]
+from viewer.palette import (
+    ANCHOR_RGB,
+    GHOST_FADE_S,
+    GHOST_RGB,
+    MOVE_LINE_RGB,
+    TARGET_RGB,
+    Rgb,
+    class_color,
+    dimmed,
+    faded,
+    hit_box_color,
+    hit_color,
+    object_color,
+)
+from viewer.shapes import box_segments, segment_colors
+from viewer.words import relation_words
 
 OBJECTS_GROUP = "/objects"
 LABELS_GROUP = "/labels"
@@ -70,35 +82,10 @@ ANCHORS_GROUP = "/hits/anchors"
 GHOSTS_GROUP = "/ghosts"
 MOVES_NODE = "/moves"
 
-HIT_BOX_RGB: Rgb = (255, 214, 0)
-"""Bright yellow: readable against every object colour and the light background."""
-DIM_GREY_RGB: Rgb = (150, 150, 150)
-"""What dimmed colours are blended towards."""
-DIM_KEEP = 0.25
-"""Share of an object's own colour left when it is dimmed."""
-BACKGROUND_RGB: Rgb = (255, 255, 255)
-"""The viewer's background (viser's light theme): what ghosts and move lines fade into."""
-GHOST_RGB: Rgb = (120, 120, 120)
-"""A fresh ghost: mid grey, plainly not a live object's saturated colour."""
-MOVE_LINE_RGB: Rgb = (30, 100, 230)
-"""A fresh move line at its new end (blue; its old end is ghost grey, so it reads as an arrow)."""
-TARGET_RGB: Rgb = (235, 80, 0)
-"""A relational answer's target (the thing asked about): orange, the dashboard's accent."""
-ANCHOR_RGB: Rgb = (0, 150, 136)
-"""What the target is measured against ("the desk"): teal, far from orange, move-line blue
-and the hit yellow."""
-GHOST_FADE_S = 300.0
-"""Device seconds over which a ghost or a move line fades into the background, then goes."""
 MAX_GHOSTS = 32
 """Ghosts kept at most (the newest); one delta carries at most 32 changes."""
 MAX_MOVE_LINES = 32
 """Move lines kept at most (the newest)."""
-
-# The 12 edges of a box as pairs of corner indices; corner k has x = bit 0, y = bit 1, z = bit 2.
-_BOX_EDGES = np.array(
-    [(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
-)
-_CORNER_BITS = np.array([[(k >> axis) & 1 for axis in range(3)] for k in range(8)], bool)
 
 
 def points_node(object_id: int) -> str:
@@ -200,44 +187,6 @@ class DeltaSummary:
         return bool(self.added or self.updated or self.removed)
 
 
-# --- relational answers in words (static/app.js `relationWords` says the same) --------------
-
-_RELATION_PHRASES = {
-    "next_to": "next to",
-    "left_of": "left of",
-    "right_of": "right of",
-    "in_front_of": "in front of",
-    "closest": "closest to",
-    "farthest": "farthest from",
-}
-"""A kind's words before its anchors where they are not the kind itself ("on the desk")."""
-_TO_THE_ASKER = {
-    "near": "near you",
-    "next_to": "next to you",
-    "left_of": "on your left",
-    "right_of": "on your right",
-    "in_front_of": "in front of you",
-    "behind": "behind you",
-    "closest": "closest to you",
-    "farthest": "farthest from you",
-}
-"""A kind measured from the asker (no anchor): "the lamp closest to me"."""
-SUPERLATIVES_WITHIN_CATEGORY = ("biggest", "smallest", "highest", "lowest")
-
-
-def relation_words(kind: str, anchor_labels: Sequence[str]) -> str:
-    """A hit's relation in words: "on the desk", "between the chair and the sofa", "closest
-    to you" (no anchor: the asker), "the biggest" (a superlative within the category). A kind
-    this viewer does not know is said with its name ("beside the sofa" for "beside")."""
-    if kind in SUPERLATIVES_WITHIN_CATEGORY:
-        return f"the {kind}"
-    if not anchor_labels:
-        return _TO_THE_ASKER.get(kind, f"{kind.replace('_', ' ')} you")
-    names = [f"the {label}" for label in anchor_labels]
-    listed = names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
-    return f"{_RELATION_PHRASES.get(kind, kind.replace('_', ' '))} {listed}"
-
-
 @dataclass(frozen=True)
 class RelationHighlight:
     """A relational answer as the viewer draws it: the thing asked about and what it is
@@ -268,167 +217,6 @@ class RelationHighlight:
     def ids(self) -> set[int]:
         """The target's and the anchors' ids."""
         return set(self.anchors) | ({self.target} if self.target is not None else set())
-
-
-# --- colours and boxes (pure helpers) -------------------------------------------------------
-
-
-def _hue_color(key: int) -> Rgb:
-    """A saturated colour from an integer key; golden-ratio hue steps keep consecutive keys
-    far apart on the colour wheel."""
-    hue = (key * 0.618033988749895) % 1.0
-    r, g, b = colorsys.hsv_to_rgb(hue, 0.65, 0.92)
-    return (round(r * 255), round(g * 255), round(b * 255))
-
-
-def object_color(object_id: int) -> Rgb:
-    """A stable colour per object id (the same in every run and every viewer)."""
-    return _hue_color(object_id)  # ids are consecutive: neighbours get distant hues
-
-
-def class_color(label: str) -> Rgb:
-    """A stable colour per class label (crc32: Python's str hash is salted per process)."""
-    return _hue_color(zlib.crc32(label.encode("utf-8")))
-
-
-def dimmed(color: Rgb) -> Rgb:
-    """`color` faded towards grey: still tells objects apart, but recedes behind the hits."""
-    return tuple(  # type: ignore[return-value]
-        round(DIM_KEEP * c + (1 - DIM_KEEP) * g) for c, g in zip(color, DIM_GREY_RGB, strict=True)
-    )
-
-
-def blend(start: Rgb, end: Rgb, t: float) -> Rgb:
-    """The colour a share `t` in [0, 1] of the way from `start` to `end`."""
-    t = min(max(float(t), 0.0), 1.0)
-    return tuple(round(a + t * (b - a)) for a, b in zip(start, end, strict=True))  # type: ignore[return-value]
-
-
-def hit_color(color: Rgb, relevance: float) -> Rgb:
-    """A hit's colour: as dimmed as a non-hit at relevance 0, its own colour at 1."""
-    return blend(dimmed(color), color, relevance)
-
-
-def hit_box_color(relevance: float) -> Rgb:
-    """A hit's box colour: grey at relevance 0, bright HIT_BOX_RGB at 1."""
-    return blend(DIM_GREY_RGB, HIT_BOX_RGB, relevance)
-
-
-def faded(color: Rgb, age_s: float) -> Rgb:
-    """`color` after `age_s` device seconds: linearly into BACKGROUND_RGB over GHOST_FADE_S."""
-    return blend(color, BACKGROUND_RGB, max(age_s, 0.0) / GHOST_FADE_S)
-
-
-def box_segments(bboxes: np.ndarray) -> np.ndarray:
-    """float32 [12 * N, 2, 3]: the edges of N axis-aligned boxes [N, 6] (x0 y0 z0 x1 y1 z1)."""
-    bboxes = np.asarray(bboxes, np.float32).reshape(-1, 6)
-    lo, hi = bboxes[:, None, :3], bboxes[:, None, 3:]
-    corners = np.where(_CORNER_BITS[None], hi, lo)  # [N, 8, 3]
-    return corners[:, _BOX_EDGES].reshape(-1, 2, 3)
-
-
-def _segment_colors(colors: list[Rgb]) -> np.ndarray:
-    """uint8 [12 * N, 2, 3]: each box's colour on both ends of its 12 edges."""
-    per_box = np.asarray(colors, np.uint8).reshape(-1, 1, 1, 3)
-    return np.broadcast_to(per_box, (per_box.shape[0], 12, 2, 3)).reshape(-1, 2, 3).copy()
-
-
-# --- framing: the first camera and the floor (pure helpers) ------------------------------
-
-PANEL_PX = 400
-"""Width the GUI panel covers on the right of the page ("large" controls: 24 em + margins)."""
-VIEW_DIRECTION = (0.55, 0.45)
-"""The first camera looks from aside (this much along a horizontal diagonal) and above."""
-FRAME_MARGIN = 1.08
-"""Slack around the map's bounding sphere when framing it."""
-FLOOR_MARGIN_M = 0.25
-"""How far the floor grid reaches past the map's footprint (before rounding)."""
-FLOOR_STEP_M = 0.5
-"""The floor grid's edges lie on multiples of this (its cell size)."""
-
-
-@dataclass(frozen=True)
-class CameraView:
-    """Where a camera stands and what it looks at, world metres."""
-
-    position: tuple[float, float, float]
-    look_at: tuple[float, float, float]
-
-
-def frame_view(
-    bounds: tuple[np.ndarray, np.ndarray],
-    up: np.ndarray,
-    fov_y: float,
-    aspect: float,
-    panel_share: float = 0.0,
-) -> CameraView:
-    """A camera that shows the whole box `bounds` (min, max corners) from above and aside,
-    in the part of the screen the GUI panel leaves free.
-
-    up: unit up vector of the world. fov_y: vertical field of view (radians); aspect: width /
-    height of the canvas; panel_share: the share of the canvas width the panel covers on the
-    right. The box's bounding sphere fits in the free part's field of view, and the aim is
-    shifted right so that the map is centred in the free part, not under the panel.
-    """
-    lo, hi = (np.asarray(b, np.float64) for b in bounds)
-    up = np.asarray(up, np.float64)
-    center = (lo + hi) / 2
-    radius = max(float(np.linalg.norm(hi - lo)) / 2, 0.25) * FRAME_MARGIN
-    panel_share = min(max(panel_share, 0.0), 0.6)
-    tan_y = np.tan(fov_y / 2)
-    tan_x = aspect * tan_y  # half-width of the screen at distance 1
-    free_tan = min(tan_y, (1 - panel_share) * tan_x)  # the free part, half its width
-    distance = radius / np.sin(np.arctan(free_tan))
-    side = np.ones(3) - np.abs(up)  # a horizontal diagonal: the two axes that are not up
-    side = -side / np.linalg.norm(side)
-    back = VIEW_DIRECTION[0] * side + VIEW_DIRECTION[1] * up
-    back /= np.linalg.norm(back)
-    right = np.cross(-back, up)
-    right /= np.linalg.norm(right)
-    # NDC x of the free part's centre is -panel_share; shift the aim the other way.
-    look_at = center + right * panel_share * distance * tan_x
-    position = look_at + back * distance
-    return CameraView(tuple(position.tolist()), tuple(look_at.tolist()))  # type: ignore[arg-type]
-
-
-@dataclass(frozen=True)
-class FloorGrid:
-    """A grid on the map's floor: the plane at the lowest box face along up, spanning the
-    map's footprint plus a margin, its edges on multiples of FLOOR_STEP_M (so it changes only
-    when the footprint crosses one)."""
-
-    plane: str
-    """viser's plane name: the two horizontal axes ("xy" when z is up)."""
-    position: tuple[float, float, float]
-    """The grid's centre, metres."""
-    width: float
-    """Extent along the plane's first axis, metres."""
-    height: float
-    """Extent along the plane's second axis, metres."""
-
-
-def floor_grid(bounds: tuple[np.ndarray, np.ndarray] | None, up: np.ndarray) -> FloorGrid | None:
-    """The floor grid under the box `bounds` (None when the map is empty).
-
-    up: a unit axis vector (+-x, +-y, +-z). The floor is the lowest box face along up: the
-    minimum of that coordinate when up is positive, the maximum when it is negative.
-    """
-    if bounds is None:
-        return None
-    lo, hi = (np.asarray(b, np.float64) for b in bounds)
-    up = np.asarray(up, np.float64)
-    axis = int(np.argmax(np.abs(up)))
-    first, second = (a for a in range(3) if a != axis)
-    position = np.zeros(3)
-    position[axis] = lo[axis] if up[axis] > 0 else hi[axis]
-    extents = []
-    for a in (first, second):
-        start = np.floor((lo[a] - FLOOR_MARGIN_M) / FLOOR_STEP_M) * FLOOR_STEP_M
-        end = np.ceil((hi[a] + FLOOR_MARGIN_M) / FLOOR_STEP_M) * FLOOR_STEP_M
-        position[a] = (start + end) / 2
-        extents.append(float(end - start))
-    plane = "xyz"[first] + "xyz"[second]
-    return FloorGrid(plane, tuple(position.tolist()), extents[0], extents[1])  # type: ignore[arg-type]
 
 
 # --- the model ------------------------------------------------------------------------------
@@ -845,7 +633,7 @@ class SceneModel:
                 self.sink.set_boxes(
                     BOXES_NODE,
                     box_segments(np.array([o.bbox for o in shown], np.float32)),
-                    _segment_colors([self._color_of(o) for o in shown]),
+                    segment_colors([self._color_of(o) for o in shown]),
                 )
                 self._boxes_shown = True
             elif self._boxes_shown:
@@ -862,7 +650,7 @@ class SceneModel:
                 self.sink.set_boxes(
                     HIT_BOXES_NODE,
                     box_segments(np.array([o.bbox for o in held_hits], np.float32)),
-                    _segment_colors([hit_box_color(self._hits[o.id]) for o in held_hits]),
+                    segment_colors([hit_box_color(self._hits[o.id]) for o in held_hits]),
                 )
                 self._hit_boxes_shown = True
             elif self._hit_boxes_shown:
@@ -883,7 +671,7 @@ class SceneModel:
         if framed:
             wanted[RELATION_BOXES_NODE] = (
                 box_segments(np.array([o.bbox for o, _ in framed], np.float32)),
-                _segment_colors([color for _, color in framed]),
+                segment_colors([color for _, color in framed]),
             )
         if target is not None and anchors:
             wanted[RELATION_LINES_NODE] = (

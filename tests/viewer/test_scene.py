@@ -14,43 +14,43 @@ import numpy as np
 import pytest
 
 from app.protocol import ChangeEntry, UpsertEntry, pack_delta
-from viewer.scene import (
+from viewer.palette import (
     ANCHOR_RGB,
     BACKGROUND_RGB,
-    BOXES_NODE,
     DIM_GREY_RGB,
     GHOST_FADE_S,
     GHOST_RGB,
     HIT_BOX_RGB,
+    MOVE_LINE_RGB,
+    TARGET_RGB,
+    blend,
+    class_color,
+    dimmed,
+    faded,
+    hit_box_color,
+    hit_color,
+    object_color,
+)
+from viewer.scene import (
+    BOXES_NODE,
     HIT_BOXES_NODE,
     LABELS_GROUP,
     MAX_GHOSTS,
-    MOVE_LINE_RGB,
     MOVES_NODE,
     RELATION_BOXES_NODE,
     RELATION_LINES_NODE,
-    TARGET_RGB,
     DeltaError,
     RelationHighlight,
     SceneModel,
     anchor_label_node,
-    blend,
-    box_segments,
-    class_color,
-    dimmed,
-    faded,
-    floor_grid,
-    frame_view,
     ghost_label_node,
     ghost_node,
-    hit_box_color,
-    hit_color,
     hit_label_node,
     label_node,
-    object_color,
     points_node,
-    relation_words,
 )
+from viewer.shapes import box_segments, floor_grid, frame_view
+from viewer.words import relation_words
 
 DIM = 8
 

@@ -34,15 +34,14 @@ from client_sim.streaming import DeviceClient
 from viewer.app import FLOOR_NODE, ViewerApp
 from viewer.scene import (
     HIT_BOXES_NODE,
-    PANEL_PX,
     RELATION_BOXES_NODE,
     RELATION_LINES_NODE,
     RelationHighlight,
     anchor_label_node,
-    frame_view,
     hit_label_node,
     points_node,
 )
+from viewer.shapes import PANEL_PX, frame_view
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
