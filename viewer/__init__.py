@@ -1,8 +1,9 @@
 """The viser 3D viewer: follows a session's map updates and shows objects and query hits.
 
-`viewer.scene` turns deltas into scene-node operations (pure, no viser; its colours in `viewer.palette`, boxes and framing in `viewer.shapes`, relation words in `viewer.words`); `viewer.app` is the
-viser server, its GUI and the updates subscription. The app's names are imported lazily so
-that `viewer.scene` stays usable (and fast to import) without viser.
+`viewer.scene` turns deltas into scene-node operations (pure, no viser; its colours are in
+`viewer.palette`, boxes and framing in `viewer.shapes`, relation words in `viewer.words`);
+`viewer.app` is the viser server, its GUI and the updates subscription. The app's names are
+imported lazily so that `viewer.scene` stays usable (and fast to import) without viser.
 """
 
 from __future__ import annotations
