@@ -9,6 +9,7 @@
   reads of the map, the hits it gives), `phrases`, `question` (grounding, clauses) and
   `superlative` are its parts.
 
-Above app.relations (the geometry and the grammar), beside the map: nothing here reads the
-mapping engine.
+Layered above app.relations (the geometry and the grammar) and app.perception (whose
+vocabulary file relevance reads), below app.mapping: nothing here reads the mapping engine;
+the callers hand it the map's objects.
 """

@@ -109,7 +109,7 @@ class Question:
 
     @cached_property
     def floor(self) -> float | None:
-        """The floor's height along up (`relations.floor_height` over the whole map)."""
+        """The floor's height along up (`app.relations.source.floor_height` over the whole map)."""
         return floor_height(self.index, self.things.ids)
 
 

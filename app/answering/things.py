@@ -69,7 +69,8 @@ class HitRelation:
     """Why a hit answers: the relation it stands in and to what."""
 
     kind: str
-    """A relation kind (grammar.RELATION_KINDS) or a superlative (grammar.SUPERLATIVE_KINDS)."""
+    """A relation kind (app.relations.grammar.RELATION_KINDS) or a superlative
+    (SUPERLATIVE_KINDS there)."""
     anchors: list[tuple[int, str]]
     """(id, label) of each anchor; [] when measured from the asker or within the category."""
     degree: float

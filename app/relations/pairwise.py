@@ -254,6 +254,7 @@ PAIR_SLOTS = {
     "under": _UNDER,
     "above": _ABOVE,
 }
+"""Each kind's column in a `pair_degrees` row (a→b; b→a in the next for the directed ones)."""
 
 
 def pair_degrees(a: Body, b: Body) -> np.ndarray:
