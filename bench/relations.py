@@ -33,7 +33,7 @@ import time
 
 import numpy as np
 
-from app.mapping.relations import ObjectGeometry, RelationIndex
+from app.relations.index import ObjectGeometry, RelationIndex
 from bench.common import bench_parser, check, machine, write_outputs
 
 ROOM_M = 6.0

@@ -12,7 +12,7 @@ offline and with the same encoder:
 
 - plain LQ: the query embedded (`encode_query`), the local map's similarity search
   (`query_embedding`, k=5) and the hits rated (`rate_hits`), over everyday questions;
-- relational LQ: the phrases embedded (`relational.phrases_of`, one `encoder.encode` call)
+- relational LQ: the phrases embedded (`app.answering.phrases.phrases_of`, one `encoder.encode` call)
   and `LocalMap.relational_query` (k=5), per question, warm (as a device asks: its labels
   and phrases already in the encoder's cache, the relation bodies of the last questions
   kept within `relation_cache_mb`) and cold (the phrases embedded anew and no body kept:
@@ -97,9 +97,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from app.mapping.grammar import parse
-    from app.mapping.relational import phrases_of
-    from app.mapping.relevance import rate_hits, rater_for
+    from app.answering.phrases import phrases_of
+    from app.answering.relevance import rate_hits, rater_for
+    from app.relations.grammar import parse
     from app.semantics import get_text_encoder
 
     encoder = get_text_encoder()

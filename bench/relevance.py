@@ -4,7 +4,7 @@
 
 Maps of `--objects` random synthetic categories; every category's name and paraphrases are
 asked of every map, answered as the server does (top 5 by label, rated by
-app.mapping.relevance). A query whose category is in the map should match (recall); one
+app.answering.relevance). A query whose category is in the map should match (recall); one
 whose category is absent should not match an unrelated object (false matches; a confusion
 of the category, e.g. "chair" for "armchair", is not counted either way). Then the fixed
 queries: the demo's must match, nonsense and absent objects must not.
@@ -17,7 +17,7 @@ import random
 
 import numpy as np
 
-from app.mapping.relevance import CONFIDENT, MATCH_MAX_GAP_Z, MATCH_MIN_Z, rater_for, relevance_of
+from app.answering.relevance import CONFIDENT, MATCH_MAX_GAP_Z, MATCH_MIN_Z, rater_for, relevance_of
 from app.semantics import get_text_encoder
 from bench.common import machine, write_outputs
 from client_sim.world.categories import CATEGORIES, is_background

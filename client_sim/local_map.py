@@ -34,8 +34,8 @@ the user, last those of a priority class. Inside a group the farthest centroid f
 goes first (with no user position, the least recently updated). The ranking is computed
 once and the number to keep is found in closed form, so enforcement cannot loop.
 
-Questions about how things stand (`relational_query`, issue 27) are answered by the server's
-own `app.mapping.relational.answer` on the held points, measured when asked
+Questions about how things stand (`relational_query`) are answered by the server's
+own `app.answering.ask` on the held points, measured when asked
 (`OnDemandRelations`): labels as codes, held-point centroids and point counts are columns (16
 bytes an object); the relation bodies a question builds are kept for the next one within
 `relation_cache_mb`, counted in `memory_bytes()` and dropped first when over budget.
@@ -56,11 +56,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from app.mapping.grammar import Reading, is_relational, parse
+from app.answering.ask import ask, relational_reading
+from app.answering.things import MapThings, RelationalHit, row_dots
 from app.mapping.held import POINT_LEVELS, dequantise_points, quantise_points
-from app.mapping.relational import MapThings, RelationalHit, answer, row_dots
-from app.mapping.relations import Z_UP, Body, OnDemandRelations, snap_to_axis
 from app.protocol import DEFAULT_EMBEDDING_DIM, DeltaError, parse_delta
+from app.relations.bodies import Z_UP, Body, snap_to_axis
+from app.relations.grammar import Reading
+from app.relations.on_demand import OnDemandRelations
 from app.semantics import TextEncoder
 
 log = logging.getLogger(__name__)
@@ -801,14 +803,14 @@ class LocalMap:
     ) -> list[RelationalHit] | None:
         """The k held objects best answering a question about how things stand ("the mug on
         the desk", "the lamp closest to me"), best first, as the server answers it: the same
-        `app.mapping.relational.answer` on the same points (the server measures relations
+        `app.answering.ask` on the same points (the server measures relations
         on the points a device holds, app.mapping.held). None: a plain question, or one to
         answer as plain (an anchor the map holds nothing confident of, a question seen from
         the asker with no position): answer it with `query_embedding`.
 
         encoder: the session's text encoder; viewer: the asker's position, world metres
         (None: the user's position, `set_user_position`, if any); up: the world axis that is
-        up, float [3] (None: Z, app.mapping.relations.Z_UP).
+        up, float [3] (None: Z, app.relations.bodies.Z_UP).
 
         Cheap at 10k objects: nothing is prepared ahead. A question builds relation bodies
         only for the objects it touches (anchors, what is within reach of them, the target
@@ -816,8 +818,8 @@ class LocalMap:
         (dropped when their object changes, goes or is evicted, and before any object when
         over budget), and reads labels and centroids from columns.
         """
-        reading = parse(question) if isinstance(question, str) else question
-        if not is_relational(reading) or self._n == 0:
+        reading = relational_reading(question)
+        if reading is None or self._n == 0:
             return None
         up_axis = Z_UP if up is None else snap_to_axis(np.asarray(up, np.float64))
         position = self._user_position if viewer is None else np.asarray(viewer, np.float64)
@@ -841,11 +843,11 @@ class LocalMap:
             label_of=label_of[rows],
             cosines=lambda positions, query: self._row_cosines(rows[positions], query),
         )
-        return answer(reading, things, relations, encoder, position, k)
+        return ask(reading, things, relations, encoder, position, k)
 
     def _row_cosines(self, rows: np.ndarray, query: np.ndarray) -> np.ndarray:
         """float32 [m]: cosines of `rows` with the unit `query`, each row on its own
-        (relational.row_dots: copies with one embedding tie exactly)."""
+        (app.answering.things.row_dots: copies with one embedding tie exactly)."""
         columns = self._rows
         embeddings = columns["embedding"][rows].astype(np.float32)
         return row_dots(embeddings, np.asarray(query, np.float32)) * columns["scale"][rows]

@@ -20,10 +20,10 @@ Questions about how things stand ("the mug on the desk", "the lamp closest to me
 answered alike both ways (issue 27, DESIGN "LQ = SQ"): SQ sends the device's position
 (`from`, the local map's user position, which the streaming client sets to its newest pose),
 and LQ asks the local map (`LocalMap.relational_query`: the server's own
-`app.mapping.relational.answer` on the same points) from that position, along the session's
+`app.answering.ask` on the same points) from that position, along the session's
 up axis (the session record's `up`, learnt while online; Z until it says). Each relational hit
 carries `relation` {"kind", "anchors": [{"id", "label"}], "degree"} and the answer's `match` is
-the relational one (best score >= relational.MATCH_MIN_SCORE) both ways.
+the relational one (best score >= app.answering.things.MATCH_MIN_SCORE) both ways.
 
 LQ needs the session's own text encoder: the model and dimension the session announces in
 `embedding` (MiniLM, packaged, or CLIP's text tower on the `models` backend, read from
@@ -44,12 +44,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.answering.ask import relational_reading
+from app.answering.phrases import phrases_of
+from app.answering.relevance import is_match, rate_hits, rater_for
+from app.answering.things import is_match as is_relational_match
 from app.client import SessionApi
-from app.mapping import relational
-from app.mapping.grammar import Reading, is_relational, parse
 from app.mapping.places import up_vector
-from app.mapping.relations import Z_UP
-from app.mapping.relevance import is_match, rate_hits, rater_for
+from app.relations.bodies import Z_UP
+from app.relations.grammar import Reading
 from app.semantics import DEFAULT_MODEL_ID, TextEncoder
 from client_sim.local_map import LocalMap
 
@@ -154,7 +156,7 @@ class QueryAnswer:
     results: list[dict]
     """Best first: {"id", "label", "score", "relevance", "bbox": [x0, y0, z0, x1, y1, z1],
     "centroid", "last_seen_t", "state", "relation"}; relevance in [0, 1] as
-    app.mapping.relevance rates it (of the target phrase, for a relational question);
+    app.answering.relevance rates it (of the target phrase, for a relational question);
     last_seen_t in device-clock seconds as the server holds it (the same by SQ and LQ; None
     from a server that does not send it); state "present" (the local map holds only present
     objects, and SQ does not ask for removed ones); relation {"kind", "anchors": [{"id",
@@ -170,7 +172,7 @@ class QueryAnswer:
     """The RTT the decision used (None: unknown, inf: link down)."""
     verdict: bool | None = None
     """The answer's own `match` where it has one: the server's (SQ), or a relational LQ's
-    (its best score >= relational.MATCH_MIN_SCORE); None: from the hits' relevance."""
+    (its best score >= app.answering.things.MATCH_MIN_SCORE); None: from the hits' relevance."""
     transcript: str | None = None
     """A spoken question (`QueryRouter.ask_aloud`): what the server heard; None for a typed
     one."""
@@ -316,7 +318,7 @@ class QueryRouter:
         # to me") are answered from where LQ would answer them.
         answer = await self.api.query_result(text, k, from_xyz=self.local_map.user_position)
         now_s = time.perf_counter()
-        if is_relational(parse(text)):
+        if relational_reading(text) is not None:
             await self._read_up()  # LQ will need it once the network is gone
         return QueryAnswer(
             text=text,
@@ -374,8 +376,8 @@ class QueryRouter:
     async def _local_query(
         self, text: str, k: int, reason: str, start_s: float, rtt: float | None
     ) -> QueryAnswer:
-        reading = parse(text)
-        if is_relational(reading):
+        reading = relational_reading(text)
+        if reading is not None:
             answer = await self._local_relational_query(text, reading, k, reason, start_s, rtt)
             if answer is not None:
                 return answer
@@ -427,7 +429,7 @@ class QueryRouter:
         # the answer finds them) and, once, the rater's vocabulary. The map is read on the
         # loop, the only place it is touched.
         labels = self.local_map.labels()
-        await asyncio.to_thread(_prepare, self.encoder, relational.phrases_of(reading), labels)
+        await asyncio.to_thread(_prepare, self.encoder, phrases_of(reading), labels)
         hits = self.local_map.relational_query(reading, self.encoder, up=self.up_axis(), k=k)
         if hits is None:
             return None
@@ -460,7 +462,7 @@ class QueryRouter:
             reason=reason,
             total_ms=(now_s - start_s) * 1e3,
             rtt_ms=rtt,
-            verdict=relational.is_match(hits),
+            verdict=is_relational_match(hits),
         )
 
 

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from app.answering.ask import ask
 from app.cli.evaluation import _Sighting
 from app.config import Knobs
 from app.keyframes import is_keyframe
@@ -58,7 +59,7 @@ from app.mapping.grammar import Reading, is_relational, parse
 from app.mapping.held import held_points
 from app.mapping.places import DEFAULT_UP, UpInference, up_vector
 from app.mapping.publish import MIN_CAP_RESOLUTION_M, client_points, update_message
-from app.mapping.relational import MapThing, RelationalHit, answer, is_match
+from app.mapping.relational import MapThing, RelationalHit, is_match
 from app.mapping.relations import Z_UP, ObjectGeometry, RelationIndex
 from app.mapping.relevance import CONFIDENT, rate_hits
 from app.protocol import parse_frame
@@ -231,7 +232,6 @@ def _map_walk(
     engine = MappingEngine(encoder, knobs, "semanticxr")
     local_map = LocalMap(dim=encoder.dim, max_points_per_object=knobs.max_object_points_client)
     mapped = _Mapped(engine, RelationIndex(Z_UP), local_map, source.poses[-1][:3, 3].copy())
-    versions: dict[int, int] = {}
     published = 0
     for index in range(cfg.frames):
         frame = source.frame(index)
@@ -244,7 +244,7 @@ def _map_walk(
         mapped.up_inference.observe(frame.pose)
         if stats.keyframe % knobs.local_map_update_frequency == 0:
             published = _publish(engine, local_map, published)
-        _update_index(mapped, versions, knobs.max_object_points_client)
+        _update_index(mapped, knobs.max_object_points_client)
         if mapped.keyframes % 20 == 0:
             progress(
                 f"[relations] seed {seed}: mapped {mapped.keyframes} keyframes, "
@@ -261,35 +261,30 @@ def _publish(engine: MappingEngine, local_map: LocalMap, since: int) -> int:
     return update["seq"]
 
 
-def _update_index(mapped: _Mapped, versions: dict[int, int], max_points: int) -> None:
-    """Bring the relation index up to the confirmed objects (as `Session._relation_index`
-    does on a query) and time it."""
-    engine = mapped.engine
-    up = mapped.up
-    if not np.array_equal(mapped.index.up, up):  # a new up axis starts a new index
-        mapped.index = RelationIndex(up)
-        versions.clear()
-    objects = engine.confirmed_objects()
-    upserts = {
-        o.id: ObjectGeometry(o.label, held_points(client_points(o, max_points)))
-        for o in objects
-        if versions.get(o.id) != o.version
-    }
-    present = {o.id for o in objects}
-    removed = [i for i in versions if i not in present]
-    if not upserts and not removed:
-        return
+def _update_index(mapped: _Mapped, max_points: int) -> None:
+    """Bring the relation index up to the confirmed objects (`RelationIndex.sync`, as the
+    server does on a query) and time what the index costs: the sync and settling every stale
+    pair, without preparing the changed objects' held points (the map's work)."""
+    objects = [(o, o.version) for o in mapped.engine.confirmed_objects()]
+    preparing_s = 0.0
+
+    def held(o) -> ObjectGeometry:
+        nonlocal preparing_s
+        started = time.perf_counter()
+        geometry = ObjectGeometry(o.label, held_points(client_points(o, max_points)))
+        preparing_s += time.perf_counter() - started
+        return geometry
+
     t0 = time.perf_counter()
-    mapped.index.update(upserts, removed)
+    changed = mapped.index.sync(objects, mapped.up, held)
+    if not changed:
+        return
     t1 = time.perf_counter()
     mapped.index.settle()
     t2 = time.perf_counter()
-    mapped.update_ms.append((t1 - t0) * 1e3)
-    mapped.index_ms.append((t2 - t0) * 1e3)
-    mapped.changed.append(len(upserts) + len(removed))
-    for i in removed:
-        del versions[i]
-    versions.update({o.id: o.version for o in objects if o.id in upserts})
+    mapped.update_ms.append((t1 - t0 - preparing_s) * 1e3)
+    mapped.index_ms.append((t2 - t0 - preparing_s) * 1e3)
+    mapped.changed.append(changed)
 
 
 def _identities(engine: MappingEngine, gt) -> dict[int, int]:
@@ -374,12 +369,10 @@ def _perfect_view(scene, gt, encoder: TextEncoder, viewer: np.ndarray, max_point
 
 def _ask(text: str, view: _MapView, encoder: TextEncoder) -> _Answer:
     """The server's answer (`Session.relational_query`, else `Session.rated_query`)."""
-    reading = parse(text)
-    if is_relational(reading):
-        k = max(len(view.things), 1)  # the whole ranking, to tell why an answer lost
-        hits = answer(reading, view.things, view.index, encoder, view.viewer, k)
-        if hits is not None:
-            return _Answer(True, hits[0].id if hits else None, is_match(hits[:ANSWER_K]), hits)
+    k = max(len(view.things), 1)  # the whole ranking, to tell why an answer lost
+    hits = ask(text, view.things, view.index, encoder, view.viewer, k)
+    if hits is not None:
+        return _Answer(True, hits[0].id if hits else None, is_match(hits[:ANSWER_K]), hits)
     return _plain(text, view, encoder)
 
 

@@ -1,6 +1,5 @@
 """Questions about how things stand, answered by the device's local map as the server answers
-them (issue 27, item 3; DESIGN "LQ = SQ"): the same points (app.mapping.held), the same
-`app.mapping.relational.answer`, relation bodies only for what a question touches, and what
+them: the same points (app.mapping.held), the same `app.answering.ask`, relation bodies only for what a question touches, and what
 it keeps counted in the map's memory."""
 
 from __future__ import annotations
@@ -13,12 +12,14 @@ import numpy as np
 import pytest
 from device_room import NEGATIVES, QUESTIONS, ROOM, TO_Y_UP, VIEWER
 
+from app.answering.relational import answer
+from app.answering.things import MapThing, is_match
 from app.config import Knobs
-from app.mapping.grammar import parse
 from app.mapping.held import held_points
-from app.mapping.relational import MapThing, answer, is_match
-from app.mapping.relations import Body, ObjectGeometry, RelationIndex
 from app.protocol import UpsertEntry, pack_delta
+from app.relations.bodies import Body
+from app.relations.grammar import parse
+from app.relations.index import ObjectGeometry, RelationIndex
 from client_sim.local_map import _BODY_OVERHEAD_BYTES, BYTES_PER_MB, LocalMap
 from client_sim.querying import LQ, QueryRouter
 

@@ -9,15 +9,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from relation_scene import TO_Y_UP, block, table
 
-from app.mapping.relations import (
-    PAIRWISE_KINDS,
-    Body,
-    ObjectGeometry,
-    OnDemandRelations,
-    RelationIndex,
-    between_degrees,
-    viewpoint_degrees,
-)
+from app.relations.between import between_degrees
+from app.relations.bodies import Body
+from app.relations.index import ObjectGeometry, RelationIndex
+from app.relations.on_demand import OnDemandRelations
+from app.relations.pairwise import PAIRWISE_KINDS
+from app.relations.viewpoint import viewpoint_degrees
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 Y_UP = np.array([0.0, 1.0, 0.0])

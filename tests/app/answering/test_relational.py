@@ -8,17 +8,13 @@ import numpy as np
 import pytest
 from relation_scene import SCENE
 
-from app.mapping.grammar import parse
-from app.mapping.relational import (
-    FLOOR_ANCHOR,
-    MapThing,
-    answer,
-    category_of,
-    head_noun,
-    is_match,
-    same_head,
-)
-from app.mapping.relations import ObjectGeometry, RelationIndex
+from app.answering.phrases import head_noun, same_head
+from app.answering.question import FLOOR_ANCHOR
+from app.answering.relational import answer
+from app.answering.superlative import category_of
+from app.answering.things import MapThing, is_match
+from app.relations.grammar import parse
+from app.relations.index import ObjectGeometry, RelationIndex
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.mapping.grammar import (
+from app.relations.grammar import (
     RELATION_KINDS,
     SUPERLATIVE_KINDS,
     Reading,

@@ -10,12 +10,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from relation_scene import chair, faces
 
-from app.mapping import relations as rel
-from app.mapping.relations import Body, ObjectGeometry, RelationIndex
+from app.relations import pairwise, superlatives, viewpoint
+from app.relations.between import between
+from app.relations.bodies import Body, snap_to_axis
+from app.relations.index import ObjectGeometry, RelationIndex
+from app.relations.thresholds import THRESHOLDS as T
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 Y_UP = np.array([0.0, 1.0, 0.0])
-PAIRWISE = rel.PAIRWISE_RELATIONS
+PAIRWISE = pairwise.PAIRWISE_RELATIONS
 
 
 def block(x, y, z, w, d, h, count: int = 120, seed: int = 0) -> np.ndarray:
@@ -71,43 +74,43 @@ def degrees_of(a, b, up=Z_UP) -> dict[str, float]:
 
 
 def test_a_mug_on_the_desk_is_on_it_and_the_desk_is_not_on_the_mug():
-    assert rel.on(MUG, DESK) == 1.0
-    assert rel.on(DESK, MUG) == 0.0
-    assert rel.above(MUG, DESK) == 0.0  # on, not hovering above
-    assert rel.under(DESK, MUG) == 1.0  # the converse, as "the book under the mug"
-    assert rel.in_(MUG, DESK) == 0.0
+    assert pairwise.on(MUG, DESK) == 1.0
+    assert pairwise.on(DESK, MUG) == 0.0
+    assert pairwise.above(MUG, DESK) == 0.0  # on, not hovering above
+    assert pairwise.under(DESK, MUG) == 1.0  # the converse, as "the book under the mug"
+    assert pairwise.in_(MUG, DESK) == 0.0
 
 
 def test_a_mug_held_above_the_desk_is_above_it_not_on_it():
     held = MUG + [0.0, 0.0, 0.3]
-    assert rel.on(held, DESK) == 0.0
-    assert rel.above(held, DESK) == 1.0
-    assert rel.below(DESK, held) == 1.0
+    assert pairwise.on(held, DESK) == 0.0
+    assert pairwise.above(held, DESK) == 1.0
+    assert pairwise.below(DESK, held) == 1.0
 
 
 def test_a_mug_mostly_off_the_desk_edge_is_not_on_it():
     # the desk ends at x = 1.6; a mug standing on the floor beside it, its rim at desk height
     beside = block(1.64, 0.4, 0.0, 0.08, 0.08, 0.75, 80)
-    assert rel.on(beside, DESK) == 0.0
+    assert pairwise.on(beside, DESK) == 0.0
     # half over the edge at desk height: "most of it over the desk" fails
     overhanging = block(1.55, 0.4, 0.75, 0.3, 0.1, 0.05, 80)
-    assert rel.on(overhanging, DESK) < 0.5
+    assert pairwise.on(overhanging, DESK) < 0.5
 
 
 def test_a_bag_under_the_table_is_under_it_and_neither_on_nor_in_it():
     degrees = degrees_of(BAG_UNDER, DESK)
     assert degrees["under"] == 1.0
     assert degrees["on"] == 0.0 and degrees["in"] == 0.0
-    assert rel.on(DESK, BAG_UNDER) == 0.0
-    assert rel.under(DESK, BAG_UNDER) == 0.0
+    assert pairwise.on(DESK, BAG_UNDER) == 0.0
+    assert pairwise.under(DESK, BAG_UNDER) == 0.0
 
 
 def test_a_lamp_hanging_over_the_table_is_above_it():
-    assert rel.above(LAMP_OVER, DESK) == 1.0
-    assert rel.below(DESK, LAMP_OVER) == 1.0
-    assert rel.under(DESK, LAMP_OVER) == 1.0
-    assert rel.on(LAMP_OVER, DESK) == 0.0
-    assert rel.near(LAMP_OVER, DESK) == 0.0  # 85 cm apart
+    assert pairwise.above(LAMP_OVER, DESK) == 1.0
+    assert pairwise.below(DESK, LAMP_OVER) == 1.0
+    assert pairwise.under(DESK, LAMP_OVER) == 1.0
+    assert pairwise.on(LAMP_OVER, DESK) == 0.0
+    assert pairwise.near(LAMP_OVER, DESK) == 0.0  # 85 cm apart
 
 
 def test_a_ball_in_an_open_box_is_in_it_not_under_it_nor_on_it():
@@ -115,7 +118,7 @@ def test_a_ball_in_an_open_box_is_in_it_not_under_it_nor_on_it():
     assert degrees["in"] == 1.0
     assert degrees["under"] == 0.0  # the walls are beside it, nothing over it
     assert degrees["on"] == 0.0  # both stand on the floor
-    assert rel.in_(BOX, BALL_IN_BOX) == 0.0
+    assert pairwise.in_(BOX, BALL_IN_BOX) == 0.0
 
 
 def test_a_bag_on_the_sofa_is_on_it_not_in_it():
@@ -134,33 +137,33 @@ def test_a_chair_next_to_the_sofa_is_near_and_next_to_it():
 
 
 def test_a_mug_on_the_desk_is_near_it_but_not_next_to_it():
-    assert rel.near(MUG, DESK) == 1.0
-    assert rel.next_to(MUG, DESK) == 0.0
+    assert pairwise.near(MUG, DESK) == 1.0
+    assert pairwise.next_to(MUG, DESK) == 0.0
 
 
 def test_next_to_wants_a_similar_height():
     # a lamp on a high shelf right above the sofa's arm: near, not side by side
     lamp = block(5.05, 0.2, 1.2, 0.2, 0.2, 0.3, 60)
-    assert rel.near(lamp, SOFA) > 0.0
-    assert rel.next_to(lamp, SOFA) == 0.0
+    assert pairwise.near(lamp, SOFA) > 0.0
+    assert pairwise.next_to(lamp, SOFA) == 0.0
 
 
 def test_a_lamp_between_two_chairs_is_between_them():
     left, right = chair(0.0, 0.0, seed=1), chair(2.0, 0.0, seed=2)
     lamp = block(1.1, 0.1, 0.0, 0.25, 0.25, 1.2, 60)
-    assert rel.between(lamp, left, right) == 1.0
-    assert rel.between(lamp, right, left) == 1.0
-    assert rel.between(lamp + [3.0, 0, 0], left, right) == 0.0  # beyond the right chair
-    assert rel.between(lamp + [0, 2.0, 0], left, right) == 0.0  # far to the side
-    assert rel.between(left, lamp, right) == 0.0  # the chair is at the end, not between
+    assert between(lamp, left, right) == 1.0
+    assert between(lamp, right, left) == 1.0
+    assert between(lamp + [3.0, 0, 0], left, right) == 0.0  # beyond the right chair
+    assert between(lamp + [0, 2.0, 0], left, right) == 0.0  # far to the side
+    assert between(left, lamp, right) == 0.0  # the chair is at the end, not between
 
 
 def test_a_thing_under_one_anchor_is_not_between_the_two():
     desk, dining = table(0.0, 0.0, seed=1), table(3.0, 0.0, seed=2)  # x 0-1.6 and 3-4.6
     bin_under_desk = block(1.2, 0.3, 0.0, 0.3, 0.3, 0.4, 60)  # inside the desk's footprint
     box_in_the_gap = block(2.15, 0.3, 0.0, 0.3, 0.3, 0.4, 60)
-    assert rel.between(bin_under_desk, desk, dining) == 0.0
-    assert rel.between(box_in_the_gap, desk, dining) == 1.0
+    assert between(bin_under_desk, desk, dining) == 0.0
+    assert between(box_in_the_gap, desk, dining) == 1.0
 
 
 def test_left_and_right_depend_on_where_the_asker_stands():
@@ -170,35 +173,38 @@ def test_left_and_right_depend_on_where_the_asker_stands():
     )
     south, north = np.array([0.8, -2.0, 1.6]), np.array([0.8, 3.0, 1.6])
     # from the south (looking +y) x grows to the right: the mug at x 0.2 is left of the laptop
-    assert rel.left_of(mug, laptop, south) == 1.0
-    assert rel.right_of(mug, laptop, south) == 0.0
-    assert rel.right_of(laptop, mug, south) == 1.0
+    assert viewpoint.left_of(mug, laptop, south) == 1.0
+    assert viewpoint.right_of(mug, laptop, south) == 0.0
+    assert viewpoint.right_of(laptop, mug, south) == 1.0
     # from the north, the other way round
-    assert rel.right_of(mug, laptop, north) == 1.0
-    assert rel.left_of(mug, laptop, north) == 0.0
+    assert viewpoint.right_of(mug, laptop, north) == 1.0
+    assert viewpoint.left_of(mug, laptop, north) == 0.0
 
 
 def test_in_front_of_and_behind_along_the_line_of_sight():
     viewer = np.array([0.0, -3.0, 1.6])
     tv = block(-0.5, 2.0, 0.5, 1.0, 0.1, 0.6, 60)
     chair_before_tv = chair(-0.2, 0.0)
-    assert rel.in_front_of(chair_before_tv, tv, viewer) == 1.0
-    assert rel.behind(tv, chair_before_tv, viewer) == 1.0
-    assert rel.behind(chair_before_tv, tv, viewer) == 0.0
+    assert viewpoint.in_front_of(chair_before_tv, tv, viewer) == 1.0
+    assert viewpoint.behind(tv, chair_before_tv, viewer) == 1.0
+    assert viewpoint.behind(chair_before_tv, tv, viewer) == 0.0
     # nearer, but far off the line of sight: not in front of it
-    assert rel.in_front_of(chair_before_tv + [3.0, 0, 0], tv, viewer) == 0.0
+    assert viewpoint.in_front_of(chair_before_tv + [3.0, 0, 0], tv, viewer) == 0.0
 
 
 def test_closest_and_farthest_rank_the_candidates():
     viewer = np.array([0.0, 0.0, 1.6])
     lamps = [block(x, 0.0, 0.0, 0.2, 0.2, 1.5, 40, seed=i) for i, x in enumerate((3.0, 1.0, 2.0))]
-    closest, farthest = rel.closest_to(viewer, lamps), rel.farthest_from(viewer, lamps)
+    closest, farthest = (
+        superlatives.closest_to(viewer, lamps),
+        superlatives.farthest_from(viewer, lamps),
+    )
     assert np.argmax(closest) == 1 and closest[1] == 1.0
     assert np.argmax(farthest) == 0 and farthest[0] == 1.0
     assert np.all((closest > 0) & (closest <= 1)) and closest[2] > closest[0]
     window = block(3.6, -0.2, 0.8, 0.05, 0.6, 1.2, 60)  # closest to a thing, by closest points
-    assert np.argmax(rel.closest_to(window, lamps)) == 0
-    assert np.argmax(rel.farthest_from(Body(window), lamps)) == 1
+    assert np.argmax(superlatives.closest_to(window, lamps)) == 0
+    assert np.argmax(superlatives.farthest_from(Body(window), lamps)) == 1
 
 
 def test_superlatives_give_the_winner_one_and_the_others_less():
@@ -207,13 +213,13 @@ def test_superlatives_give_the_winner_one_and_the_others_less():
         block(0, 3, 0.4, 0.8, 0.3, 0.02, 60),
         block(0, 3, 1.6, 0.8, 0.3, 0.02, 60),
     )
-    np.testing.assert_allclose(rel.biggest([small_table, big_table])[1], 1.0)
-    assert rel.biggest([small_table, big_table])[0] < 0.5
-    assert rel.smallest([small_table, big_table])[0] == 1.0
-    assert rel.biggest([small_table, big_table], by="footprint")[0] < 0.5
-    assert rel.highest([shelf_low, shelf_high]).tolist()[1] == 1.0
-    assert rel.lowest([shelf_low, shelf_high]).tolist()[0] == 1.0
-    assert 0.0 < rel.highest([shelf_low, shelf_high])[0] < 0.1
+    np.testing.assert_allclose(superlatives.biggest([small_table, big_table])[1], 1.0)
+    assert superlatives.biggest([small_table, big_table])[0] < 0.5
+    assert superlatives.smallest([small_table, big_table])[0] == 1.0
+    assert superlatives.biggest([small_table, big_table], by="footprint")[0] < 0.5
+    assert superlatives.highest([shelf_low, shelf_high]).tolist()[1] == 1.0
+    assert superlatives.lowest([shelf_low, shelf_high]).tolist()[0] == 1.0
+    assert 0.0 < superlatives.highest([shelf_low, shelf_high])[0] < 0.1
 
 
 # --- thresholds at their edges -----------------------------------------------------------
@@ -226,13 +232,13 @@ def two_dots_apart(distance_m: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_near_is_full_up_to_its_full_distance_and_gone_at_its_maximum():
-    assert rel.near(*two_dots_apart(0.0)) == 1.0
-    assert rel.near(*two_dots_apart(rel.NEAR_FULL_M)) == 1.0
-    assert rel.near(*two_dots_apart(0.5)) == pytest.approx(0.5)  # "within ~0.5 m"
-    assert 0.0 < rel.near(*two_dots_apart(rel.NEAR_MAX_M - 0.01)) < 0.01
-    assert rel.near(*two_dots_apart(rel.NEAR_MAX_M)) == 0.0
-    assert rel.near(*two_dots_apart(rel.NEAR_MAX_M + 0.01)) == 0.0
-    steps = [rel.near(*two_dots_apart(d)) for d in np.linspace(0, 1, 41)]
+    assert pairwise.near(*two_dots_apart(0.0)) == 1.0
+    assert pairwise.near(*two_dots_apart(T.near_full_m)) == 1.0
+    assert pairwise.near(*two_dots_apart(0.5)) == pytest.approx(0.5)  # "within ~0.5 m"
+    assert 0.0 < pairwise.near(*two_dots_apart(T.near_max_m - 0.01)) < 0.01
+    assert pairwise.near(*two_dots_apart(T.near_max_m)) == 0.0
+    assert pairwise.near(*two_dots_apart(T.near_max_m + 0.01)) == 0.0
+    steps = [pairwise.near(*two_dots_apart(d)) for d in np.linspace(0, 1, 41)]
     assert all(x >= y for x, y in zip(steps, steps[1:], strict=False))  # falls with distance
 
 
@@ -252,18 +258,22 @@ def plate_and_cube(gap_m: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_on_holds_within_a_few_centimetres_and_above_takes_over():
-    for gap in (0.0, 0.01, rel.ON_FULL_GAP_M - 1e-9):
+    for gap in (0.0, 0.01, T.on_full_gap_m - 1e-9):
         thing, plate = plate_and_cube(gap)
-        assert rel.on(thing, plate) == pytest.approx(1.0) and rel.above(thing, plate) < 1e-6
-    for gap in (rel.ON_MAX_GAP_M, 0.3, rel.VERTICAL_FULL_GAP_M):
+        assert (
+            pairwise.on(thing, plate) == pytest.approx(1.0) and pairwise.above(thing, plate) < 1e-6
+        )
+    for gap in (T.on_max_gap_m, 0.3, T.vertical_full_gap_m):
         thing, plate = plate_and_cube(gap)
-        assert rel.on(thing, plate) == 0.0 and rel.above(thing, plate) == pytest.approx(1.0)
-    middle = 0.5 * (rel.ON_FULL_GAP_M + rel.ON_MAX_GAP_M)
+        assert pairwise.on(thing, plate) == 0.0 and pairwise.above(thing, plate) == pytest.approx(
+            1.0
+        )
+    middle = 0.5 * (T.on_full_gap_m + T.on_max_gap_m)
     thing, plate = plate_and_cube(middle)
-    assert rel.on(thing, plate) == pytest.approx(0.5)
-    assert rel.on(thing, plate) + rel.above(thing, plate) == pytest.approx(1.0)
-    thing, plate = plate_and_cube(rel.VERTICAL_MAX_GAP_M)
-    assert rel.above(thing, plate) == 0.0
+    assert pairwise.on(thing, plate) == pytest.approx(0.5)
+    assert pairwise.on(thing, plate) + pairwise.above(thing, plate) == pytest.approx(1.0)
+    thing, plate = plate_and_cube(T.vertical_max_gap_m)
+    assert pairwise.above(thing, plate) == 0.0
 
 
 def test_under_holds_up_to_its_full_clearance_and_is_gone_at_its_maximum():
@@ -271,36 +281,36 @@ def test_under_holds_up_to_its_full_clearance_and_is_gone_at_its_maximum():
     u = np.linspace(0.0, 1.0, 21)
     for clearance, degree in (
         (0.05, 1.0),
-        (rel.VERTICAL_FULL_GAP_M, 1.0),
-        (0.5 * (rel.VERTICAL_FULL_GAP_M + rel.VERTICAL_MAX_GAP_M), 0.5),
-        (rel.VERTICAL_MAX_GAP_M, 0.0),
+        (T.vertical_full_gap_m, 1.0),
+        (0.5 * (T.vertical_full_gap_m + T.vertical_max_gap_m), 0.5),
+        (T.vertical_max_gap_m, 0.0),
     ):
         roof = np.stack(np.meshgrid(u, u, [0.1 + clearance]), -1)  # over the cube's top
-        assert rel.under(cube, roof.reshape(-1, 3)) == pytest.approx(degree), clearance
+        assert pairwise.under(cube, roof.reshape(-1, 3)) == pytest.approx(degree), clearance
 
 
 def test_a_thing_sunk_a_little_into_its_support_is_still_on_it():
-    thing, plate = plate_and_cube(-0.5 * rel.ON_SLACK_M)
-    assert rel.on(thing, plate) == 1.0
+    thing, plate = plate_and_cube(-0.5 * T.on_slack_m)
+    assert pairwise.on(thing, plate) == 1.0
 
 
 def test_points_as_on_the_wire_give_the_same_answers():
     # float16 on the wire, float32 in a delta's arrays: the same relations, to rounding
     for dtype in (np.float16, np.float32):
-        assert rel.on(MUG.astype(dtype), DESK.astype(dtype)) == 1.0
-        assert rel.under(BAG_UNDER.astype(dtype), DESK.astype(dtype)) == 1.0
-        assert rel.next_to(CHAIR_BY_SOFA.astype(dtype), SOFA.astype(dtype)) == 1.0
-        assert rel.in_(BALL_IN_BOX.astype(dtype), BOX.astype(dtype)) == 1.0
+        assert pairwise.on(MUG.astype(dtype), DESK.astype(dtype)) == 1.0
+        assert pairwise.under(BAG_UNDER.astype(dtype), DESK.astype(dtype)) == 1.0
+        assert pairwise.next_to(CHAIR_BY_SOFA.astype(dtype), SOFA.astype(dtype)) == 1.0
+        assert pairwise.in_(BALL_IN_BOX.astype(dtype), BOX.astype(dtype)) == 1.0
 
 
 def test_an_up_that_is_not_an_axis_counts_as_the_nearest_axis():
-    assert rel.on(MUG, DESK, up=[0.1, -0.05, 0.9]) == 1.0
-    np.testing.assert_array_equal(rel.snap_to_axis([0.2, -0.9, 0.1]), [0.0, -1.0, 0.0])
+    assert pairwise.on(MUG, DESK, up=[0.1, -0.05, 0.9]) == 1.0
+    np.testing.assert_array_equal(snap_to_axis([0.2, -0.9, 0.1]), [0.0, -1.0, 0.0])
 
 
 def test_bodies_for_different_ups_do_not_mix():
     with pytest.raises(ValueError):
-        rel.on(Body(MUG, Z_UP), Body(DESK, Y_UP))
+        pairwise.on(Body(MUG, Z_UP), Body(DESK, Y_UP))
     with pytest.raises(ValueError):
         Body(np.zeros((0, 3)))
 
@@ -317,13 +327,13 @@ def test_bodies_for_different_ups_do_not_mix():
 )
 def test_the_turn_walled_in_is_the_union_of_the_arcs_whichever_way_it_is_turned(arcs, turn):
     centres, half_widths = np.array(arcs).T
-    openings = rel._arc_openings(centres, half_widths)
+    openings = pairwise._arc_openings(centres, half_widths)
     samples = np.linspace(-np.pi, np.pi, 20_001)[:-1]
     off = np.abs((samples[:, None] - centres + np.pi) % (2 * np.pi) - np.pi)
     uncovered = 1.0 - (off <= half_widths).any(axis=1).mean()
     assert openings.sum() / (2 * np.pi) == pytest.approx(uncovered, abs=2e-3)
     for moved in ((centres + turn + np.pi) % (2 * np.pi) - np.pi, -centres):
-        again = rel._arc_openings(moved, half_widths)
+        again = pairwise._arc_openings(moved, half_widths)
         assert again.sum() == pytest.approx(openings.sum(), abs=1e-9)
         assert again.max() == pytest.approx(openings.max(), abs=1e-9)
 
@@ -366,18 +376,18 @@ def all_degrees(things, up=Z_UP, viewer=None) -> dict:
             for kind, relation in PAIRWISE.items():
                 out[kind, i, j] = relation(a, b)
             if viewer is not None:
-                for kind, relation in rel.VIEWPOINT_RELATIONS.items():
+                for kind, relation in viewpoint.VIEWPOINT_RELATIONS.items():
                     out[kind, i, j] = relation(a, b, viewer)
             for k in range(len(bodies)):
                 if k not in (i, j):
-                    out["between", i, j, k] = rel.between(bodies[k], a, b)
+                    out["between", i, j, k] = between(bodies[k], a, b)
     if viewer is not None:
-        out["closest"] = tuple(rel.closest_to(viewer, bodies))
-        out["farthest"] = tuple(rel.farthest_from(viewer, bodies))
-        out["closest to the first"] = tuple(rel.closest_to(bodies[0], bodies[1:]))
+        out["closest"] = tuple(superlatives.closest_to(viewer, bodies))
+        out["farthest"] = tuple(superlatives.farthest_from(viewer, bodies))
+        out["closest to the first"] = tuple(superlatives.closest_to(bodies[0], bodies[1:]))
     for name in ("biggest", "smallest", "highest", "lowest"):
-        out[name] = tuple(rel.SUPERLATIVES[name](bodies))
-    out["biggest_footprint"] = tuple(rel.biggest(bodies, by="footprint"))
+        out[name] = tuple(superlatives.SUPERLATIVES[name](bodies))
+    out["biggest_footprint"] = tuple(superlatives.biggest(bodies, by="footprint"))
     return out
 
 
@@ -448,8 +458,8 @@ def test_a_stacked_scene_has_its_stack(things):
     bodies = [Body(t) for t in things]
     for a in bodies:
         for b in bodies:
-            if a is not b and rel.on(a, b) > 0.0:
-                assert rel.on(b, a) == 0.0 and rel.near(a, b) == 1.0
+            if a is not b and pairwise.on(a, b) > 0.0:
+                assert pairwise.on(b, a) == 0.0 and pairwise.near(a, b) == 1.0
 
 
 # --- the index ---------------------------------------------------------------------------

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from app.answering.relevance import CONFIDENT, QueryRater, is_match, rater_for
 from app.cli.demo import DEFAULT_QUERIES
-from app.mapping.relevance import CONFIDENT, QueryRater, is_match, rater_for
 from app.semantics import TextEncoder
 
 # An apartment without keys; a laptop and a keyboard are what "keys" used to find.
