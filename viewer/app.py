@@ -31,10 +31,10 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 
+from app.answering.relevance import CONFIDENT
 from app.client import ApiError, Disconnect, SessionApi, UpdatesSubscriber
 from app.codecs import pose_from_bytes, validate_rigid_pose
 from app.errors import InputError
-from app.mapping.relevance import CONFIDENT
 from app.protocol import SessionStats, unpack_update
 from viewer.palette import Rgb
 from viewer.scene import (

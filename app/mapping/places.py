@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 
 from app.mapping.object import MapObject
-from app.mapping.relations import Z_UP, snap_to_axis
+from app.relations.bodies import Z_UP, snap_to_axis
 
 ON_MAX_GAP_M = 0.35
 """A point at most this far above a surface rests on it (a centroid sits half the thing's

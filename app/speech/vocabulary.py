@@ -1,5 +1,5 @@
 """What a session's embedded recogniser expects to hear: the map's labels, their words, the
-question forms the relational reader knows (`app.mapping.grammar.question_phrases`) and the
+question forms the relational reader knows (`app.relations.grammar.question_phrases`) and the
 indoor vocabulary, as a small text corpus for a trigram language model, over a background of
 the most common English words.
 
@@ -16,7 +16,7 @@ import re
 from collections.abc import Iterable, Sequence
 from importlib import resources
 
-from app.mapping.grammar import question_phrases
+from app.relations.grammar import question_phrases
 
 COMMON_QUESTIONS = (
     "where is the {}",

@@ -1,7 +1,7 @@
 // How the pages say an answer, shared by the dashboard (static/app.js) and the real-device
 // page (static/xr/answers.mjs); viewer/scene.py says the same in Python.
 
-export const CONFIDENT_RELEVANCE = 0.5; // app.mapping.relevance.CONFIDENT: a confident match from here
+export const CONFIDENT_RELEVANCE = 0.5; // app.answering.relevance.CONFIDENT: a confident match from here
 export const CONFIDENT_DEGREE = 0.5; // a hit stands in its relation from here (viewer/app.py says the same)
 
 const RELATION_PHRASES = {

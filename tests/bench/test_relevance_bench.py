@@ -3,7 +3,7 @@
 
 import json
 
-from app.mapping.relevance import MATCH_MAX_GAP_Z, MATCH_MIN_Z
+from app.answering.relevance import MATCH_MAX_GAP_Z, MATCH_MIN_Z
 from bench.relevance import main
 
 
