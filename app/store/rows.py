@@ -1,7 +1,7 @@
 """The rows every store writes: sessions, objects and changes as column values, one encoding.
 
-Pure functions, no I/O: each store puts these values in its own tables (`sqlite.py`,
-`postgres.py`), so both keep the same bytes and refuse the same inputs. Arrays are raw
+Pure functions, no I/O: the store's queries (`sql.py`) put these values in its tables, so
+every database keeps the same bytes and refuses the same inputs. Arrays are raw
 little-endian float32 bytes whose shape the row records (never pickle): points [n_points, 3],
 embedding_sum [embedding_dim], label_embeddings [labels, embedding_dim] (one row per label of
 label_counts, in its order), a session's last pose [16]; stays are `stays_to_bytes` records.
@@ -14,9 +14,8 @@ transaction opens; `KeyframeCommit.check_follows` is the part that needs the sto
 A session's up axis (schema 6) is its name, "+x" ... "-z" (`UP_AXES`), and where it came
 from, "set" or "inferred" (`UP_SOURCES`); both NULL while the default applies.
 
-Owners, remembered acks and the shard registry (schema 5) are the same statements in every
-store: they are written here once, with SQLite's `?` placeholders (`with_format_params`
-gives PostgreSQL's `%s`), with the decisions around them (`claimed_epoch`, `check_epoch`).
+Owners and the shard registry (schema 5): the decisions around their statements
+(`claimed_epoch`, `check_epoch`) are here, the statements in `sql.py`.
 """
 
 from __future__ import annotations
@@ -43,7 +42,6 @@ from app.protocol.rest import UP_AXES
 from app.store.base import (
     CHANGE_KINDS,
     COUNTER_NAMES,
-    DONE_WINDOW,
     SessionFenced,
     SessionHeld,
     SessionRecord,
@@ -72,45 +70,6 @@ OBJECT_COLUMNS = (
 N_OBJECT_COLUMNS = len(OBJECT_COLUMNS.split(","))
 CHANGE_COLUMNS = "object_id, kind, t, label, from_x, from_y, from_z, to_x, to_y, to_z, seq"
 """The columns of `change_to_row` / `change_from_row`, in order."""
-
-# ---------------------------------------------------------------------- shared statements
-# Written with SQLite's `?` placeholders; `with_format_params` turns them into PostgreSQL's.
-CLAIM_SESSION = "UPDATE sessions SET owner = ?, epoch = ?, lease_until = ? WHERE session_id = ?"
-"""(owner, new epoch, lease_until, session_id), once `claimed_epoch` allowed it."""
-RENEW_LEASE = "UPDATE sessions SET lease_until = ? WHERE session_id = ? AND owner = ? AND epoch = ?"
-"""(lease_until, session_id, owner, epoch): one row changed while the owner holds it there."""
-RELEASE_SESSION = (
-    "UPDATE sessions SET owner = NULL, lease_until = NULL"
-    " WHERE session_id = ? AND owner = ? AND epoch = ?"
-)
-"""(session_id, owner, epoch): the epoch stays, so the released owner stays fenced."""
-RELEASE_OWNED = "UPDATE sessions SET owner = NULL, lease_until = NULL WHERE owner = ?"
-"""(owner,): every session a forgotten shard held, claimable at once."""
-REMEMBER_DONE = (
-    "INSERT INTO done_acks (session_id, stream_id, seq, ack) VALUES (?, ?, ?, ?)"
-    " ON CONFLICT (session_id, stream_id, seq) DO UPDATE SET ack = excluded.ack"
-)
-"""(session_id, stream_id, seq, ack); done_id (insertion order) is given by the database."""
-FORGET_OLD_DONE = (
-    "DELETE FROM done_acks WHERE session_id = ? AND done_id <= (SELECT done_id FROM done_acks"
-    " WHERE session_id = ? ORDER BY done_id DESC LIMIT 1 OFFSET ?)"
-)
-"""(session_id, session_id, DONE_WINDOW): the session's acks older than its newest window."""
-DONE_ACK = "SELECT ack FROM done_acks WHERE session_id = ? AND stream_id = ? AND seq = ?"
-HEARTBEAT_SHARD = (
-    "INSERT INTO shards (name, url, heartbeat_at) VALUES (?, ?, ?)"
-    " ON CONFLICT (name) DO UPDATE SET url = excluded.url, heartbeat_at = excluded.heartbeat_at"
-)
-LIVE_SHARDS = "SELECT name, url, heartbeat_at FROM shards WHERE heartbeat_at >= ? ORDER BY name"
-"""(oldest heartbeat_at,): rows for `shard_from_row`."""
-FORGET_SHARD = "DELETE FROM shards WHERE name = ?"
-COUNT_SESSIONS = "SELECT count(*) FROM sessions"
-
-
-def with_format_params(statement: str) -> str:
-    """A shared statement with PostgreSQL's (psycopg's) `%s` placeholders instead of `?`."""
-    assert "%" not in statement, "a literal % would need escaping for psycopg"
-    return statement.replace("?", "%s")
 
 
 # ---------------------------------------------------------------------- one keyframe
@@ -171,17 +130,6 @@ class KeyframeCommit:
                 f"session {self.session_id!r}: next_object_id {next_object_id} would reuse an id"
             )
         return {**self.assignments, "seq": seq, "next_object_id": int(next_object_id)}
-
-    def done_statements(self) -> list[tuple[str, tuple]]:
-        """(shared statement, parameters) remembering the commit's ack, then forgetting the
-        session's acks older than the newest DONE_WINDOW; none without `done`."""
-        if self.done is None:
-            return []
-        sid = self.session_id
-        return [
-            (REMEMBER_DONE, (sid, *self.done)),
-            (FORGET_OLD_DONE, (sid, sid, DONE_WINDOW)),
-        ]
 
     def object_rows(self) -> Iterator[tuple]:
         """`object_to_row` of the kept objects, then of the retired ones; a generator, so

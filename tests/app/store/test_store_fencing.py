@@ -26,6 +26,8 @@ from app.store import (
     postgres,
     sqlite,
 )
+from app.store.dialect import POSTGRES, SQLITE
+from app.store.schema import statements
 
 LEASE_S = 10.0
 T0 = 1_000.0
@@ -403,14 +405,14 @@ def make_version_4_store(store_url: str) -> None:
         path = Path(store_url.removeprefix("sqlite:///"))
         path.parent.mkdir(parents=True, exist_ok=True)
         with sqlite3.connect(path) as db:
-            for statement in (*sqlite._SCHEMA, *(s for m in sqlite._MIGRATIONS[:3] for s in m)):
+            for statement in statements(SQLITE, to_version=4):
                 db.execute(statement)
             db.execute("PRAGMA user_version = 4")
     else:
         import psycopg
 
         with psycopg.connect(store_url) as conn:
-            for statement in postgres._SCHEMA:
+            for statement in (postgres._VERSION_TABLE, *statements(POSTGRES, to_version=4)):
                 conn.execute(statement)
             conn.execute("INSERT INTO schema_version (version) VALUES (4)")
     query(

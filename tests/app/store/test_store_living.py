@@ -18,7 +18,9 @@ from test_store import DIM, EXAMPLES, everything, fields, make_object, record, s
 
 from app.mapping.object import MAX_STAYS, Change, MapObject, Stay
 from app.store import CHANGE_KINDS, Store, open_store
-from app.store.sqlite import _MIGRATIONS, _SCHEMA, SCHEMA_VERSION, SqliteStore
+from app.store.dialect import SQLITE
+from app.store.schema import statements
+from app.store.sqlite import SCHEMA_VERSION, SqliteStore
 
 
 def f32(*values: float) -> tuple[float, ...]:
@@ -66,7 +68,7 @@ def test_a_version_3_store_migrates_and_loads_its_objects_as_present_without_his
     path = tmp_path / "semanticxr.db"
     obj = make_object(1)
     with sqlite3.connect(path) as db:  # what a server at schema 3 wrote
-        for statement in (*_SCHEMA, *(s for migration in _MIGRATIONS[:2] for s in migration)):
+        for statement in statements(SQLITE, to_version=3):
             db.execute(statement)
         db.execute("PRAGMA user_version = 3")
         db.execute(
@@ -116,7 +118,7 @@ def test_a_new_store_has_the_schema_an_upgraded_one_has(tmp_path):
     """One path to each version: a new store is made at 1 and migrated."""
     SqliteStore(tmp_path / "new.db").close()
     with sqlite3.connect(tmp_path / "old.db") as db:
-        for statement in (*_SCHEMA, *(s for migration in _MIGRATIONS[:2] for s in migration)):
+        for statement in statements(SQLITE, to_version=3):
             db.execute(statement)
         db.execute("PRAGMA user_version = 3")
     SqliteStore(tmp_path / "old.db").close()

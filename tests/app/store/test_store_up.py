@@ -11,6 +11,8 @@ import pytest
 from test_store import make_object, query, record
 
 from app.store import open_store, postgres, sqlite
+from app.store.dialect import POSTGRES, SQLITE
+from app.store.schema import statements
 
 
 def test_a_set_up_comes_back_after_a_reopen(store, store_url):
@@ -59,14 +61,14 @@ def make_version_5_store(store_url: str) -> None:
         path = Path(store_url.removeprefix("sqlite:///"))
         path.parent.mkdir(parents=True, exist_ok=True)
         with sqlite3.connect(path) as db:
-            for statement in (*sqlite._SCHEMA, *(s for m in sqlite._MIGRATIONS[:4] for s in m)):
+            for statement in statements(SQLITE, to_version=5):
                 db.execute(statement)
             db.execute("PRAGMA user_version = 5")
     else:
         import psycopg
 
         with psycopg.connect(store_url) as conn:
-            for statement in (*postgres._SCHEMA, *postgres._MIGRATIONS[0]):
+            for statement in (postgres._VERSION_TABLE, *statements(POSTGRES, to_version=5)):
                 conn.execute(statement)
             conn.execute("INSERT INTO schema_version (version) VALUES (5)")
     query(
