@@ -8,8 +8,8 @@ label_counts, in its order), a session's last pose [16]; stays are `stays_to_byt
 Knobs and label counts are JSON text (key order kept: label ties resolve the same after a
 reload).
 
-`prepare_keyframe` checks and encodes one `Store.commit_keyframe` call before its
-transaction opens; `KeyframeCommit.check_follows` is the part that needs the stored row.
+`prepare_keyframe` checks and encodes one `KeyframeCommit` before its transaction opens;
+`PreparedKeyframe.check_follows` is the part that needs the stored row.
 
 A session's up axis (schema 6) is its name, "+x" ... "-z" (`UP_AXES`), and where it came
 from, "set" or "inferred" (`UP_SOURCES`); both NULL while the default applies.
@@ -42,6 +42,7 @@ from app.protocol.rest import UP_AXES
 from app.store.base import (
     CHANGE_KINDS,
     COUNTER_NAMES,
+    KeyframeCommit,
     SessionFenced,
     SessionHeld,
     SessionRecord,
@@ -74,9 +75,9 @@ CHANGE_COLUMNS = "object_id, kind, t, label, from_x, from_y, from_z, to_x, to_y,
 
 # ---------------------------------------------------------------------- one keyframe
 @dataclass
-class KeyframeCommit:
-    """One `Store.commit_keyframe` call, checked and encoded as far as it can be without the
-    stored session row (`prepare_keyframe`)."""
+class PreparedKeyframe:
+    """One `KeyframeCommit`, checked and encoded as far as it can be without the stored
+    session row (`prepare_keyframe`)."""
 
     session_id: str
     seq: int
@@ -137,31 +138,15 @@ class KeyframeCommit:
         return (object_to_row(obj) for obj in [*self.kept, *self.retired])
 
 
-def prepare_keyframe(
-    session_id: str,
-    seq: int,
-    upserts: list[MapObject],
-    removed: list[int],
-    counters: dict[str, int],
-    next_object_id: int,
-    last_used_at: float | None,
-    retired: Collection[MapObject],
-    changes: Collection[Change],
-    retracted_added: Collection[int],
-    retracted_removed: Collection[int],
-    last_t: float | None,
-    last_pose: Any,
-    epoch: int | None = None,
-    done: tuple[str, int, bytes] | None = None,
-    inferred_up: str | None = None,
-) -> KeyframeCommit:
-    """`Store.commit_keyframe`'s arguments checked and encoded; ValueError as it documents,
-    except the checks against the stored row (`KeyframeCommit.check_follows`) and the
-    objects' own (`object_to_row`, as they are written)."""
-    removed_ids = sorted({int(oid) for oid in removed})
+def prepare_keyframe(commit: KeyframeCommit) -> PreparedKeyframe:
+    """`commit` checked and encoded; ValueError as `Store.commit_keyframe` documents, except
+    the checks against the stored row (`PreparedKeyframe.check_follows`) and the objects'
+    own (`object_to_row`, as they are written)."""
+    session_id, seq, last_pose = commit.session_id, commit.seq, commit.last_pose
+    removed_ids = sorted({int(oid) for oid in commit.removed})
     gone = set(removed_ids)
-    kept = [obj for obj in upserts if int(obj.id) not in gone]
-    retired = list(retired)
+    kept = [obj for obj in commit.upserts if int(obj.id) not in gone]
+    retired = list(commit.retired)
     retired_ids = [int(obj.id) for obj in retired]
     for obj in kept:
         if obj.state != "present":
@@ -181,30 +166,30 @@ def prepare_keyframe(
         )
     kept_as_history = set(retired_ids)
     seq = int(seq)
-    change_rows = [change_to_row(change, seq) for change in changes]
-    assignments: dict[str, Any] = checked_counters(counters)
-    if last_used_at is not None:
-        assignments["last_used_at"] = float(last_used_at)
-    if last_t is not None:
-        assignments["last_t"] = checked_time("last_t", last_t)
+    change_rows = [change_to_row(change, seq) for change in commit.changes]
+    assignments: dict[str, Any] = checked_counters(commit.counters)
+    if commit.last_used_at is not None:
+        assignments["last_used_at"] = float(commit.last_used_at)
+    if commit.last_t is not None:
+        assignments["last_t"] = checked_time("last_t", commit.last_t)
     if last_pose is not None:
         assignments["last_pose"] = pose_to_blob(last_pose)
-    if inferred_up is not None:
-        assignments["up"], assignments["up_source"] = checked_up(inferred_up, "inferred")
-    return KeyframeCommit(
+    if commit.inferred_up is not None:
+        assignments["up"], assignments["up_source"] = checked_up(commit.inferred_up, "inferred")
+    return PreparedKeyframe(
         session_id=session_id,
         seq=seq,
-        next_object_id=next_object_id,
+        next_object_id=commit.next_object_id,
         kept=kept,
         retired=retired,
         removed_ids=removed_ids,
         deleted_ids=[oid for oid in removed_ids if oid not in kept_as_history],
         change_rows=change_rows,
-        retracted_ids=sorted({int(oid) for oid in retracted_added}),
-        revived_ids=sorted({int(oid) for oid in retracted_removed}),
+        retracted_ids=sorted({int(oid) for oid in commit.retracted_added}),
+        revived_ids=sorted({int(oid) for oid in commit.retracted_removed}),
         assignments=assignments,
-        epoch=None if epoch is None else int(epoch),
-        done=checked_done(done),
+        epoch=None if commit.epoch is None else int(commit.epoch),
+        done=checked_done(commit.done),
     )
 
 

@@ -35,11 +35,16 @@ from collections.abc import Callable, Collection, Mapping
 from contextlib import AbstractContextManager
 from typing import Any, TypeVar
 
-import numpy as np
-
 from app.mapping.deltas import DeltaLog
 from app.mapping.object import Change, MapObject
-from app.store.base import DONE_WINDOW, SessionRecord, ShardRecord, Store, StoredSession
+from app.store.base import (
+    DONE_WINDOW,
+    KeyframeCommit,
+    SessionRecord,
+    ShardRecord,
+    Store,
+    StoredSession,
+)
 from app.store.dialect import Dialect
 from app.store.rows import (
     CHANGE_COLUMNS,
@@ -385,49 +390,14 @@ class SqlStore(Store):
         self._write(forget)
 
     # ------------------------------------------------------------------ the map
-    def commit_keyframe(
-        self,
-        session_id: str,
-        seq: int,
-        upserts: list[MapObject],
-        removed: list[int],
-        counters: dict[str, int],
-        next_object_id: int,
-        last_used_at: float | None = None,
-        *,
-        retired: Collection[MapObject] = (),
-        changes: Collection[Change] = (),
-        retracted_added: Collection[int] = (),
-        retracted_removed: Collection[int] = (),
-        last_t: float | None = None,
-        last_pose: np.ndarray | None = None,
-        epoch: int | None = None,
-        done: tuple[str, int, bytes] | None = None,
-        inferred_up: str | None = None,
-    ) -> None:
+    def commit_keyframe(self, commit: KeyframeCommit) -> None:
         """`Store.commit_keyframe`, in one transaction under the session row's lock (the
         epoch checked under it): returns once the database has committed it."""
-        keyframe = prepare_keyframe(
-            session_id,
-            seq,
-            upserts,
-            removed,
-            counters,
-            next_object_id,
-            last_used_at,
-            retired,
-            changes,
-            retracted_added,
-            retracted_removed,
-            last_t,
-            last_pose,
-            epoch,
-            done,
-            inferred_up,
-        )
+        keyframe = prepare_keyframe(commit)
+        session_id = keyframe.session_id
         seq = keyframe.seq
 
-        def commit(conn: Connection) -> None:
+        def write(conn: Connection) -> None:
             # The row lock orders this session's commits (and trims, claims, deletions) one
             # by one: no claim lands between the epoch's check and the commit.
             stored_seq, stored_next_id, stored_epoch = self._session_row(
@@ -463,7 +433,7 @@ class SqlStore(Store):
                     self._run(conn, REMEMBER_DONE, (session_id, *keyframe.done))
                     self._run(conn, FORGET_OLD_DONE, (session_id, session_id, DONE_WINDOW))
 
-        self._write(commit)
+        self._write(write)
 
     def done_ack(self, session_id: str, stream_id: str, seq: int) -> bytes | None:
         """The ack remembered for frame `seq` of `stream_id`; None if none is."""
