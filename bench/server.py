@@ -375,7 +375,7 @@ def add_stored_sessions(data_dir: str, count: int, seed: int = 0) -> None:
     from app.mapping.object import MapObject
     from app.server.sessions import hash_token
     from app.server.settings import STORE_FILE
-    from app.store import SessionRecord
+    from app.store import KeyframeCommit, SessionRecord
     from app.store.sqlite import SqliteStore
 
     rng = np.random.default_rng(seed)
@@ -407,7 +407,9 @@ def add_stored_sessions(data_dir: str, count: int, seed: int = 0) -> None:
                 obj.set_points(points.astype(np.float32), 0.025)
                 objects.append(obj)
             store.commit_keyframe(
-                sid, 1, objects, [], {"frames": 15, "keyframes": 3}, STORED_OBJECTS + 1
+                KeyframeCommit(
+                    sid, 1, objects, [], {"frames": 15, "keyframes": 3}, STORED_OBJECTS + 1
+                )
             )
 
 

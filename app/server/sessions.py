@@ -86,6 +86,7 @@ from app.server.residency import Residency
 from app.server.scheduler import RoundRobinScheduler
 from app.server.settings import ServerSettings
 from app.store import (
+    KeyframeCommit,
     SessionFenced,
     SessionRecord,
     Store,
@@ -1056,20 +1057,22 @@ class SessionManager:
                 counters = self._counters(session)
                 for change_seq, group in itertools.groupby(changes, key=lambda c: c.seq):
                     if change_seq < seq:  # the newest seq's changes go with the objects
-                        self.store.commit_keyframe(
+                        self.store.commit_keyframe(KeyframeCommit(
                             session.id, change_seq, [], [], counters, next_object_id,
                             changes=list(group), epoch=session.epoch,
-                        )  # fmt: skip
+                        ))  # fmt: skip
                 self.store.commit_keyframe(
-                    session.id,
-                    seq,
-                    objects,
-                    [o.id for o in removed],
-                    counters=counters,
-                    next_object_id=next_object_id,
-                    retired=removed,
-                    changes=[c for c in changes if c.seq == seq],
-                    epoch=session.epoch,
+                    KeyframeCommit(
+                        session.id,
+                        seq,
+                        objects,
+                        [o.id for o in removed],
+                        counters=counters,
+                        next_object_id=next_object_id,
+                        retired=removed,
+                        changes=[c for c in changes if c.seq == seq],
+                        epoch=session.epoch,
+                    )
                 )
                 log = DeltaLog.from_state(
                     {
@@ -1485,24 +1488,26 @@ class SessionManager:
                 committing = True
                 ack = Ack(frame.seq, keyframe=True, update_seq=stats.seq, objects=stats.confirmed)
                 self.store.commit_keyframe(
-                    session.id,
-                    stats.seq,
-                    [engine.objects[i] for i in stats.published_ids],
-                    stats.removed_ids,
-                    counters=self._counters(session),
-                    next_object_id=engine.next_object_id,
-                    last_used_at=rec.last_used_at,
-                    retired=stats.retired,
-                    changes=stats.changes,
-                    retracted_added=stats.retracted_added,
-                    retracted_removed=stats.retracted_removed,
-                    last_t=engine.last_t,
-                    last_pose=engine.last_pose,
-                    epoch=session.epoch,
-                    done=None
-                    if pending.stream is None
-                    else (pending.stream, frame.seq, _ack_record(ack)),
-                    inferred_up=inferred_up,
+                    KeyframeCommit(
+                        session.id,
+                        stats.seq,
+                        [engine.objects[i] for i in stats.published_ids],
+                        stats.removed_ids,
+                        counters=self._counters(session),
+                        next_object_id=engine.next_object_id,
+                        last_used_at=rec.last_used_at,
+                        retired=stats.retired,
+                        changes=stats.changes,
+                        retracted_added=stats.retracted_added,
+                        retracted_removed=stats.retracted_removed,
+                        last_t=engine.last_t,
+                        last_pose=engine.last_pose,
+                        epoch=session.epoch,
+                        done=None
+                        if pending.stream is None
+                        else (pending.stream, frame.seq, _ack_record(ack)),
+                        inferred_up=inferred_up,
+                    )
                 )
                 if inferred_up is not None:
                     rec.up, rec.up_source = inferred_up, "inferred"

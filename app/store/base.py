@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Collection, Mapping
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # annotations only: settings check store URLs without loading the mapping
@@ -166,6 +166,60 @@ class ShardRecord:
     """Unix time (seconds) of the shard's last heartbeat."""
 
 
+@dataclass
+class KeyframeCommit:
+    """One keyframe's changes, persisted at once by `Store.commit_keyframe`.
+
+    A keyframe that changed nothing gives the unchanged seq and empty lists (to persist the
+    counters). An id both upserted and removed ends up removed, as in `DeltaLog.commit`.
+    """
+
+    session_id: str
+    seq: int
+    """The delta log's seq after the commit: the objects' and changes' seq."""
+    upserts: list[MapObject]
+    """Confirmed objects changed at `seq`, stored with their current fields, state
+    "present"."""
+    removed: list[int]
+    """Ids removed from the present map at `seq`: tombstoned, and their rows deleted unless
+    retired."""
+    counters: dict[str, int]
+    """Absolute values, named as in COUNTER_NAMES."""
+    next_object_id: int
+    last_used_at: float | None = None
+    """The session's new `last_used_at` (unix time, seconds), if given."""
+    _: KW_ONLY
+    retired: Collection[MapObject] = ()
+    """Removed objects kept as history (each id also in `removed`, each object confirmed
+    with state "removed"): their rows are kept with their final fields and leave every read
+    of the present map."""
+    changes: Collection[Change] = ()
+    """The keyframe's changes, stored with seq = `seq` (their own seq ignored), after every
+    earlier one (arrival order)."""
+    retracted_added: Collection[int] = ()
+    """Object ids whose `added` changes are deleted (a published object merged into another:
+    no `added` change stays for it)."""
+    retracted_removed: Collection[int] = ()
+    """Object ids whose earlier `removed` changes are deleted (a removed object found at a
+    new place: the move replaces its removal)."""
+    last_t: float | None = None
+    """The keyframe's frame `t` (device clock, seconds), kept on the session row when
+    given."""
+    last_pose: np.ndarray | None = None
+    """The keyframe's camera-to-world pose (float [4, 4] or [16], row-major), kept on the
+    session row when given."""
+    epoch: int | None = None
+    """When given, the commit applies only while the session is at that epoch."""
+    done: tuple[str, int, bytes] | None = None
+    """(stream_id, seq, ack): the ack of the frame committed, remembered under its
+    (stream_id, seq) in the same transaction (`Store.done_ack`; replacing an earlier one
+    under that key); the session keeps the newest DONE_WINDOW."""
+    inferred_up: str | None = None
+    """The up axis the session's poses settled ("+y", ...), kept on the session row with
+    up_source "inferred" (the server gives it once, and only to a session whose up is not
+    set)."""
+
+
 class Store(abc.ABC):
     """Sessions and their confirmed maps. Implementations are thread-safe.
 
@@ -285,54 +339,10 @@ class Store(abc.ABC):
 
     # ------------------------------------------------------------------ the map
     @abc.abstractmethod
-    def commit_keyframe(
-        self,
-        session_id: str,
-        seq: int,
-        upserts: list[MapObject],
-        removed: list[int],
-        counters: dict[str, int],
-        next_object_id: int,
-        last_used_at: float | None = None,
-        *,
-        retired: Collection[MapObject] = (),
-        changes: Collection[Change] = (),
-        retracted_added: Collection[int] = (),
-        retracted_removed: Collection[int] = (),
-        last_t: float | None = None,
-        last_pose: np.ndarray | None = None,
-        epoch: int | None = None,
-        done: tuple[str, int, bytes] | None = None,
-        inferred_up: str | None = None,
-    ) -> None:
-        """Persist one keyframe's changes at once; returns once they survive a crash.
+    def commit_keyframe(self, commit: KeyframeCommit) -> None:
+        """Persist one keyframe's changes (`commit`) at once; returns once they survive a
+        crash.
 
-        upserts: confirmed objects changed at `seq` (the delta log's seq after the commit),
-                 stored with their current fields, state "present"; removed: ids removed
-                 from the present map at `seq` (tombstoned, and their rows deleted unless
-                 retired). An id in both ends up removed, as in `DeltaLog.commit`. A keyframe
-                 that changed nothing passes the unchanged seq and empty lists (to persist
-                 the counters).
-        last_used_at: the session's new `last_used_at`, if given.
-        retired: removed objects kept as history (each id also in `removed`, each object
-                 confirmed with state "removed"): their rows are kept with their final
-                 fields and leave every read of the present map.
-        changes: the keyframe's changes, stored with seq = `seq` (their own seq ignored),
-                 after every earlier one (arrival order).
-        retracted_added: object ids whose `added` changes are deleted (a published object
-                 merged into another: no `added` change stays for it).
-        retracted_removed: object ids whose earlier `removed` changes are deleted (a removed
-                 object found at a new place: the move replaces its removal).
-        last_t, last_pose: the keyframe's frame `t` and camera-to-world pose (float [4, 4]
-                 or [16], row-major), kept on the session row when given.
-        epoch: when given, the commit applies only while the session is at that epoch;
-                 SessionFenced (and nothing changed) otherwise.
-        done: (stream_id, seq, ack): the ack of the frame committed, remembered under its
-                 (stream_id, seq) in the same transaction (`done_ack`; replacing an earlier one
-                 under that key); the session keeps the newest DONE_WINDOW.
-        inferred_up: the up axis the session's poses settled ("+y", ...), kept on the
-                 session row with up_source "inferred" (the server gives it once, and only
-                 to a session whose up is not set).
         Raises ValueError (and changes nothing) on a seq older than the stored one, changes
         to objects or change entries without a newer seq, an unconfirmed object, an upsert
         that is not present or a retired object that is not removed or not in `removed`, an

@@ -1,22 +1,21 @@
 """The rows every store writes: sessions, objects and changes as column values, one encoding.
 
-Pure functions, no I/O: each store puts these values in its own tables (`sqlite.py`,
-`postgres.py`), so both keep the same bytes and refuse the same inputs. Arrays are raw
+Pure functions, no I/O: the store's queries (`sql.py`) put these values in its tables, so
+every database keeps the same bytes and refuses the same inputs. Arrays are raw
 little-endian float32 bytes whose shape the row records (never pickle): points [n_points, 3],
 embedding_sum [embedding_dim], label_embeddings [labels, embedding_dim] (one row per label of
 label_counts, in its order), a session's last pose [16]; stays are `stays_to_bytes` records.
 Knobs and label counts are JSON text (key order kept: label ties resolve the same after a
 reload).
 
-`prepare_keyframe` checks and encodes one `Store.commit_keyframe` call before its
-transaction opens; `KeyframeCommit.check_follows` is the part that needs the stored row.
+`prepare_keyframe` checks and encodes one `KeyframeCommit` before its transaction opens;
+`PreparedKeyframe.check_follows` is the part that needs the stored row.
 
 A session's up axis (schema 6) is its name, "+x" ... "-z" (`UP_AXES`), and where it came
 from, "set" or "inferred" (`UP_SOURCES`); both NULL while the default applies.
 
-Owners, remembered acks and the shard registry (schema 5) are the same statements in every
-store: they are written here once, with SQLite's `?` placeholders (`with_format_params`
-gives PostgreSQL's `%s`), with the decisions around them (`claimed_epoch`, `check_epoch`).
+Owners and the shard registry (schema 5): the decisions around their statements
+(`claimed_epoch`, `check_epoch`) are here, the statements in `sql.py`.
 """
 
 from __future__ import annotations
@@ -43,7 +42,7 @@ from app.protocol.rest import UP_AXES
 from app.store.base import (
     CHANGE_KINDS,
     COUNTER_NAMES,
-    DONE_WINDOW,
+    KeyframeCommit,
     SessionFenced,
     SessionHeld,
     SessionRecord,
@@ -73,51 +72,12 @@ N_OBJECT_COLUMNS = len(OBJECT_COLUMNS.split(","))
 CHANGE_COLUMNS = "object_id, kind, t, label, from_x, from_y, from_z, to_x, to_y, to_z, seq"
 """The columns of `change_to_row` / `change_from_row`, in order."""
 
-# ---------------------------------------------------------------------- shared statements
-# Written with SQLite's `?` placeholders; `with_format_params` turns them into PostgreSQL's.
-CLAIM_SESSION = "UPDATE sessions SET owner = ?, epoch = ?, lease_until = ? WHERE session_id = ?"
-"""(owner, new epoch, lease_until, session_id), once `claimed_epoch` allowed it."""
-RENEW_LEASE = "UPDATE sessions SET lease_until = ? WHERE session_id = ? AND owner = ? AND epoch = ?"
-"""(lease_until, session_id, owner, epoch): one row changed while the owner holds it there."""
-RELEASE_SESSION = (
-    "UPDATE sessions SET owner = NULL, lease_until = NULL"
-    " WHERE session_id = ? AND owner = ? AND epoch = ?"
-)
-"""(session_id, owner, epoch): the epoch stays, so the released owner stays fenced."""
-RELEASE_OWNED = "UPDATE sessions SET owner = NULL, lease_until = NULL WHERE owner = ?"
-"""(owner,): every session a forgotten shard held, claimable at once."""
-REMEMBER_DONE = (
-    "INSERT INTO done_acks (session_id, stream_id, seq, ack) VALUES (?, ?, ?, ?)"
-    " ON CONFLICT (session_id, stream_id, seq) DO UPDATE SET ack = excluded.ack"
-)
-"""(session_id, stream_id, seq, ack); done_id (insertion order) is given by the database."""
-FORGET_OLD_DONE = (
-    "DELETE FROM done_acks WHERE session_id = ? AND done_id <= (SELECT done_id FROM done_acks"
-    " WHERE session_id = ? ORDER BY done_id DESC LIMIT 1 OFFSET ?)"
-)
-"""(session_id, session_id, DONE_WINDOW): the session's acks older than its newest window."""
-DONE_ACK = "SELECT ack FROM done_acks WHERE session_id = ? AND stream_id = ? AND seq = ?"
-HEARTBEAT_SHARD = (
-    "INSERT INTO shards (name, url, heartbeat_at) VALUES (?, ?, ?)"
-    " ON CONFLICT (name) DO UPDATE SET url = excluded.url, heartbeat_at = excluded.heartbeat_at"
-)
-LIVE_SHARDS = "SELECT name, url, heartbeat_at FROM shards WHERE heartbeat_at >= ? ORDER BY name"
-"""(oldest heartbeat_at,): rows for `shard_from_row`."""
-FORGET_SHARD = "DELETE FROM shards WHERE name = ?"
-COUNT_SESSIONS = "SELECT count(*) FROM sessions"
-
-
-def with_format_params(statement: str) -> str:
-    """A shared statement with PostgreSQL's (psycopg's) `%s` placeholders instead of `?`."""
-    assert "%" not in statement, "a literal % would need escaping for psycopg"
-    return statement.replace("?", "%s")
-
 
 # ---------------------------------------------------------------------- one keyframe
 @dataclass
-class KeyframeCommit:
-    """One `Store.commit_keyframe` call, checked and encoded as far as it can be without the
-    stored session row (`prepare_keyframe`)."""
+class PreparedKeyframe:
+    """One `KeyframeCommit`, checked and encoded as far as it can be without the stored
+    session row (`prepare_keyframe`)."""
 
     session_id: str
     seq: int
@@ -172,48 +132,21 @@ class KeyframeCommit:
             )
         return {**self.assignments, "seq": seq, "next_object_id": int(next_object_id)}
 
-    def done_statements(self) -> list[tuple[str, tuple]]:
-        """(shared statement, parameters) remembering the commit's ack, then forgetting the
-        session's acks older than the newest DONE_WINDOW; none without `done`."""
-        if self.done is None:
-            return []
-        sid = self.session_id
-        return [
-            (REMEMBER_DONE, (sid, *self.done)),
-            (FORGET_OLD_DONE, (sid, sid, DONE_WINDOW)),
-        ]
-
     def object_rows(self) -> Iterator[tuple]:
         """`object_to_row` of the kept objects, then of the retired ones; a generator, so
         each object is encoded as it is written and a bad one stops the writing there."""
         return (object_to_row(obj) for obj in [*self.kept, *self.retired])
 
 
-def prepare_keyframe(
-    session_id: str,
-    seq: int,
-    upserts: list[MapObject],
-    removed: list[int],
-    counters: dict[str, int],
-    next_object_id: int,
-    last_used_at: float | None,
-    retired: Collection[MapObject],
-    changes: Collection[Change],
-    retracted_added: Collection[int],
-    retracted_removed: Collection[int],
-    last_t: float | None,
-    last_pose: Any,
-    epoch: int | None = None,
-    done: tuple[str, int, bytes] | None = None,
-    inferred_up: str | None = None,
-) -> KeyframeCommit:
-    """`Store.commit_keyframe`'s arguments checked and encoded; ValueError as it documents,
-    except the checks against the stored row (`KeyframeCommit.check_follows`) and the
-    objects' own (`object_to_row`, as they are written)."""
-    removed_ids = sorted({int(oid) for oid in removed})
+def prepare_keyframe(commit: KeyframeCommit) -> PreparedKeyframe:
+    """`commit` checked and encoded; ValueError as `Store.commit_keyframe` documents, except
+    the checks against the stored row (`PreparedKeyframe.check_follows`) and the objects'
+    own (`object_to_row`, as they are written)."""
+    session_id, seq, last_pose = commit.session_id, commit.seq, commit.last_pose
+    removed_ids = sorted({int(oid) for oid in commit.removed})
     gone = set(removed_ids)
-    kept = [obj for obj in upserts if int(obj.id) not in gone]
-    retired = list(retired)
+    kept = [obj for obj in commit.upserts if int(obj.id) not in gone]
+    retired = list(commit.retired)
     retired_ids = [int(obj.id) for obj in retired]
     for obj in kept:
         if obj.state != "present":
@@ -233,30 +166,30 @@ def prepare_keyframe(
         )
     kept_as_history = set(retired_ids)
     seq = int(seq)
-    change_rows = [change_to_row(change, seq) for change in changes]
-    assignments: dict[str, Any] = checked_counters(counters)
-    if last_used_at is not None:
-        assignments["last_used_at"] = float(last_used_at)
-    if last_t is not None:
-        assignments["last_t"] = checked_time("last_t", last_t)
+    change_rows = [change_to_row(change, seq) for change in commit.changes]
+    assignments: dict[str, Any] = checked_counters(commit.counters)
+    if commit.last_used_at is not None:
+        assignments["last_used_at"] = float(commit.last_used_at)
+    if commit.last_t is not None:
+        assignments["last_t"] = checked_time("last_t", commit.last_t)
     if last_pose is not None:
         assignments["last_pose"] = pose_to_blob(last_pose)
-    if inferred_up is not None:
-        assignments["up"], assignments["up_source"] = checked_up(inferred_up, "inferred")
-    return KeyframeCommit(
+    if commit.inferred_up is not None:
+        assignments["up"], assignments["up_source"] = checked_up(commit.inferred_up, "inferred")
+    return PreparedKeyframe(
         session_id=session_id,
         seq=seq,
-        next_object_id=next_object_id,
+        next_object_id=commit.next_object_id,
         kept=kept,
         retired=retired,
         removed_ids=removed_ids,
         deleted_ids=[oid for oid in removed_ids if oid not in kept_as_history],
         change_rows=change_rows,
-        retracted_ids=sorted({int(oid) for oid in retracted_added}),
-        revived_ids=sorted({int(oid) for oid in retracted_removed}),
+        retracted_ids=sorted({int(oid) for oid in commit.retracted_added}),
+        revived_ids=sorted({int(oid) for oid in commit.retracted_removed}),
         assignments=assignments,
-        epoch=None if epoch is None else int(epoch),
-        done=checked_done(done),
+        epoch=None if commit.epoch is None else int(commit.epoch),
+        done=checked_done(commit.done),
     )
 
 

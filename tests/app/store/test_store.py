@@ -27,6 +27,7 @@ from app.mapping.deltas import DeltaLog
 from app.mapping.object import Change, MapObject
 from app.server.settings import ServerSettings
 from app.store import (
+    KeyframeCommit,
     SessionRecord,
     Store,
     StoreError,
@@ -118,8 +119,12 @@ EXAMPLES = itertools.count()
 def seeded(store: Store, sid: str = "s1") -> None:
     """A session at seq 2: objects 1 and 2 (seq 1, then 1 changed at 2), tombstone of 3."""
     store.create_session(record(sid))
-    store.commit_keyframe(sid, 1, [make_object(1), make_object(2), make_object(3)], [], {}, 4)
-    store.commit_keyframe(sid, 2, [make_object(1, version=2)], [3], {"keyframes": 2}, 4)
+    store.commit_keyframe(
+        KeyframeCommit(sid, 1, [make_object(1), make_object(2), make_object(3)], [], {}, 4)
+    )
+    store.commit_keyframe(
+        KeyframeCommit(sid, 2, [make_object(1, version=2)], [3], {"keyframes": 2}, 4)
+    )
 
 
 def everything(store: Store) -> tuple:
@@ -172,9 +177,11 @@ def test_the_last_use_is_saved_with_counters_and_with_keyframes(store):
     seeded(store)
     store.update_session("s1", last_used_at=1_800_000_000.5)
     assert store.load_session("s1").last_used_at == 1_800_000_000.5
-    store.commit_keyframe("s1", 3, [make_object(2, version=2)], [], {}, 4, last_used_at=1.9e9)
+    store.commit_keyframe(
+        KeyframeCommit("s1", 3, [make_object(2, version=2)], [], {}, 4, last_used_at=1.9e9)
+    )
     assert store.load_session("s1").last_used_at == 1.9e9
-    store.commit_keyframe("s1", 3, [], [], {"frames": 9}, 4)  # not given: kept
+    store.commit_keyframe(KeyframeCommit("s1", 3, [], [], {"frames": 9}, 4))  # not given: kept
     assert store.load_session("s1").last_used_at == 1.9e9
 
 
@@ -214,7 +221,7 @@ def test_an_unknown_counter_is_refused_and_changes_nothing(store):
     "call",
     [
         lambda s: s.update_session("nope", name="x"),
-        lambda s: s.commit_keyframe("nope", 1, [], [], {}, 1),
+        lambda s: s.commit_keyframe(KeyframeCommit("nope", 1, [], [], {}, 1)),
         lambda s: s.load_objects("nope"),
         lambda s: s.load_delta_log("nope"),
         lambda s: s.trim_tombstones("nope", 0),
@@ -236,7 +243,7 @@ def test_objects_round_trip_exactly(store):
     no_embedding = make_object(3, n_points=0)
     no_embedding.embedding_sum = None
     objects = [special, tie_first_seen, no_embedding, make_object(4, n_points=2000)]
-    store.commit_keyframe("s1", 1, objects, [], {}, 5)
+    store.commit_keyframe(KeyframeCommit("s1", 1, objects, [], {}, 5))
 
     loaded = store.load_objects("s1")
 
@@ -249,14 +256,14 @@ def test_objects_round_trip_exactly(store):
 
 def test_an_upsert_replaces_the_object_and_clears_its_tombstone(store):
     seeded(store)
-    store.commit_keyframe("s1", 3, [make_object(3, version=5)], [], {}, 4)
+    store.commit_keyframe(KeyframeCommit("s1", 3, [make_object(3, version=5)], [], {}, 4))
     assert [(o.id, o.version) for o in store.load_objects("s1")] == [(1, 2), (2, 1), (3, 5)]
     assert store.load_delta_log("s1").state()["removed_at"] == {}
 
 
 def test_an_id_both_upserted_and_removed_in_one_commit_ends_up_removed(store):
     seeded(store)
-    store.commit_keyframe("s1", 3, [make_object(1, version=3)], [1], {}, 4)
+    store.commit_keyframe(KeyframeCommit("s1", 3, [make_object(1, version=3)], [1], {}, 4))
     log = store.load_delta_log("s1")
     assert [o.id for o in store.load_objects("s1")] == [2]
     assert log.state()["removed_at"] == {1: 3, 3: 2}
@@ -264,7 +271,7 @@ def test_an_id_both_upserted_and_removed_in_one_commit_ends_up_removed(store):
 
 def test_a_keyframe_that_changed_nothing_keeps_the_seq_and_stores_its_counters(store):
     seeded(store)
-    store.commit_keyframe("s1", 2, [], [], {"frames": 50, "keyframes": 10}, 4)
+    store.commit_keyframe(KeyframeCommit("s1", 2, [], [], {"frames": 50, "keyframes": 10}, 4))
     assert store.load_delta_log("s1").seq == 2
     assert (store.list_sessions()[0].frames, store.list_sessions()[0].keyframes) == (50, 10)
 
@@ -315,18 +322,22 @@ def test_a_refused_commit_leaves_the_store_exactly_as_before(
     upserts = [make_object(1, version=9), make_object(4), last_object()]
     with pytest.raises(ValueError):
         store.commit_keyframe(
-            "s1", seq, upserts, [2], {"frames": 99, "keyframes": 3}, next_object_id
+            KeyframeCommit("s1", seq, upserts, [2], {"frames": 99, "keyframes": 3}, next_object_id)
         )
     assert everything(store) == before
 
-    store.commit_keyframe("s1", 3, upserts[:2], [2], {"keyframes": 3}, 6)  # still usable
+    store.commit_keyframe(
+        KeyframeCommit("s1", 3, upserts[:2], [2], {"keyframes": 3}, 6)
+    )  # still usable
     assert [o.id for o in store.load_objects("s1")] == [1, 4]
 
 
 def test_deleting_a_session_removes_its_objects_tombstones_and_changes(store, store_url):
     seeded(store, "gone")
     seeded(store, "kept")
-    store.commit_keyframe("gone", 3, [], [1], {}, 4, changes=[Change(1, "removed", 9.0, "x")])
+    store.commit_keyframe(
+        KeyframeCommit("gone", 3, [], [1], {}, 4, changes=[Change(1, "removed", 9.0, "x")])
+    )
     kept_before = everything(store)[1]["kept"]
 
     store.delete_session("gone")
@@ -347,7 +358,7 @@ def test_trimming_tombstones_raises_the_floor_past_the_dropped_ones(store):
     store.create_session(record("s1"))
     for seq in range(1, 6):  # object 10 + seq created at seq, removed at seq + 1
         removed = [9 + seq] if seq > 1 else []
-        store.commit_keyframe("s1", seq, [make_object(10 + seq)], removed, {}, 20)
+        store.commit_keyframe(KeyframeCommit("s1", seq, [make_object(10 + seq)], removed, {}, 20))
     assert store.load_delta_log("s1").state()["removed_at"] == {11: 2, 12: 3, 13: 4, 14: 5}
 
     store.trim_tombstones("s1", floor=3)
@@ -371,7 +382,9 @@ def test_reopening_keeps_everything_and_the_same_deltas(store_url):
     with open_store(store_url) as store:
         seeded(store, "s1")
         seeded(store, "s2")
-        store.commit_keyframe("s2", 3, [make_object(2, version=7)], [1], {"bytes_in": 5}, 4)
+        store.commit_keyframe(
+            KeyframeCommit("s2", 3, [make_object(2, version=7)], [1], {"bytes_in": 5}, 4)
+        )
         before = everything(store)
         log_before = store.load_delta_log("s2")
 
@@ -541,7 +554,9 @@ def test_threads_can_commit_to_their_sessions_concurrently(store):
     def work(sid: str) -> None:
         try:
             for seq in range(1, 21):
-                store.commit_keyframe(sid, seq, [make_object(seq)], [], {"keyframes": seq}, 21)
+                store.commit_keyframe(
+                    KeyframeCommit(sid, seq, [make_object(seq)], [], {"keyframes": seq}, 21)
+                )
         except BaseException as exc:  # surfaced by the assertion below
             errors.append(exc)
 
@@ -585,14 +600,14 @@ CRASH_CHILD = (
     + """
 import sys
 
-from app.store import SessionRecord, open_store
+from app.store import KeyframeCommit, SessionRecord, open_store
 
 store = open_store(sys.argv[1])
 store.create_session(SessionRecord("crash", "crash", "semanticxr", {}, "hash", 0.0))
 for k in range(1, 1_000_000):
     upserted, removed = keyframe_changes(k)
-    store.commit_keyframe("crash", k, [object_at(i, k if i == 1 else i) for i in upserted],
-                          removed, {"frames": 5 * k, "keyframes": k}, k + 1)
+    store.commit_keyframe(KeyframeCommit("crash", k, [object_at(i, k if i == 1 else i) for i in upserted],
+                                         removed, {"frames": 5 * k, "keyframes": k}, k + 1))
     print(f"committed {k}", flush=True)
 """
 )
@@ -683,7 +698,9 @@ def test_the_stored_delta_log_equals_an_in_memory_one_fed_the_same_commits(
         for n, (upserted, removed) in enumerate(history, 1):
             seq = model.commit(upserted, removed)
             objects = [make_object(i, version=seq, n_points=3) for i in sorted(upserted)]
-            store.commit_keyframe(sid, seq, objects, sorted(removed), {"keyframes": n}, 11)
+            store.commit_keyframe(
+                KeyframeCommit(sid, seq, objects, sorted(removed), {"keyframes": n}, 11)
+            )
             store.trim_tombstones(sid, model.floor)
     with open_store(store_url) as store:  # what a restarted server would load
         log = store.load_delta_log(sid)

@@ -17,6 +17,7 @@ from test_store import everything, make_object, query, record, seeded
 from app.mapping.object import Change
 from app.store import (
     DONE_WINDOW,
+    KeyframeCommit,
     SessionFenced,
     SessionHeld,
     ShardRecord,
@@ -26,6 +27,8 @@ from app.store import (
     postgres,
     sqlite,
 )
+from app.store.dialect import POSTGRES, SQLITE
+from app.store.schema import statements
 
 LEASE_S = 10.0
 T0 = 1_000.0
@@ -142,17 +145,19 @@ def test_a_commit_at_a_stale_epoch_is_fenced_and_changes_nothing(store):
     before = observable(store)
     with pytest.raises(SessionFenced) as fenced:
         store.commit_keyframe(
-            "s1",
-            3,
-            [make_object(3, version=7)],
-            [1],
-            {"frames": 99, "keyframes": 9, "sightings": 5},
-            4,
-            last_used_at=2e9,
-            changes=[Change(1, "removed", 9.0, "label-1")],
-            last_t=9.0,
-            epoch=1,
-            done=("stream", 1, b"ack"),
+            KeyframeCommit(
+                "s1",
+                3,
+                [make_object(3, version=7)],
+                [1],
+                {"frames": 99, "keyframes": 9, "sightings": 5},
+                4,
+                last_used_at=2e9,
+                changes=[Change(1, "removed", 9.0, "label-1")],
+                last_t=9.0,
+                epoch=1,
+                done=("stream", 1, b"ack"),
+            )
         )
     assert (fenced.value.session_id, fenced.value.epoch, fenced.value.stored_epoch) == ("s1", 1, 2)
     assert observable(store) == before
@@ -162,7 +167,16 @@ def test_a_commit_at_the_current_epoch_lands_with_its_ack(store):
     seeded(store)
     epoch = store.claim_session("s1", "shard-a", LEASE_S, now=T0)
     store.commit_keyframe(
-        "s1", 3, [make_object(3)], [], {"keyframes": 3}, 4, epoch=epoch, done=("stream", 1, b"a")
+        KeyframeCommit(
+            "s1",
+            3,
+            [make_object(3)],
+            [],
+            {"keyframes": 3},
+            4,
+            epoch=epoch,
+            done=("stream", 1, b"a"),
+        )
     )
     assert [o.id for o in store.load_objects("s1")] == [1, 2, 3]
     assert store.load_session("s1").keyframes == 3
@@ -195,7 +209,7 @@ def test_writes_without_an_epoch_are_not_fenced(store):
     seeded(store)
     store.claim_session("s1", "shard-a", LEASE_S, now=T0)
     store.update_session("s1", counters={"frames": 5})
-    store.commit_keyframe("s1", 3, [make_object(3)], [], {}, 4)
+    store.commit_keyframe(KeyframeCommit("s1", 3, [make_object(3)], [], {}, 4))
     store.trim_tombstones("s1", 2)
     assert store.load_session("s1").frames == 5 and store.load_delta_log("s1").floor == 2
 
@@ -204,7 +218,9 @@ def test_writes_without_an_epoch_are_not_fenced(store):
     "call",
     [
         lambda s: s.claim_session("nope", "shard-a", LEASE_S, now=T0),
-        lambda s: s.commit_keyframe("nope", 1, [], [], {}, 1, epoch=1, done=("st", 1, b"")),
+        lambda s: s.commit_keyframe(
+            KeyframeCommit("nope", 1, [], [], {}, 1, epoch=1, done=("st", 1, b""))
+        ),
         lambda s: s.update_session("nope", epoch=1),
         lambda s: s.trim_tombstones("nope", 0, epoch=1),
         lambda s: s.done_ack("nope", "stream", 1),
@@ -269,13 +285,17 @@ def test_a_release_by_an_owner_that_no_longer_holds_the_session_does_nothing(sto
 # ---------------------------------------------------------------------- remembered acks
 def test_a_commit_remembers_its_ack_under_its_stream_and_seq(store):
     store.create_session(record("s1"))
-    store.commit_keyframe("s1", 1, [make_object(1)], [], {}, 2, done=("phone", 7, b"\x00ack 7"))
-    store.commit_keyframe("s1", 1, [], [], {}, 2, done=("glasses", 7, b"ack g7"))
+    store.commit_keyframe(
+        KeyframeCommit("s1", 1, [make_object(1)], [], {}, 2, done=("phone", 7, b"\x00ack 7"))
+    )
+    store.commit_keyframe(KeyframeCommit("s1", 1, [], [], {}, 2, done=("glasses", 7, b"ack g7")))
     assert store.done_ack("s1", "phone", 7) == b"\x00ack 7"
     assert store.done_ack("s1", "glasses", 7) == b"ack g7"
     assert store.done_ack("s1", "phone", 8) is None
     assert store.done_ack("s1", "tablet", 7) is None
-    store.commit_keyframe("s1", 1, [], [], {}, 2, done=("phone", 7, b"again"))  # replaced
+    store.commit_keyframe(
+        KeyframeCommit("s1", 1, [], [], {}, 2, done=("phone", 7, b"again"))
+    )  # replaced
     assert store.done_ack("s1", "phone", 7) == b"again"
 
 
@@ -284,16 +304,20 @@ def test_a_malformed_done_is_refused_and_nothing_is_committed(store):
     before = observable(store)
     for done in (("stream", 1), ("stream", 1, "text, not bytes"), (1, 1, b"ack")):
         with pytest.raises(ValueError, match="done must be"):
-            store.commit_keyframe("s1", 3, [make_object(3)], [], {}, 4, done=done)
+            store.commit_keyframe(KeyframeCommit("s1", 3, [make_object(3)], [], {}, 4, done=done))
     assert observable(store) == before
 
 
 def test_each_session_keeps_the_newest_window_of_acks(store):
     store.create_session(record("quiet"))
     store.create_session(record("busy"))
-    store.commit_keyframe("quiet", 0, [], [], {}, 1, done=("s", 0, b"quiet 0"))  # the oldest ack
+    store.commit_keyframe(
+        KeyframeCommit("quiet", 0, [], [], {}, 1, done=("s", 0, b"quiet 0"))
+    )  # the oldest ack
     for seq in range(DONE_WINDOW + 2):
-        store.commit_keyframe("busy", 0, [], [], {}, 1, done=("s", seq, f"busy {seq}".encode()))
+        store.commit_keyframe(
+            KeyframeCommit("busy", 0, [], [], {}, 1, done=("s", seq, f"busy {seq}".encode()))
+        )
 
     assert store.done_ack("busy", "s", 0) is None and store.done_ack("busy", "s", 1) is None
     assert store.done_ack("busy", "s", 2) == b"busy 2"
@@ -304,7 +328,7 @@ def test_each_session_keeps_the_newest_window_of_acks(store):
 def test_deleting_a_session_forgets_its_acks(store, store_url):
     for sid in ("gone", "kept"):
         store.create_session(record(sid))
-        store.commit_keyframe(sid, 0, [], [], {}, 1, done=("stream", 1, b"ack"))
+        store.commit_keyframe(KeyframeCommit(sid, 0, [], [], {}, 1, done=("stream", 1, b"ack")))
     store.delete_session("gone")
     assert query(store_url, "SELECT session_id FROM done_acks") == [("kept",)]
     store.create_session(record("gone"))
@@ -390,7 +414,7 @@ def test_the_sightings_counter_round_trips(store, store_url):
     assert store.load_session("s1").sightings == 3
     store.update_session("s1", counters={"sightings": 40, "frames": 50})
     assert (store.load_session("s1").sightings, store.load_session("s1").frames) == (40, 50)
-    store.commit_keyframe("s1", 0, [], [], {"sightings": 41}, 1)
+    store.commit_keyframe(KeyframeCommit("s1", 0, [], [], {"sightings": 41}, 1))
     assert store.list_sessions() == [record("s1", sightings=41, frames=50)]
     with open_store(store_url) as again:
         assert again.load_session("s1").sightings == 41
@@ -403,14 +427,14 @@ def make_version_4_store(store_url: str) -> None:
         path = Path(store_url.removeprefix("sqlite:///"))
         path.parent.mkdir(parents=True, exist_ok=True)
         with sqlite3.connect(path) as db:
-            for statement in (*sqlite._SCHEMA, *(s for m in sqlite._MIGRATIONS[:3] for s in m)):
+            for statement in statements(SQLITE, to_version=4):
                 db.execute(statement)
             db.execute("PRAGMA user_version = 4")
     else:
         import psycopg
 
         with psycopg.connect(store_url) as conn:
-            for statement in postgres._SCHEMA:
+            for statement in (postgres._VERSION_TABLE, *statements(POSTGRES, to_version=4)):
                 conn.execute(statement)
             conn.execute("INSERT INTO schema_version (version) VALUES (4)")
     query(
@@ -443,7 +467,9 @@ def test_a_version_4_store_opens_with_its_sessions_unowned_and_takes_claims(stor
         assert store.load_delta_log("old").seq == 2
         epoch = store.claim_session("old", "shard-a", LEASE_S, now=T0)
         store.commit_keyframe(
-            "old", 3, [], [], {"sightings": 1}, 1, epoch=epoch, done=("s", 1, b"ack")
+            KeyframeCommit(
+                "old", 3, [], [], {"sightings": 1}, 1, epoch=epoch, done=("s", 1, b"ack")
+            )
         )
         store.heartbeat_shard("shard-a", "http://a", now=T0)
     assert schema_version(store_url) == 6

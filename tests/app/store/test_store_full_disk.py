@@ -15,7 +15,7 @@ import json, resource, sys
 from collections import Counter
 import numpy as np
 from app.mapping.object import MapObject
-from app.store import SessionRecord, StoreUnavailableError
+from app.store import KeyframeCommit, SessionRecord, StoreUnavailableError
 from app.store.sqlite import SqliteStore
 
 store = SqliteStore(sys.argv[1])
@@ -34,7 +34,7 @@ def objects(first_id):
 seq, refused = 0, None
 for k in range(200):
     try:
-        store.commit_keyframe("s", seq + 1, objects(3 * seq + 1), [], {"frames": k}, 3 * seq + 4)
+        store.commit_keyframe(KeyframeCommit("s", seq + 1, objects(3 * seq + 1), [], {"frames": k}, 3 * seq + 4))
     except StoreUnavailableError as exc:
         refused = str(exc)
         break
@@ -49,7 +49,7 @@ except StoreUnavailableError:
     report["probe_while_full"] = "refused"
 resource.setrlimit(resource.RLIMIT_FSIZE, (resource.RLIM_INFINITY, resource.RLIM_INFINITY))
 store.probe()
-store.commit_keyframe("s", seq + 1, objects(3 * seq + 1), [], {"frames": 999}, 3 * seq + 4)
+store.commit_keyframe(KeyframeCommit("s", seq + 1, objects(3 * seq + 1), [], {"frames": 999}, 3 * seq + 4))
 report["after"] = len(store.load_objects("s"))
 print(json.dumps(report))
 """

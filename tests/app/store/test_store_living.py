@@ -17,8 +17,10 @@ from hypothesis import strategies as st
 from test_store import DIM, EXAMPLES, everything, fields, make_object, record, seeded
 
 from app.mapping.object import MAX_STAYS, Change, MapObject, Stay
-from app.store import CHANGE_KINDS, Store, open_store
-from app.store.sqlite import _MIGRATIONS, _SCHEMA, SCHEMA_VERSION, SqliteStore
+from app.store import CHANGE_KINDS, KeyframeCommit, Store, open_store
+from app.store.dialect import SQLITE
+from app.store.schema import statements
+from app.store.sqlite import SCHEMA_VERSION, SqliteStore
 
 
 def f32(*values: float) -> tuple[float, ...]:
@@ -66,7 +68,7 @@ def test_a_version_3_store_migrates_and_loads_its_objects_as_present_without_his
     path = tmp_path / "semanticxr.db"
     obj = make_object(1)
     with sqlite3.connect(path) as db:  # what a server at schema 3 wrote
-        for statement in (*_SCHEMA, *(s for migration in _MIGRATIONS[:2] for s in migration)):
+        for statement in statements(SQLITE, to_version=3):
             db.execute(statement)
         db.execute("PRAGMA user_version = 3")
         db.execute(
@@ -116,7 +118,7 @@ def test_a_new_store_has_the_schema_an_upgraded_one_has(tmp_path):
     """One path to each version: a new store is made at 1 and migrated."""
     SqliteStore(tmp_path / "new.db").close()
     with sqlite3.connect(tmp_path / "old.db") as db:
-        for statement in (*_SCHEMA, *(s for migration in _MIGRATIONS[:2] for s in migration)):
+        for statement in statements(SQLITE, to_version=3):
             db.execute(statement)
         db.execute("PRAGMA user_version = 3")
     SqliteStore(tmp_path / "old.db").close()
@@ -138,8 +140,10 @@ def test_every_field_of_the_living_map_round_trips_exactly(store_url):
     gone = retired(living_object(4))
     with open_store(store_url) as store:
         store.create_session(record("s1"))
-        store.commit_keyframe("s1", 1, [full_history, tie, bare, living_object(4)], [], {}, 5)
-        store.commit_keyframe("s1", 2, [], [4], {}, 5, retired=[gone])
+        store.commit_keyframe(
+            KeyframeCommit("s1", 1, [full_history, tie, bare, living_object(4)], [], {}, 5)
+        )
+        store.commit_keyframe(KeyframeCommit("s1", 2, [], [4], {}, 5, retired=[gone]))
     with open_store(store_url) as store:
         present = store.load_objects("s1")
         removed = store.load_removed_objects("s1")
@@ -157,8 +161,8 @@ def test_the_sessions_last_keyframe_time_and_pose_are_kept(store_url):
     with open_store(store_url) as store:
         seeded(store)
         assert (store.load_session("s1").last_t, store.load_session("s1").last_pose) == (None, None)
-        store.commit_keyframe("s1", 3, [], [2], {}, 4, last_t=612.4, last_pose=pose)
-        store.commit_keyframe("s1", 3, [], [], {"frames": 99}, 4)  # not given: kept
+        store.commit_keyframe(KeyframeCommit("s1", 3, [], [2], {}, 4, last_t=612.4, last_pose=pose))
+        store.commit_keyframe(KeyframeCommit("s1", 3, [], [], {"frames": 99}, 4))  # not given: kept
         store.create_session(record("s2", last_t=-3.5, last_pose=list(range(16))))
     with open_store(store_url) as store:
         rec, listed = store.load_session("s1"), store.list_sessions()
@@ -170,7 +174,9 @@ def test_the_sessions_last_keyframe_time_and_pose_are_kept(store_url):
 # ---------------------------------------------------------------------- removed objects
 def test_a_retired_object_leaves_the_present_map_but_stays_as_history(store):
     seeded(store)  # objects 1 and 2 at seq 2, tombstone of 3
-    store.commit_keyframe("s1", 3, [], [2], {}, 4, retired=[retired(living_object(2))])
+    store.commit_keyframe(
+        KeyframeCommit("s1", 3, [], [2], {}, 4, retired=[retired(living_object(2))])
+    )
 
     assert [o.id for o in store.load_objects("s1")] == [1]
     assert [(e.objects, e.seq) for e in store.list_stored()] == [(1, 3)]
@@ -191,8 +197,10 @@ def test_a_retired_object_leaves_the_present_map_but_stays_as_history(store):
 
 def test_an_upsert_brings_a_removed_object_back_into_the_map(store):
     seeded(store)
-    store.commit_keyframe("s1", 3, [], [2], {}, 4, retired=[retired(living_object(2))])
-    store.commit_keyframe("s1", 4, [living_object(2, seed=1)], [], {}, 4)
+    store.commit_keyframe(
+        KeyframeCommit("s1", 3, [], [2], {}, 4, retired=[retired(living_object(2))])
+    )
+    store.commit_keyframe(KeyframeCommit("s1", 4, [living_object(2, seed=1)], [], {}, 4))
     assert [o.id for o in store.load_objects("s1")] == [1, 2]
     assert store.load_removed_objects("s1") == []
     assert 2 not in store.load_delta_log("s1").state()["removed_at"]
@@ -281,26 +289,32 @@ GOOD_CHANGE = Change(4, "added", 12.0, "label-4", to_xyz=(1.0, 2.0, 3.0))
 )
 def test_a_refused_living_commit_changes_nothing(store, upsert, retire, change, pose):
     seeded(store)
-    store.commit_keyframe("s1", 3, [], [], {}, 5, changes=[Change(1, "moved", 1.0, "a")])
+    store.commit_keyframe(
+        KeyframeCommit("s1", 3, [], [], {}, 5, changes=[Change(1, "moved", 1.0, "a")])
+    )
     before = everything(store), history(store)
     with pytest.raises(ValueError):
         store.commit_keyframe(
-            "s1",
-            4,
-            [make_object(1, version=9), upsert],  # a good row first: a failure mid-transaction
-            [2],
-            {"frames": 99},
-            5,
-            retired=[retire],
-            changes=[GOOD_CHANGE, change],
-            retracted_added=[1],
-            last_t=50.0,
-            last_pose=pose,
+            KeyframeCommit(
+                "s1",
+                4,
+                [make_object(1, version=9), upsert],  # a good row first: a failure mid-transaction
+                [2],
+                {"frames": 99},
+                5,
+                retired=[retire],
+                changes=[GOOD_CHANGE, change],
+                retracted_added=[1],
+                last_t=50.0,
+                last_pose=pose,
+            )
         )
     assert (everything(store), history(store)) == before
 
-    store.commit_keyframe(  # still usable
-        "s1", 4, [living_object(4)], [2], {}, 5, retired=[retired(living_object(2))]
+    store.commit_keyframe(
+        KeyframeCommit(  # still usable
+            "s1", 4, [living_object(4)], [2], {}, 5, retired=[retired(living_object(2))]
+        )
     )
     assert [o.id for o in store.load_removed_objects("s1")] == [2]
 
@@ -308,7 +322,9 @@ def test_a_refused_living_commit_changes_nothing(store, upsert, retire, change, 
 def test_changes_need_a_newer_seq(store):
     seeded(store)
     with pytest.raises(ValueError, match="does not follow"):
-        store.commit_keyframe("s1", 2, [], [], {}, 4, changes=[Change(1, "moved", 1.0, "a")])
+        store.commit_keyframe(
+            KeyframeCommit("s1", 2, [], [], {}, 4, changes=[Change(1, "moved", 1.0, "a")])
+        )
     assert store.load_changes("s1") == []
 
 
@@ -326,7 +342,9 @@ def test_changes_come_back_in_arrival_order_with_their_commits_seq(store_url):
     with open_store(store_url) as store:
         store.create_session(record("s1"))
         for seq, changes in enumerate(committed, 1):
-            store.commit_keyframe("s1", seq, [make_object(seq)], [], {}, 4, changes=changes)
+            store.commit_keyframe(
+                KeyframeCommit("s1", seq, [make_object(seq)], [], {}, 4, changes=changes)
+            )
     with open_store(store_url) as store:
         loaded = store.load_changes("s1")
 
@@ -343,45 +361,53 @@ def test_changes_come_back_in_arrival_order_with_their_commits_seq(store_url):
 def test_retracted_ids_keep_no_added_change(store):
     store.create_session(record("s1"))
     store.commit_keyframe(
-        "s1",
-        1,
-        [make_object(1), make_object(2)],
-        [],
-        {},
-        3,
-        changes=[Change(1, "added", 1.0, "mug"), Change(2, "added", 1.0, "cup"), moved(1, 1.5)],
+        KeyframeCommit(
+            "s1",
+            1,
+            [make_object(1), make_object(2)],
+            [],
+            {},
+            3,
+            changes=[Change(1, "added", 1.0, "mug"), Change(2, "added", 1.0, "cup"), moved(1, 1.5)],
+        )
     )
     # Object 2 turns out to be object 1 seen again: merged, its id removed, no `added` left.
     store.commit_keyframe(
-        "s1", 2, [make_object(1, version=2)], [2], {}, 3, retracted_added=[2, 1000]
+        KeyframeCommit("s1", 2, [make_object(1, version=2)], [2], {}, 3, retracted_added=[2, 1000])
     )
     assert [(c.id, c.kind) for c in store.load_changes("s1")] == [(1, "added"), (1, "moved")]
     # An `added` change in the retracting commit itself goes too.
     store.commit_keyframe(
-        "s1", 3, [], [1], {}, 3, changes=[Change(1, "added", 2.0, "mug")], retracted_added=[1]
+        KeyframeCommit(
+            "s1", 3, [], [1], {}, 3, changes=[Change(1, "added", 2.0, "mug")], retracted_added=[1]
+        )
     )
     assert [(c.id, c.kind) for c in store.load_changes("s1")] == [(1, "moved")]
 
 
 def test_a_removed_object_found_again_is_present_and_its_removal_retracted(store):
     store.create_session(record("s1"))
-    store.commit_keyframe("s1", 1, [make_object(1)], [], {}, 2)
+    store.commit_keyframe(KeyframeCommit("s1", 1, [make_object(1)], [], {}, 2))
     gone = make_object(1, version=2)
     gone.state = "removed"
     store.commit_keyframe(
-        "s1", 2, [], [1], {}, 2, retired=[gone], changes=[Change(1, "removed", 5.0, "mug")]
+        KeyframeCommit(
+            "s1", 2, [], [1], {}, 2, retired=[gone], changes=[Change(1, "removed", 5.0, "mug")]
+        )
     )
     assert [o.id for o in store.load_removed_objects("s1")] == [1]
     # found at a new place soon after: present again, the move replaces the removal
     store.commit_keyframe(
-        "s1",
-        3,
-        [make_object(1, version=3)],
-        [],
-        {},
-        2,
-        changes=[moved(1, 9.0)],
-        retracted_removed=[1],
+        KeyframeCommit(
+            "s1",
+            3,
+            [make_object(1, version=3)],
+            [],
+            {},
+            2,
+            changes=[moved(1, 9.0)],
+            retracted_removed=[1],
+        )
     )
     assert [(c.id, c.kind) for c in store.load_changes("s1")] == [(1, "moved")]
     assert [o.id for o in store.load_objects("s1")] == [1]
@@ -405,7 +431,9 @@ def seven_changes(store) -> Store:
     store.create_session(record("s1"))
     for seq in range(1, 6):
         changes = [c for s, c in SEVEN if s == seq]
-        store.commit_keyframe("s1", seq, [make_object(seq)], [], {}, 6, changes=changes)
+        store.commit_keyframe(
+            KeyframeCommit("s1", seq, [make_object(seq)], [], {}, 6, changes=changes)
+        )
     return store
 
 
@@ -469,7 +497,7 @@ def test_load_changes_equals_filtering_the_committed_list(
     sid = f"s{next(EXAMPLES)}"
     store.create_session(record(sid))
     for change in committed:
-        store.commit_keyframe(sid, change.seq, [], [], {}, 20, changes=[change])
+        store.commit_keyframe(KeyframeCommit(sid, change.seq, [], [], {}, 20, changes=[change]))
     loaded = store.load_changes(
         sid, since_t=since_t, until_t=until_t, since_seq=since_seq, kinds=kinds, limit=limit
     )

@@ -26,6 +26,7 @@ from test_store import everything, make_object, query, record, seeded
 
 from app.server.settings import ServerSettings, SettingsError
 from app.store import (
+    KeyframeCommit,
     StoreError,
     StoreUnavailableError,
     StoreURLError,
@@ -179,10 +180,10 @@ def test_two_stores_on_one_database_see_each_others_commits(fresh_pg_url):
     with open_store(fresh_pg_url) as one, open_store(fresh_pg_url) as other:
         seeded(one)
         assert everything(other) == everything(one)
-        other.commit_keyframe("s1", 3, [make_object(3, version=4)], [], {}, 4)
+        other.commit_keyframe(KeyframeCommit("s1", 3, [make_object(3, version=4)], [], {}, 4))
         assert [(o.id, o.version) for o in one.load_objects("s1")] == [(1, 2), (2, 1), (3, 4)]
         with pytest.raises(ValueError, match="does not follow"):  # the same seq twice
-            one.commit_keyframe("s1", 3, [make_object(2, version=5)], [], {}, 4)
+            one.commit_keyframe(KeyframeCommit("s1", 3, [make_object(2, version=5)], [], {}, 4))
 
 
 def test_the_unix_socket_and_the_postgres_scheme_reach_the_same_database(pg_cluster, fresh_pg_url):
@@ -213,7 +214,9 @@ def test_a_stopped_server_refuses_calls_within_the_timeout_and_writes_resume(
         try:
             calls = {
                 "probe": store.probe,
-                "commit": lambda: store.commit_keyframe("s1", 3, [make_object(3)], [], {}, 4),
+                "commit": lambda: store.commit_keyframe(
+                    KeyframeCommit("s1", 3, [make_object(3)], [], {}, 4)
+                ),
                 "read": lambda: store.load_objects("s1"),
                 "open": lambda: open_store(url),
             }
@@ -227,7 +230,7 @@ def test_a_stopped_server_refuses_calls_within_the_timeout_and_writes_resume(
             pg_cluster.start()
         first_success(store.probe)
         assert everything(store) == before  # the refused commit changed nothing
-        store.commit_keyframe("s1", 3, [make_object(3)], [], {}, 4)
+        store.commit_keyframe(KeyframeCommit("s1", 3, [make_object(3)], [], {}, 4))
     with open_store(url) as store:
         assert [o.id for o in store.load_objects("s1")] == [1, 2, 3]
 
@@ -243,7 +246,7 @@ def test_a_store_carries_on_after_its_server_restarts(pg_cluster, fresh_pg_url):
         pg_cluster.start()
         started = time.monotonic()
         assert everything(store) == before
-        store.commit_keyframe("s1", 3, [make_object(3)], [], {"frames": 7}, 4)
+        store.commit_keyframe(KeyframeCommit("s1", 3, [make_object(3)], [], {"frames": 7}, 4))
         assert time.monotonic() - started < CONNECT_TIMEOUT_S + MARGIN_S
     with open_store(url) as store:  # and a store opened after the restart
         assert store.load_session("s1").frames == 7

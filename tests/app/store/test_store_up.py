@@ -10,7 +10,9 @@ from pathlib import Path
 import pytest
 from test_store import make_object, query, record
 
-from app.store import open_store, postgres, sqlite
+from app.store import KeyframeCommit, open_store, postgres, sqlite
+from app.store.dialect import POSTGRES, SQLITE
+from app.store.schema import statements
 
 
 def test_a_set_up_comes_back_after_a_reopen(store, store_url):
@@ -29,8 +31,12 @@ def test_a_set_up_comes_back_after_a_reopen(store, store_url):
 
 def test_an_inferred_up_lands_with_its_keyframe(store, store_url):
     store.create_session(record("s1"))
-    store.commit_keyframe("s1", 1, [make_object(1)], [], {"keyframes": 1}, 2, inferred_up="-z")
-    store.commit_keyframe("s1", 2, [make_object(1, version=2)], [], {"keyframes": 2}, 2)
+    store.commit_keyframe(
+        KeyframeCommit("s1", 1, [make_object(1)], [], {"keyframes": 1}, 2, inferred_up="-z")
+    )
+    store.commit_keyframe(
+        KeyframeCommit("s1", 2, [make_object(1, version=2)], [], {"keyframes": 2}, 2)
+    )
     with open_store(store_url) as again:
         rec = again.load_session("s1")
         assert (rec.up, rec.up_source, rec.keyframes) == ("-z", "inferred", 2)
@@ -48,7 +54,9 @@ def test_an_up_that_names_no_axis_or_source_is_refused(store, up, source):
 def test_an_inferred_up_that_names_no_axis_refuses_the_whole_commit(store):
     store.create_session(record("s1"))
     with pytest.raises(ValueError, match="up must be one of"):
-        store.commit_keyframe("s1", 1, [make_object(1)], [], {"keyframes": 1}, 2, inferred_up="z")
+        store.commit_keyframe(
+            KeyframeCommit("s1", 1, [make_object(1)], [], {"keyframes": 1}, 2, inferred_up="z")
+        )
     assert store.load_objects("s1") == [] and store.load_session("s1").up is None
 
 
@@ -59,14 +67,14 @@ def make_version_5_store(store_url: str) -> None:
         path = Path(store_url.removeprefix("sqlite:///"))
         path.parent.mkdir(parents=True, exist_ok=True)
         with sqlite3.connect(path) as db:
-            for statement in (*sqlite._SCHEMA, *(s for m in sqlite._MIGRATIONS[:4] for s in m)):
+            for statement in statements(SQLITE, to_version=5):
                 db.execute(statement)
             db.execute("PRAGMA user_version = 5")
     else:
         import psycopg
 
         with psycopg.connect(store_url) as conn:
-            for statement in (*postgres._SCHEMA, *postgres._MIGRATIONS[0]):
+            for statement in (postgres._VERSION_TABLE, *statements(POSTGRES, to_version=5)):
                 conn.execute(statement)
             conn.execute("INSERT INTO schema_version (version) VALUES (5)")
     query(
@@ -96,7 +104,9 @@ def test_a_version_5_store_opens_with_its_sessions_on_the_default_up(store_url):
             7,
             2,
         )
-        store.commit_keyframe("old", 3, [], [], {"keyframes": 4}, 1, inferred_up="+y")
+        store.commit_keyframe(
+            KeyframeCommit("old", 3, [], [], {"keyframes": 4}, 1, inferred_up="+y")
+        )
         store.create_session(record("new", up="-x", up_source="set"))
     assert schema_version(store_url) == 6
     with open_store(store_url) as store:
