@@ -31,8 +31,7 @@ from app.server.auth import (
     require_api_key,
     retry_later,
 )
-from app.server.residency import ResidentSessionsBusy
-from app.server.sessions import Session, SessionManager, StoredSessionsFull
+from app.server.sessions import ResidentSessionsBusy, Session, SessionManager, StoredSessionsFull
 from app.store import StoreUnavailableError
 
 
