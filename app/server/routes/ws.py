@@ -27,6 +27,7 @@ from app.protocol import (
     unpack_frame_message,
 )
 from app.server.auth import authorize_session, bearer
+from app.server.routes.depends import Manager
 from app.server.sessions import Session, SessionManager
 
 log = logging.getLogger(__name__)
@@ -50,12 +51,11 @@ STREAM_ID_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXY
 MAX_STREAM_ID = 64
 
 
-async def _authorize(ws: WebSocket, sid: str) -> Session | None:
+async def _authorize(ws: WebSocket, manager: SessionManager, sid: str) -> Session | None:
     """The session in use for this socket (release it when the socket ends), loaded in a
     thread if need be; None once the handshake was refused: HTTP 403 for a caller who may
     not use it (nothing about the session revealed), 503 with Retry-After when there is no
     room to load it now."""
-    manager: SessionManager = ws.app.state.manager
     try:
         return await manager.in_thread(
             authorize_session, manager, sid, bearer(ws.headers, ws.query_params)
@@ -169,20 +169,20 @@ def _decode_and_validate(
 
 
 @router.websocket("/sessions/{sid}/stream")
-async def stream(ws: WebSocket, sid: str) -> None:
+async def stream(ws: WebSocket, sid: str, manager: Manager) -> None:
     """Frames in, exactly one ack or error out per frame.
 
     A device offering the WebSocket subprotocol SIGHTINGS_SUBPROTOCOL gets it selected: it
     then picks the keyframes (every `frame` it sends is mapped) and sends `sighting`s between
     them (app/protocol/sighting.py). Otherwise the server picks the keyframes among the
     frames it receives (app.keyframes)."""
-    session = await _authorize(ws, sid)
+    session = await _authorize(ws, manager, sid)
     if session is None:
         return
     try:
-        await _stream_frames(ws, session)
+        await _stream_frames(ws, manager, session)
     finally:
-        ws.app.state.manager.release(session)
+        manager.release(session)
 
 
 def _stream_id(ws: WebSocket) -> str | None:
@@ -196,8 +196,7 @@ def _stream_id(ws: WebSocket) -> str | None:
     return given
 
 
-async def _stream_frames(ws: WebSocket, session: Session) -> None:
-    manager: SessionManager = ws.app.state.manager
+async def _stream_frames(ws: WebSocket, manager: SessionManager, session: Session) -> None:
     settings = manager.settings
     try:
         stream_id = _stream_id(ws)
@@ -303,24 +302,23 @@ async def _close_if_gone(ws: WebSocket, session: Session) -> None:
 
 
 @router.websocket("/sessions/{sid}/updates")
-async def updates(ws: WebSocket, sid: str) -> None:
+async def updates(ws: WebSocket, sid: str, manager: Manager) -> None:
     """Per-object deltas since `since`, then one per publication, coalesced per object.
 
     One message is in flight at a time; publications meanwhile wait as a count (the next
     delta coalesces them). A subscriber more than SUBSCRIBER_QUEUE_UPDATES publications
     behind, or whose send has not gone out within SUBSCRIBER_STALL_S, is closed with 1013:
     it resumes with `since` = the last seq it applied."""
-    session = await _authorize(ws, sid)
+    session = await _authorize(ws, manager, sid)
     if session is None:
         return
     try:
-        await _follow_updates(ws, session)
+        await _follow_updates(ws, manager, session)
     finally:
-        ws.app.state.manager.release(session)
+        manager.release(session)
 
 
-async def _follow_updates(ws: WebSocket, session: Session) -> None:
-    manager: SessionManager = ws.app.state.manager
+async def _follow_updates(ws: WebSocket, manager: SessionManager, session: Session) -> None:
     raw_since = ws.query_params.get("since")
     try:
         since = None if raw_since in (None, "") else int(raw_since)
