@@ -1,4 +1,4 @@
-"""REST: sessions, knobs, objects, queries (DESIGN.md "Wire protocol v1", REST)."""
+"""REST: sessions, knobs, objects, queries (docs/protocol.md, "REST")."""
 
 from __future__ import annotations
 

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 
+from app.server.metrics import Metrics
+from app.server.sessions.residency import Residency
 from app.server.sessions.session import Session
-from app.store import StoreUnavailableError
+from app.server.settings import ServerSettings
+from app.store import Store, StoreUnavailableError
 
 log = logging.getLogger("semanticxr")
 
@@ -22,10 +26,23 @@ class SessionMoved(RuntimeError):
     )
 
 
-class ClaimsMixin:
-    """Claiming, renewing and releasing sessions in the store; dropping those taken over."""
+class Claims:
+    """On a map shard: this shard's claims on the sessions it holds, in the store (their
+    epochs fence any earlier owner's writes), renewed every second; the sessions another
+    shard took are dropped here. A standalone server (no shard name) claims nothing."""
 
-    def _claim(self, sid: str) -> int | None:
+    def __init__(
+        self, settings: ServerSettings, store: Store, resident: Residency[Session], metrics: Metrics
+    ):
+        self.settings = settings
+        self.store = store
+        self.resident = resident
+        self.metrics = metrics
+        self.loop: asyncio.AbstractEventLoop | None = None
+        """The server's event loop (set when housekeeping starts): sessions another shard
+        took over are closed on it."""
+
+    def claim(self, sid: str) -> int | None:
         """On a map shard: claim session `sid` in the store (its epoch), fencing any earlier
         owner's writes; SessionHeld when a live shard holds it. None on a standalone server."""
         name = self.settings.shard_name
@@ -33,13 +50,13 @@ class ClaimsMixin:
             return None
         return self.store.claim_session(sid, name, self.settings.shard_lease_s)
 
-    def _release_claim(self, session: Session) -> None:
+    def release(self, session: Session) -> None:
         """Let another shard take `session` at once (it was saved and unloaded here)."""
         if session.epoch is not None:
             with contextlib.suppress(StoreUnavailableError):  # then its lease runs out
                 self.store.release_session(session.id, self.settings.shard_name, session.epoch)
 
-    def _drop_taken_over(self, session: Session, close: bool = True) -> None:
+    def drop_taken_over(self, session: Session, close: bool = True) -> None:
         """Forget a session another shard claimed (this one hung or lost the store for longer
         than its lease): nothing of it is written from here again, and its sockets close
         (`close`; else the keyframe pipeline closes it once its reply has gone out)."""
@@ -56,19 +73,19 @@ class ClaimsMixin:
         )
         if not close:
             return
-        if self._loop is not None and not self._loop.is_closed():
-            self._loop.call_soon_threadsafe(session.close)
+        if self.loop is not None and not self.loop.is_closed():
+            self.loop.call_soon_threadsafe(session.close)
         else:
-            session._closed = True
+            session.mark_closed()
 
-    def keep_claims(self) -> None:
+    def keep(self) -> None:
         """On a map shard, every second: say it is alive (with the address gateways reach it
         at) and renew the leases of its resident sessions; drop those another shard took."""
         name = self.settings.shard_name
         if name is None:
             return
-        resident = self.sessions
+        resident = self.resident.snapshot()
         self.store.heartbeat_shard(name, self.settings.shard_address)
         epochs = {sid: s.epoch for sid, s in resident.items() if s.epoch is not None}
         for sid in self.store.renew_leases(name, epochs, self.settings.shard_lease_s):
-            self._drop_taken_over(resident[sid])
+            self.drop_taken_over(resident[sid])

@@ -7,6 +7,7 @@ import itertools
 import secrets
 import time
 import uuid
+from collections.abc import Callable
 
 import numpy as np
 
@@ -18,8 +19,14 @@ from app.mapping.export import imported_object, imported_stay
 from app.mapping.object import Change, MapObject
 from app.perception import UnknownBackendError
 from app.protocol.rest import UP_AXES, MapExport
+from app.server.metrics import Metrics
+from app.server.sessions.claims import Claims
+from app.server.sessions.counters import Counters
+from app.server.sessions.engines import Engines
+from app.server.sessions.residency import Residency
 from app.server.sessions.session import Session, hash_token
-from app.store import SessionRecord, StoredSessionsLimit
+from app.server.settings import ServerSettings
+from app.store import SessionRecord, Store, StoredSessionsLimit
 
 
 class StoredSessionsFull(RuntimeError):
@@ -27,10 +34,30 @@ class StoredSessionsFull(RuntimeError):
     some are deleted. Permanent until then, so not a 503 (which says "retry later")."""
 
 
-class LifecycleMixin:
-    """Sessions created, imported, exported, deleted."""
+class Lifecycle:
+    """Sessions created (resident at once), imported from an export, exported and deleted;
+    their knobs changed. `release` ends a use of a session (the manager's)."""
 
-    # ------------------------------------------------------------------ lifecycle
+    def __init__(
+        self,
+        settings: ServerSettings,
+        store: Store,
+        engines: Engines,
+        resident: Residency[Session],
+        claims: Claims,
+        counters: Counters,
+        metrics: Metrics,
+        release: Callable[[Session], None],
+    ):
+        self.settings = settings
+        self.store = store
+        self.engines = engines
+        self.resident = resident
+        self.claims = claims
+        self.counters = counters
+        self.metrics = metrics
+        self.release = release
+
     def create(
         self,
         name: str | None,
@@ -66,10 +93,10 @@ class LifecycleMixin:
             raise InputError("up", f"must be one of {', '.join(UP_AXES)}; got {up!r}")
         knobs = updated_knobs(Knobs(), knob_changes or {})
         perception = perception or self.settings.perception_backends[0]
-        if perception not in self.backends:
+        if perception not in self.engines.backends:
             raise UnknownBackendError(
                 f"perception {perception!r} is not loaded on this server; choose one of "
-                f"{', '.join(self.backends)} (a server loads backends with --perception)"
+                f"{', '.join(self.engines.backends)} (a server loads backends with --perception)"
             )
         self._check_room_to_store()  # before making room in memory for nothing
         token = secrets.token_urlsafe(24)
@@ -94,9 +121,9 @@ class LifecycleMixin:
             except StoredSessionsLimit:
                 self._check_room_to_store()  # raises StoredSessionsFull with the fix
                 raise
-            engine = self._engine(rec, knobs)
+            engine = self.engines.engine(rec, knobs)
             engine.restore([], DeltaLog(max_tombstones=self.settings.max_tombstones), 0, 1)
-            return Session(rec, engine, epoch=self._claim(sid))
+            return Session(rec, engine, epoch=self.claims.claim(sid))
 
         session = self.resident.admit(sid, make, users=1)
         self.metrics.sessions_stored.inc()
@@ -133,7 +160,7 @@ class LifecycleMixin:
                     name, f"{len(records)} objects, over max_objects={self.settings.max_objects}"
                 )
         _check_imported_history(export)
-        perception = spec.perception if spec.perception in self.backends else None
+        perception = spec.perception if spec.perception in self.engines.backends else None
         session, token = self._create(
             spec.name, spec.mode, spec.knobs, perception, spec.up, spec.up_source or "set"
         )
@@ -186,8 +213,8 @@ class LifecycleMixin:
             ids = [o.id for o in objects] + [o.id for o in removed] + [c.id for c in changes]
             next_object_id = max(ids) + 1
             seq = max([1, *(c.seq for c in changes)])
-            with session._map_lock:
-                counters = self._counters(session)
+            with session.lane.lock:
+                counters = session.counters()
                 for change_seq, group in itertools.groupby(changes, key=lambda c: c.seq):
                     if change_seq < seq:  # the newest seq's changes go with the objects
                         self.store.commit_keyframe(
@@ -231,7 +258,7 @@ class LifecycleMixin:
         """What a JSON export of `session` holds, read at one instant (under the map lock):
         its confirmed objects, its removed objects kept as history and its changes (the
         last two from the store, which holds all of them)."""
-        with session._map_lock:
+        with session.lane.lock:
             return (
                 session.engine.confirmed_objects(),
                 self.store.load_removed_objects(session.id),
@@ -240,21 +267,23 @@ class LifecycleMixin:
 
     def delete(self, sid: str) -> None:
         """Delete session `sid` with its map, resident or not (its sockets close)."""
-        self.resident.remove(sid, lambda session: self._delete(sid, session))
+        self.resident.remove(sid, lambda session: self.remove(sid, session))
         self.metrics.sessions_stored.set(self.store.count_sessions())
 
-    def _delete(self, sid: str, session: Session | None) -> bool:
+    def remove(self, sid: str, session: Session | None) -> bool:
+        """`Residency.remove`'s deleter: session `sid` out of the store, after its resident
+        copy `session` (None if not resident) is closed and a keyframe in flight ended."""
         if session is None:
             self.store.delete_session(sid)
             return True
         session.close()
-        with session._map_lock:  # let a keyframe in flight finish first
+        with session.lane.lock:  # let a keyframe in flight finish first
             self.store.delete_session(sid)
-        self._counters_saved_at.pop(sid, None)
+        self.counters.forget(sid)
         return True
 
     def set_knobs(self, session: Session, changes: dict) -> Knobs:
-        with session._map_lock:
+        with session.lane.lock:
             knobs = updated_knobs(session.knobs, changes)
             self.store.update_session(session.id, knobs=knobs_to_dict(knobs), epoch=session.epoch)
             session.engine.knobs = knobs
@@ -268,7 +297,7 @@ class LifecycleMixin:
 
     def find_object(self, session: Session, object_id: int) -> MapObject | None:
         """An object of the session's present map, else of its history; None if neither."""
-        with session._map_lock:
+        with session.lane.lock:
             obj = session.engine.objects.get(object_id)
             if obj is not None and obj.confirmed:
                 return obj

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import time
 
 import numpy as np
@@ -15,49 +14,43 @@ from app.mapping.deltas import DeltaLog
 from app.mapping.engine import RECENT_CHANGES, MappingEngine
 from app.mapping.places import DEFAULT_UP
 from app.protocol.rest import SessionSummary
+from app.server.metrics import Metrics
+from app.server.sessions.claims import Claims
+from app.server.sessions.counters import Counters
+from app.server.sessions.engines import Engines
+from app.server.sessions.residency import Residency
 from app.server.sessions.session import Session
-from app.store import SessionFenced, SessionRecord, StoreUnavailableError
+from app.server.sessions.storage import StorageWatch
+from app.server.settings import ServerSettings
+from app.store import SessionFenced, SessionRecord, Store, StoreUnavailableError
 
 log = logging.getLogger("semanticxr")
 
 
-BUSY_RETRY_AFTER_S = 5
-"""Retry-After (seconds) when every resident session is busy: no room to load another."""
-LAST_USE_SAVE_INTERVAL_S = 60.0
-"""Longest a session's last use (of requests only) waits to be saved while it stays resident."""
+class Loader:
+    """`Residency`'s loader and unloader: a session's map read from the store on its first
+    use (through the path a restart takes), and what only memory holds saved when it
+    leaves memory."""
 
+    def __init__(
+        self,
+        settings: ServerSettings,
+        store: Store,
+        engines: Engines,
+        claims: Claims,
+        counters: Counters,
+        storage: StorageWatch,
+        metrics: Metrics,
+    ):
+        self.settings = settings
+        self.store = store
+        self.engines = engines
+        self.claims = claims
+        self.counters = counters
+        self.storage = storage
+        self.metrics = metrics
 
-class LoadingMixin:
-    """Sessions loaded from and unloaded to the store (`Residency`'s loader and unloader)."""
-
-    # ------------------------------------------------------------------ resident or stored
-    def record(self, sid: str) -> SessionRecord | None:
-        """Session `sid`'s record (the resident one, else the stored row: no map is read);
-        None when there is no such session."""
-        session = self.resident.get(sid)
-        if session is not None:
-            return session.record
-        try:
-            return self.store.load_session(sid)
-        except KeyError:
-            return None
-
-    def acquire(self, sid: str) -> Session:
-        """Session `sid` in use until `release(session)`: loaded first if not resident (off
-        the event loop: call it from a thread). Raises KeyError when no such session is
-        stored, ResidentSessionsBusy when every resident session is busy, or
-        StoreUnavailableError when the session that would make room cannot be saved."""
-        return self.resident.acquire(sid)
-
-    def release(self, session: Session) -> None:
-        """End a use of `session`; its last use reaches the store within
-        LAST_USE_SAVE_INTERVAL_S (frames and keyframes save it sooner)."""
-        self.resident.release(session)
-        saved_at = self._counters_saved_at.get(session.id, -math.inf)
-        if time.monotonic() - saved_at >= LAST_USE_SAVE_INTERVAL_S:
-            self.save_counters_soon(session)
-
-    def _restored(self, rec: SessionRecord) -> Session:
+    def restored(self, rec: SessionRecord) -> Session:
         """The session as the store holds it: confirmed objects, delta log, counters (what a
         restart gives back, and what a load after an unload gives back).
 
@@ -71,11 +64,11 @@ class LoadingMixin:
             with contextlib.suppress(StoreUnavailableError):
                 self.store.trim_tombstones(rec.session_id, log.floor)
                 floor = log.floor
-        engine = self._engine(rec, updated_knobs(Knobs(), rec.knobs))
-        self._restore_engine(engine, rec, log)
-        return Session(rec, engine, _stored_floor=floor)
+        engine = self.engines.engine(rec, updated_knobs(Knobs(), rec.knobs))
+        self.restore_engine(engine, rec, log)
+        return Session(rec, engine, stored_floor=floor)
 
-    def _restore_engine(self, engine: MappingEngine, rec: SessionRecord, log: DeltaLog) -> None:
+    def restore_engine(self, engine: MappingEngine, rec: SessionRecord, log: DeltaLog) -> None:
         """Put the stored map into `engine`: its present objects, delta log, newest keyframe
         (time and pose) and newest changes (for deltas)."""
         engine.restore(
@@ -89,43 +82,43 @@ class LoadingMixin:
         if rec.last_pose is not None:
             engine.last_pose = np.asarray(rec.last_pose, np.float64).reshape(4, 4)
 
-    def _load(self, sid: str) -> Session:
+    def load(self, sid: str) -> Session:
         """`Residency`'s loader (in the caller's thread): the stored session; KeyError if none."""
         t0 = time.perf_counter()
-        epoch = self._claim(sid)  # first: what loads next is final (older owners are fenced)
-        session = self._restored(self.store.load_session(sid))
+        epoch = self.claims.claim(sid)  # first: what loads next is final (older owners are fenced)
+        session = self.restored(self.store.load_session(sid))
         session.epoch = epoch
         session.touch()
         # Retention counts from this use, even if the server is killed before the next save
         # (and while the store refuses writes, from the last use it holds).
         with contextlib.suppress(StoreUnavailableError):
             self.store.update_session(sid, last_used_at=session.record.last_used_at, epoch=epoch)
-            self._counters_saved_at[sid] = time.monotonic()
+            self.counters.saved(sid)
         self.metrics.session_loads.inc()
         self.metrics.session_load_latency.observe(time.perf_counter() - t0)
         return session
 
-    def _unload(self, session: Session, reason: str) -> None:
+    def unload(self, session: Session, reason: str) -> None:
         """`Residency`'s unloader: save what only memory holds (frame and byte counters, last
         use; the map and delta log are saved at every commit) and let the session go.
         StoreUnavailableError (it stays resident) when the store refuses the write."""
-        with session._map_lock:  # after a counters save in flight, never before it
+        with session.lane.lock:  # after a counters save in flight, never before it
             try:
                 self.store.update_session(
                     session.id,
-                    counters=self._counters(session, False),
+                    counters=session.counters(False),
                     last_used_at=session.record.last_used_at,
                     epoch=session.epoch,
                 )
             except (KeyError, SessionFenced):
                 pass  # deleted or taken over meanwhile: nothing left to save here
             except StoreUnavailableError as exc:
-                self._store_failed(f"saving session {session.id} to unload it", exc)
+                self.storage.write_failed(f"saving session {session.id} to unload it", exc)
                 raise
             else:
-                self._store_succeeded()
-        self._release_claim(session)
-        self._counters_saved_at.pop(session.id, None)
+                self.storage.write_succeeded()
+        self.claims.release(session)
+        self.counters.forget(session.id)
         self.metrics.session_unloads.labels(reason=reason).inc()
         log.info(
             "session %s unloaded from memory (%s); it loads again on its next use",
@@ -133,56 +126,64 @@ class LoadingMixin:
             "unused for --idle-unload-s" if reason == "idle" else "room for another",
         )
 
-    def unload_idle(self) -> list[str]:
-        """Unload the sessions unused for idle_unload_s (no frames, requests or sockets, no
-        keyframe in flight); their ids."""
-        return self.resident.unload_idle(self.settings.idle_unload_s)
 
-    def list_sessions(self) -> list[SessionSummary]:
-        """Every stored session, oldest first, as `GET /v1/sessions` lists it: a resident one
-        with its live figures, the others from their stored rows (no map is loaded);
-        `resident` says which."""
-        listed = []
-        for entry in self.store.list_stored():
-            rec = entry.record
-            session = self.resident.get(rec.session_id)
-            if session is not None:
-                stats = session.stats()
-                listed.append(
-                    SessionSummary(
-                        session_id=stats.session_id,
-                        name=stats.name,
-                        mode=stats.mode,
-                        objects=stats.objects,
-                        frames=stats.frames,
-                        frames_whole=stats.frames_whole,
-                        sightings=stats.sightings,
-                        keyframes=stats.keyframes,
-                        fps=stats.fps,
-                        update_seq=stats.update_seq,
-                        last_used_at=session.record.last_used_at,
-                        resident=True,
-                        up=stats.up,
-                        up_source=stats.up_source,
-                    )
-                )
-                continue
+def stored_record(resident: Residency[Session], store: Store, sid: str) -> SessionRecord | None:
+    """Session `sid`'s record (the resident one, else the stored row: no map is read);
+    None when there is no such session."""
+    session = resident.get(sid)
+    if session is not None:
+        return session.record
+    try:
+        return store.load_session(sid)
+    except KeyError:
+        return None
+
+
+def list_stored(resident: Residency[Session], store: Store) -> list[SessionSummary]:
+    """Every stored session, oldest first, as `GET /v1/sessions` lists it: a resident one
+    with its live figures, the others from their stored rows (no map is loaded);
+    `resident` says which."""
+    listed = []
+    for entry in store.list_stored():
+        rec = entry.record
+        session = resident.get(rec.session_id)
+        if session is not None:
+            stats = session.stats()
             listed.append(
                 SessionSummary(
-                    session_id=rec.session_id,
-                    name=rec.name,
-                    mode=rec.mode,
-                    objects=entry.objects,
-                    frames=rec.frames,
-                    frames_whole=rec.frames - rec.sightings,
-                    sightings=rec.sightings,
-                    keyframes=rec.keyframes,
-                    fps=0.0,
-                    update_seq=entry.seq,
-                    last_used_at=rec.last_used_at,
-                    resident=False,
-                    up=rec.up or DEFAULT_UP,
-                    up_source=rec.up_source or "default",
+                    session_id=stats.session_id,
+                    name=stats.name,
+                    mode=stats.mode,
+                    objects=stats.objects,
+                    frames=stats.frames,
+                    frames_whole=stats.frames_whole,
+                    sightings=stats.sightings,
+                    keyframes=stats.keyframes,
+                    fps=stats.fps,
+                    update_seq=stats.update_seq,
+                    last_used_at=session.record.last_used_at,
+                    resident=True,
+                    up=stats.up,
+                    up_source=stats.up_source,
                 )
             )
-        return listed
+            continue
+        listed.append(
+            SessionSummary(
+                session_id=rec.session_id,
+                name=rec.name,
+                mode=rec.mode,
+                objects=entry.objects,
+                frames=rec.frames,
+                frames_whole=rec.frames - rec.sightings,
+                sightings=rec.sightings,
+                keyframes=rec.keyframes,
+                fps=0.0,
+                update_seq=entry.seq,
+                last_used_at=rec.last_used_at,
+                resident=False,
+                up=rec.up or DEFAULT_UP,
+                up_source=rec.up_source or "default",
+            )
+        )
+    return listed

@@ -16,10 +16,17 @@ from app.mapping.deltas import DeltaLog
 from app.mapping.engine import RECENT_CHANGES
 from app.perception.base import FrameDetections
 from app.protocol import Ack, ErrorReply, FrameInput
-from app.server.sessions.claims import SessionMoved
-from app.server.sessions.session import Reply, Session, _Pending
-from app.server.sessions.storage import StorageHealth, StorageUnavailable
-from app.store import SessionFenced, StoreUnavailableError
+from app.server.metrics import Metrics
+from app.server.scheduler import RoundRobinScheduler
+from app.server.sessions.claims import Claims, SessionMoved
+from app.server.sessions.counters import Counters
+from app.server.sessions.engines import Engines
+from app.server.sessions.lane import PendingKeyframe, Reply
+from app.server.sessions.residency import Residency
+from app.server.sessions.session import Session
+from app.server.sessions.storage import StorageHealth, StorageUnavailable, StorageWatch
+from app.server.settings import ServerSettings
+from app.store import SessionFenced, Store, StoreUnavailableError
 
 log = logging.getLogger("semanticxr")
 
@@ -42,51 +49,36 @@ class _Mapped(NamedTuple):
     latency_ms: float
 
 
-class PipelineMixin:
-    """Keyframes mapped, committed and acknowledged."""
+class KeyframePipeline:
+    """Keyframes mapped, committed and acknowledged: each waits in its session's lane
+    (`KeyframeLane`) for the session's turn of a mapping worker (`RoundRobinScheduler`),
+    then maps and commits in one hold of the lane's map lock."""
 
-    def _back_to_durable(self, session: Session, last_pose: np.ndarray | None) -> None:
-        """Under the map lock, after a keyframe failed to map or commit: rebuild the session's
-        engine from the store, exactly as a restart would. Keeps the knobs and `last_pose`
-        (the device pose before the keyframe, which the store does not hold); loses what only
-        memory held: unconfirmed candidates (they start again from their next sighting) and
-        the set of objects awaiting their next outlier pass. If the
-        store cannot be read either, the session is closed (its next use loads it again from
-        the store) rather than left showing changes the store lacks."""
-        old = session.engine
-        try:
-            durable = self.store.load_session(session.id)
-            stored = self.store.load_delta_log(session.id)
-            delta_log = DeltaLog.from_state(stored.state(), self.settings.max_tombstones)
-            objects = self.store.load_objects(session.id)
-            recent_changes = self.store.load_changes(session.id, limit=RECENT_CHANGES)
-        except Exception:
-            log.exception(
-                "session %s: cannot reload its saved map after a failed keyframe; the session "
-                "is closed until the server restarts",
-                session.id,
-            )
-            self.resident.forget(session)
-            session._closed = True  # under the map lock; sockets see it and close
-            return
-        engine = self._engine(session.record, old.knobs)
-        engine.restore(
-            objects,
-            delta_log,
-            durable.keyframes,
-            durable.next_object_id,
-            last_t=durable.last_t,
-            recent_changes=recent_changes,
-        )
-        engine.last_pose = last_pose
-        session.engine = engine
-        session.record.keyframes = engine.keyframes
-        session.record.next_object_id = engine.next_object_id
-        session._stored_floor = stored.floor
-        # A flush timer may have announced the rolled-back seq; the next one must go out.
-        session._published_seq = min(session._published_seq, delta_log.seq)
+    def __init__(
+        self,
+        settings: ServerSettings,
+        store: Store,
+        scheduler: RoundRobinScheduler,
+        engines: Engines,
+        resident: Residency[Session],
+        claims: Claims,
+        counters: Counters,
+        storage: StorageWatch,
+        metrics: Metrics,
+    ):
+        self.settings = settings
+        self.store = store
+        self.scheduler = scheduler
+        self.engines = engines
+        self.resident = resident
+        self.claims = claims
+        self.counters = counters
+        self.storage = storage
+        self.metrics = metrics
+        self._tasks: set[asyncio.Task] = set()
+        """The map loops running (a task nobody references may be collected mid-way)."""
 
-    async def submit_keyframe(
+    async def submit(
         self,
         session: Session,
         frame: FrameInput,
@@ -101,31 +93,33 @@ class PipelineMixin:
         frame: validated (`MappingEngine.validate_frame`), which returned `sent`;
         decode_ms: what decoding and validating it took; stream: the socket's stream id (a
         keyframe already committed under it is acked from the store, not mapped again)."""
-        pending = _Pending(frame, sent, reply, time.perf_counter(), decode_ms, stream)
-        if session._mapping:
-            older, session._pending = session._pending, pending
+        pending = PendingKeyframe(frame, sent, reply, time.perf_counter(), decode_ms, stream)
+        if session.lane.mapping:
+            older, session.lane.pending = session.lane.pending, pending
             if older is not None:
                 await self._drop(session, older)
             return
-        session._mapping = True
+        session.lane.mapping = True
         task = asyncio.create_task(self._map_loop(session, pending))
-        self._map_tasks.add(task)  # a task nobody references may be collected mid-way
-        task.add_done_callback(self._map_tasks.discard)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
-    async def _drop(self, session: Session, older: _Pending) -> None:
+    async def _drop(self, session: Session, older: PendingKeyframe) -> None:
         session.dropped += 1
         self.metrics.dropped_frames.inc()
         await older.reply(Ack(older.frame.seq, keyframe=False, dropped=True).pack())
 
     @staticmethod
-    def _newest(session: Session, pending: _Pending) -> tuple[_Pending, _Pending | None]:
+    def _newest(
+        session: Session, pending: PendingKeyframe
+    ) -> tuple[PendingKeyframe, PendingKeyframe | None]:
         """The keyframe to map once the session's turn comes, and the one it replaces: a
         newer keyframe that arrived while `pending` waited is mapped instead (frames are
         samples: the freshest view is mapped; the stale one is acknowledged as dropped)."""
-        newer, session._pending = session._pending, None
+        newer, session.lane.pending = session.lane.pending, None
         return (pending, None) if newer is None else (newer, pending)
 
-    async def _map_loop(self, session: Session, pending: _Pending | None) -> None:
+    async def _map_loop(self, session: Session, pending: PendingKeyframe | None) -> None:
         try:
             while pending is not None and not session.closed:
                 try:
@@ -172,11 +166,11 @@ class PipelineMixin:
                         session.after_keyframe(mapped.keyframe)
                 if session.moved and not session.closed:  # after the reply went out
                     session.close()
-                pending, session._pending = session._pending, None
+                pending, session.lane.pending = session.lane.pending, None
         finally:
-            session._mapping = False
+            session.lane.mapping = False
 
-    def _map_and_persist(self, session: Session, pending: _Pending) -> _Mapped:
+    def _map_and_persist(self, session: Session, pending: PendingKeyframe) -> _Mapped:
         """In a worker thread: perceive and map the keyframe, then make the change durable
         before the ack, all in one hold of the map lock. Returns the ack and the keyframe's
         mapping latency in ms (the one place it is measured: decode + perception + mapping +
@@ -190,12 +184,12 @@ class PipelineMixin:
         refused the commit, PersistFailed for another commit failure, the mapping's own
         exception otherwise; SessionMoved (unmapped, the session dropped here) when another
         map shard has claimed the session."""
-        with session._map_lock:
+        with session.lane.lock:
             if session.moved:
                 raise SessionMoved(SessionMoved.MESSAGE)
             if session.closed:
                 raise InputError("session", "the session was deleted")
-            if not self.probe_storage():
+            if not self.storage.probe():
                 raise StorageUnavailable(StorageHealth.REASON)
             done = self._done_ack(session, pending)
             if done is not None:
@@ -220,7 +214,7 @@ class PipelineMixin:
                     stats.seq,
                     [engine.objects[i] for i in stats.published_ids],
                     stats.removed_ids,
-                    counters=self._counters(session),
+                    counters=session.counters(),
                     next_object_id=engine.next_object_id,
                     last_used_at=rec.last_used_at,
                     retired=stats.retired,
@@ -239,14 +233,17 @@ class PipelineMixin:
                     rec.up, rec.up_source = inferred_up, "inferred"
                     log.info("session %s: up is %s (inferred from its poses)", session.id, rec.up)
             except SessionFenced:
-                self._drop_taken_over(session, close=False)  # its engine holds unsaved changes
+                # its engine holds unsaved changes: the session is dropped here
+                self.claims.drop_taken_over(session, close=False)
                 raise SessionMoved(SessionMoved.MESSAGE) from None
             except BaseException as exc:
                 self._back_to_durable(session, pose_before)
                 if not committing:
                     raise
                 if isinstance(exc, StoreUnavailableError):
-                    self._store_failed(f"saving keyframe {frame.seq} of session {session.id}", exc)
+                    self.storage.write_failed(
+                        f"saving keyframe {frame.seq} of session {session.id}", exc
+                    )
                     raise StorageUnavailable(StorageHealth.REASON) from exc
                 self.metrics.persist_failures.inc()
                 log.error(
@@ -256,22 +253,24 @@ class PipelineMixin:
                     exc_info=exc,
                 )
                 raise PersistFailed(f"saving the keyframe failed: {exc}") from exc
-            self._counters_saved_at[session.id] = time.monotonic()
-            self._store_succeeded()
-            if engine.log.floor > session._stored_floor:
+            self.counters.saved(session.id)
+            self.storage.write_succeeded()
+            if engine.log.floor > session.stored_floor:
                 # The log forgot its oldest removals: no subscriber can be sent them any
                 # more (it gets a full snapshot), so the store forgets them too.
                 try:
                     self.store.trim_tombstones(session.id, engine.log.floor, epoch=session.epoch)
-                    session._stored_floor = engine.log.floor
+                    session.stored_floor = engine.log.floor
                 except SessionFenced:
-                    self._drop_taken_over(session, close=False)  # saved: its ack stands
+                    self.claims.drop_taken_over(session, close=False)  # saved: its ack stands
                 except StoreUnavailableError as exc:  # the keyframe is saved: retried next time
-                    self._store_failed(f"trimming the tombstones of session {session.id}", exc)
+                    self.storage.write_failed(
+                        f"trimming the tombstones of session {session.id}", exc
+                    )
             latency_ms = pending.decode_ms + (time.perf_counter() - t_locked) * 1e3
             return _Mapped(ack, stats.keyframe, latency_ms)
 
-    def _done_ack(self, session: Session, pending: _Pending) -> Ack | None:
+    def _done_ack(self, session: Session, pending: PendingKeyframe) -> Ack | None:
         """The ack of a keyframe committed before under the same (stream, seq), if the store
         remembers one (`DONE_WINDOW` per session); raises StorageUnavailable if it cannot say."""
         if pending.stream is None:
@@ -279,12 +278,52 @@ class PipelineMixin:
         try:
             record = self.store.done_ack(session.id, pending.stream, pending.frame.seq)
         except StoreUnavailableError as exc:
-            self._store_failed(f"reading the acks of session {session.id}", exc)
+            self.storage.write_failed(f"reading the acks of session {session.id}", exc)
             raise StorageUnavailable(StorageHealth.REASON) from exc
         if record is None:
             return None
         fields = msgpack.unpackb(record)
         return Ack(pending.frame.seq, keyframe=True, **fields)
+
+    def _back_to_durable(self, session: Session, last_pose: np.ndarray | None) -> None:
+        """Under the map lock, after a keyframe failed to map or commit: rebuild the session's
+        engine from the store, exactly as a restart would. Keeps the knobs and `last_pose`
+        (the device pose before the keyframe, which the store does not hold); loses what only
+        memory held: unconfirmed candidates (they start again from their next sighting) and
+        the set of objects awaiting their next outlier pass. If the
+        store cannot be read either, the session is closed (its next use loads it again from
+        the store) rather than left showing changes the store lacks."""
+        old = session.engine
+        try:
+            durable = self.store.load_session(session.id)
+            stored = self.store.load_delta_log(session.id)
+            delta_log = DeltaLog.from_state(stored.state(), self.settings.max_tombstones)
+            objects = self.store.load_objects(session.id)
+            recent_changes = self.store.load_changes(session.id, limit=RECENT_CHANGES)
+        except Exception:
+            log.exception(
+                "session %s: cannot reload its saved map after a failed keyframe; the session "
+                "is closed until the server restarts",
+                session.id,
+            )
+            self.resident.forget(session)
+            session.mark_closed()  # under the map lock; sockets see it and close
+            return
+        engine = self.engines.engine(session.record, old.knobs)
+        engine.restore(
+            objects,
+            delta_log,
+            durable.keyframes,
+            durable.next_object_id,
+            last_t=durable.last_t,
+            recent_changes=recent_changes,
+        )
+        engine.last_pose = last_pose
+        session.engine = engine
+        session.record.keyframes = engine.keyframes
+        session.record.next_object_id = engine.next_object_id
+        session.stored_floor = stored.floor
+        session.rolled_back(delta_log.seq)
 
 
 def _ack_record(ack: Ack) -> bytes:

@@ -12,7 +12,7 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,12 +30,11 @@ from app.mapping.relevance import Rating, rate_hits
 from app.perception.base import FrameDetections
 from app.protocol import FrameInput
 from app.protocol.rest import EmbeddingInfo, LatencySummary, SessionStats
+from app.server.sessions.lane import KeyframeLane
 from app.store import SessionRecord
 
 log = logging.getLogger("semanticxr")
 
-
-Reply = Callable[[dict], Awaitable[None]]
 
 FLUSH_AFTER_S = 1.0
 """Longest a confirmed change waits for its publication when keyframes stop coming."""
@@ -51,21 +50,6 @@ def hash_token(token: str) -> str:
 def token_matches(record: SessionRecord, token: str | None) -> bool:
     """Whether `token` is the session's own (compared in constant time)."""
     return token is not None and hmac.compare_digest(hash_token(token), record.token_hash)
-
-
-@dataclass
-class _Pending:
-    frame: FrameInput
-    sent: FrameDetections | None
-    """The detections the device sent, as validated (the backend's `sent`)."""
-    reply: Reply
-    received_t: float
-    decode_ms: float
-    """Time the frame took to decode and validate (part of its mapping latency)."""
-    stream: str | None = None
-    """The socket's stream id: a keyframe committed under (session, stream, seq) is acked
-    from the store, not mapped again, when it is sent again (a gateway resending after a
-    shard failure)."""
 
 
 @dataclass
@@ -88,15 +72,14 @@ class Session:
     dropped: int = 0
     latencies_ms: deque = field(default_factory=lambda: deque(maxlen=2000))
     subscribers: int = 0
-    _map_lock: threading.Lock = field(default_factory=threading.Lock)
-    _pending: _Pending | None = None
-    _mapping: bool = False
+    lane: KeyframeLane = field(default_factory=KeyframeLane)
+    """Its lane of the keyframe pipeline; readers of the map take `lane.lock`."""
     _published: asyncio.Event = field(default_factory=asyncio.Event)
     _published_seq: int = 0
     _flush_timer: asyncio.TimerHandle | None = None
     _closed: bool = False
     _fps_window: deque = field(default_factory=lambda: deque(maxlen=60))
-    _stored_floor: int = 0
+    stored_floor: int = 0
     """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
     warnings: list[str] = field(default_factory=list)
     """Problems worth a user's attention, each said once (in the log and in the stats)."""
@@ -124,7 +107,7 @@ class Session:
     @property
     def busy(self) -> bool:
         """In use (open sockets, requests) or mapping a keyframe: never unloaded then."""
-        return self.users > 0 or self._mapping
+        return self.users > 0 or self.lane.mapping
 
     def touch(self) -> None:
         """Note a use now (for idle unloading and for retention, which the store keeps)."""
@@ -135,6 +118,40 @@ class Session:
     def closed(self) -> bool:
         """True once the session is deleted (its sockets then close)."""
         return self._closed
+
+    def mark_closed(self) -> None:
+        """Closed off the event loop (its saved map could not be reloaded, or another shard
+        took it over while no event loop runs): its sockets see `closed` and close, but
+        nobody is woken (`close` does that, on the event loop)."""
+        self._closed = True
+
+    def count_frame(self, frame_bytes: dict[str, int], sighting: bool) -> float:
+        """Count a valid frame received (in `record.frames`; a sighting also in
+        `record.sightings`) and its bytes by kind, as a use of the session; returns when
+        (time.monotonic())."""
+        rec = self.record
+        rec.frames += 1
+        if sighting:
+            rec.sightings += 1
+        self.touch()
+        now = time.monotonic()
+        self._fps_window.append(now)
+        for kind, n in frame_bytes.items():
+            self.bytes_in[kind] = self.bytes_in.get(kind, 0) + n
+        return now
+
+    def counters(self, with_keyframes: bool = True) -> dict[str, int]:
+        """The counters a store keeps (absolute values); keyframes only with the map."""
+        rec = self.record
+        counters = {
+            "frames": rec.frames,
+            "sightings": rec.sightings,
+            "bytes_in": sum(self.bytes_in.values()),
+            "bytes_out": sum(self.bytes_out.values()),
+        }
+        if with_keyframes:
+            counters["keyframes"] = rec.keyframes
+        return counters
 
     @property
     def id(self) -> str:
@@ -167,10 +184,10 @@ class Session:
     # ------------------------------------------------------------------ reading
     def stats(self) -> SessionStats:
         """The session's figures. mapping_latency_ms: p50/p95 of the server time per mapped
-        keyframe (DESIGN.md "Mapping latency"): decode + perception + mapping + delta (its
+        keyframe (docs/protocol.md, "REST"): decode + perception + mapping + delta (its
         commit to the delta log and the store), without the time it queued for a worker."""
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else None
-        with self._map_lock:
+        with self.lane.lock:
             confirmed = sum(o.confirmed for o in self.engine.objects.values())
             seq = self.engine.log.seq
         window = list(self._fps_window)
@@ -216,7 +233,7 @@ class Session:
             log.warning("session %s: %s", self.id, warning)
 
     def objects(self) -> list[MapObject]:
-        with self._map_lock:
+        with self.lane.lock:
             return self.engine.confirmed_objects()
 
     def query(self, text: str, k: int) -> list[QueryHit]:
@@ -230,7 +247,7 @@ class Session:
         removed: objects of the map's history (state "removed") ranked with the present
         ones (`include=removed`: "where did I leave my laptop")."""
         embedding = self.engine.encoder.encode_query(text)  # outside the lock: the slow part
-        with self._map_lock:
+        with self.lane.lock:
             hits = self.engine.query_embedding(embedding, k)
         if removed:
             scores = np.stack([o.embedding for o in removed]) @ embedding.astype(np.float32)
@@ -248,7 +265,7 @@ class Session:
         reading = parse(text)
         if not is_relational(reading):
             return None
-        with self._map_lock:
+        with self.lane.lock:
             objects = [(o, o.version) for o in self.engine.confirmed_objects()]
             pose = self.engine.last_pose
         up = self.up
@@ -289,7 +306,7 @@ class Session:
 
     def build_delta(self, since: int | None) -> dict:
         """The update message for a subscriber whose last applied seq is `since`."""
-        with self._map_lock:
+        with self.lane.lock:
             return update_message(self.engine, since)
 
     # ------------------------------------------------------------------ sightings
@@ -302,11 +319,11 @@ class Session:
         sighting once the map is free. A sighting changes nothing published: a candidate it
         qualifies is confirmed, then committed and published, by the next keyframe."""
         self._sightings_waiting.append((frame, sent))
-        if not self._mapping and self._map_lock.acquire(blocking=False):
+        if not self.lane.mapping and self.lane.lock.acquire(blocking=False):
             try:
                 self.sight_waiting()
             finally:
-                self._map_lock.release()
+                self.lane.lock.release()
 
     def sight_waiting(self) -> None:
         """Under the map lock: count the waiting sightings, oldest first. A sighting that
@@ -340,6 +357,11 @@ class Session:
             self._publish()
         elif self.engine.log.seq > self._published_seq and self._flush_timer is None:
             self._flush_timer = asyncio.get_running_loop().call_later(FLUSH_AFTER_S, self.flush)
+
+    def rolled_back(self, seq: int) -> None:
+        """The map went back to the store's state at update `seq` (a keyframe failed): a
+        flush timer may have announced the rolled-back seq; the next one must go out."""
+        self._published_seq = min(self._published_seq, seq)
 
     def flush(self) -> None:
         """Publish now if the map changed since the last publication (e.g. a stream ended)."""

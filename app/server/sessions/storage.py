@@ -7,7 +7,8 @@ import math
 import threading
 import time
 
-from app.store import StoreUnavailableError
+from app.server.metrics import Metrics
+from app.store import Store, StoreUnavailableError
 
 log = logging.getLogger("semanticxr")
 
@@ -74,13 +75,20 @@ class StorageHealth:
             return True
 
 
-class StorageMixin:
-    """The manager's side of storage health: failed and successful writes, probes."""
+class StorageWatch(StorageHealth):
+    """The store's health as the sessions see it: every write that fails or succeeds is
+    reported here (a failed one counted; the first of a streak logged), and while writes
+    fail the store is probed, at most every STORAGE_PROBE_INTERVAL_S. Thread-safe."""
 
-    def _store_failed(self, what: str, exc: BaseException) -> None:
+    def __init__(self, store: Store, metrics: Metrics):
+        super().__init__()
+        self.store = store
+        self.metrics = metrics
+
+    def write_failed(self, what: str, exc: BaseException) -> None:
         """Count a failed write; log it if it starts a failure streak (one ERROR a streak)."""
         self.metrics.persist_failures.inc()
-        if self.storage.failed():
+        if self.failed():
             log.error(
                 "storage failing: %s failed (%s); keyframes are refused with "
                 "storage_unavailable and /healthz answers 503 until a write succeeds "
@@ -90,24 +98,24 @@ class StorageMixin:
                 STORAGE_PROBE_INTERVAL_S,
             )
 
-    def _store_succeeded(self) -> None:
-        ended = self.storage.succeeded()
+    def write_succeeded(self) -> None:
+        ended = self.succeeded()
         if ended is not None:
             log.info(
                 "storage recovered: writes succeed again after %.1f s and %d failed writes",
                 *ended,
             )
 
-    def probe_storage(self) -> bool:
+    def probe(self) -> bool:
         """While the store refuses writes, probe it (at most every STORAGE_PROBE_INTERVAL_S);
         True when writes work (a successful probe ends the failure streak)."""
-        if not self.storage.failing:
+        if not self.failing:
             return True
-        if not self.storage.probe_due():
+        if not self.probe_due():
             return False
         try:
             self.store.probe()
         except StoreUnavailableError:
             return False
-        self._store_succeeded()
+        self.write_succeeded()
         return True
