@@ -26,6 +26,10 @@ from app.protocol import (
     parse_sighting,
     unpack_frame_message,
 )
+from app.protocol.delta import SINCE_PARAM, delta_seq, has_news
+from app.protocol.frame import TYPE_FIELD, part_sizes, stream_message_seq
+from app.protocol.rest import UPDATES_BYTES
+from app.protocol.sighting import is_sighting
 from app.server.auth import authorize_session, bearer
 from app.server.routes.depends import Manager
 from app.server.sessions import Session, SessionManager
@@ -81,15 +85,6 @@ async def _refuse_for_now(ws: WebSocket, exc: HTTPException) -> None:
     await ws.close(code=CLOSE_TRY_LATER, reason=str(exc.detail)[:120])
 
 
-def _payload_bytes(message: dict) -> dict[str, int]:
-    sizes = {}
-    for kind in ("rgb", "depth", "detections"):
-        part = message.get(kind)
-        if isinstance(part, dict) and isinstance(part.get("data"), bytes):
-            sizes[kind] = len(part["data"])
-    return sizes
-
-
 @dataclass
 class _Decoded:
     frame: FrameInput
@@ -134,14 +129,13 @@ def _decode_and_validate(
         message = unpack_frame_message(data)
     except InputError as exc:
         raise _Refused(ErrorReply(None, "bad_message", str(exc)), is_frame=False) from None
-    seq = message.get("seq") if isinstance(message, dict) else None
-    seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
+    seq = stream_message_seq(message)
     engine = session.engine
-    sighting = isinstance(message, dict) and message.get("type") == "sighting"
+    sighting = is_sighting(message)
     try:
         if sighting and not sightings:
             raise InputError(
-                "type",
+                TYPE_FIELD,
                 "a 'sighting' needs the stream socket opened with the WebSocket subprotocol "
                 f"{SIGHTINGS_SUBPROTOCOL!r} (the sightings extension); send frames whole here",
             )
@@ -162,7 +156,7 @@ def _decode_and_validate(
         frame,
         sent,
         (time.perf_counter() - t0) * 1e3,
-        _payload_bytes(message),
+        part_sizes(message),
         sighting,
         mapped=not sighting and (sightings or keyframe_next),
     )
@@ -319,7 +313,7 @@ async def updates(ws: WebSocket, sid: str, manager: Manager) -> None:
 
 
 async def _follow_updates(ws: WebSocket, manager: SessionManager, session: Session) -> None:
-    raw_since = ws.query_params.get("since")
+    raw_since = ws.query_params.get(SINCE_PARAM)
     try:
         since = None if raw_since in (None, "") else int(raw_since)
     except ValueError:
@@ -340,8 +334,8 @@ async def _follow_updates(ws: WebSocket, manager: SessionManager, session: Sessi
 
     async def send(data: bytes) -> None:
         await ws.send_bytes(data)  # waits while the socket's write buffer is over its limit
-        session.bytes_out["updates"] += len(data)
-        manager.metrics.downstream_bytes.labels(kind="updates").inc(len(data))
+        session.bytes_out[UPDATES_BYTES] += len(data)
+        manager.metrics.downstream_bytes.labels(kind=UPDATES_BYTES).inc(len(data))
 
     watcher = asyncio.create_task(watch_disconnect())
     sending: asyncio.Task | None = None
@@ -358,11 +352,11 @@ async def _follow_updates(ws: WebSocket, manager: SessionManager, session: Sessi
                 sending = None
             if sending is None:
                 message = await asyncio.to_thread(session.build_delta, since)
-                if first or message["full"] or message["upserts"] or message["removed"]:
+                if first or has_news(message):
                     sending = asyncio.create_task(send(msgpack.packb(message)))
                     sending_since = time.monotonic()
                     first = False
-                since, behind = message["seq"], 0
+                since, behind = delta_seq(message), 0
             waiter = asyncio.create_task(published.wait())
             waiting = {waiter, watcher} | ({sending} if sending is not None else set())
             stall_left = (

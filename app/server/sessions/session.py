@@ -29,7 +29,8 @@ from app.mapping.relations import ObjectGeometry, RelationIndex
 from app.mapping.relevance import Rating, rate_hits
 from app.perception.base import FrameDetections
 from app.protocol import FrameInput
-from app.protocol.rest import EmbeddingInfo, LatencySummary, SessionStats
+from app.protocol.frame import FRAME_PARTS
+from app.protocol.rest import UPDATES_BYTES, EmbeddingInfo, LatencySummary, SessionStats
 from app.server.sessions.lane import KeyframeLane
 from app.store import SessionRecord
 
@@ -65,10 +66,8 @@ class _Relations:
 class Session:
     record: SessionRecord
     engine: MappingEngine
-    bytes_in: dict[str, int] = field(
-        default_factory=lambda: {"rgb": 0, "depth": 0, "detections": 0}
-    )
-    bytes_out: dict[str, int] = field(default_factory=lambda: {"updates": 0})
+    bytes_in: dict[str, int] = field(default_factory=lambda: dict.fromkeys(FRAME_PARTS, 0))
+    bytes_out: dict[str, int] = field(default_factory=lambda: {UPDATES_BYTES: 0})
     dropped: int = 0
     latencies_ms: deque = field(default_factory=lambda: deque(maxlen=2000))
     subscribers: int = 0
