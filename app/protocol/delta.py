@@ -45,6 +45,20 @@ UPSERT_KEYS = ("id", "version", "label", "embedding", "points", "bbox", "n_obs")
 """The keys of every `upserts[]` entry."""
 CHANGE_KINDS = ("added", "moved", "removed")
 """The kinds of a `changes[]` entry (the living map)."""
+SINCE_PARAM = "since"
+"""The updates socket's query parameter: the last seq the subscriber applied (absent: it
+holds nothing, and gets a full snapshot)."""
+
+
+def delta_seq(message: dict) -> int:
+    """The seq of a packed delta (what its subscriber holds once it applies it)."""
+    return message["seq"]
+
+
+def has_news(message: dict) -> bool:
+    """Whether a packed delta changes what its subscriber holds: a full snapshot, upserts or
+    removals."""
+    return bool(message["full"] or message["upserts"] or message["removed"])
 
 
 class DeltaError(InputError):

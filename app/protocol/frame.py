@@ -24,6 +24,33 @@ from app.protocol.limits import (
     unpack_limited,
 )
 
+TYPE_FIELD = "type"
+"""The field in which every stream message names its kind ("frame" or "sighting")."""
+DETECTIONS_PART = "detections"
+FRAME_PARTS = ("rgb", "depth", DETECTIONS_PART)
+"""The binary parts a stream message may carry, each a map holding its bytes in `data`: the
+kinds of a session's `bytes_in`."""
+
+
+def stream_message_seq(message: Any) -> int | None:
+    """The integer `seq` of an unpacked stream message, else None: what the reply to a
+    message refused before it is parsed carries."""
+    seq = message.get("seq") if isinstance(message, dict) else None
+    return seq if isinstance(seq, int) and not isinstance(seq, bool) else None
+
+
+def part_sizes(message: Any) -> dict[str, int]:
+    """The bytes of each binary part (`FRAME_PARTS`) an unpacked stream message carries, by
+    kind; a part missing or of another shape is left out (parsing refuses it)."""
+    sizes = {}
+    if not isinstance(message, dict):
+        return sizes
+    for kind in FRAME_PARTS:
+        part = message.get(kind)
+        if isinstance(part, dict) and isinstance(part.get("data"), bytes):
+            sizes[kind] = len(part["data"])
+    return sizes
+
 
 @dataclass
 class FrameInput:

@@ -23,6 +23,8 @@ MAX_QUERY_CHARS = 500
 """Longest query text."""
 MAX_NAME_CHARS = 200
 """Longest session name."""
+UPDATES_BYTES = "updates"
+"""The kind of a session's `bytes_out`: update messages sent to its subscribers."""
 
 UpAxis = Literal["+x", "-x", "+y", "-y", "+z", "-z"]
 """Which way is up in the world frame: a world axis and its sense ("+z": our synthetic world,
@@ -240,7 +242,7 @@ class SessionStats(Record):
     bytes_in: dict[str, int]
     """Upstream bytes by kind (rgb, depth, detections) and "total"."""
     bytes_out: dict[str, int]
-    """Downstream update bytes by kind and "total"."""
+    """Downstream update bytes by kind (UPDATES_BYTES) and "total"."""
     mapping_latency_ms: LatencySummary
     """Server time per mapped keyframe, p50 and p95 (None before the first keyframe):
     decode + perception + mapping + delta."""

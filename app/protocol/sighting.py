@@ -44,6 +44,11 @@ SIGHTINGS_SUBPROTOCOL = "semanticxr.sightings.v1"
 the keyframes it picks; a server that supports the extension selects it."""
 
 
+def is_sighting(message: Any) -> bool:
+    """Whether an unpacked stream message says it is a `sighting` (not a `frame`)."""
+    return isinstance(message, dict) and message.get("type") == "sighting"
+
+
 def pack_sighting(
     seq: int,
     t: float,

@@ -22,6 +22,7 @@ from app.server.edges import HostOriginMiddleware
 from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware, body_limits
 from app.server.metrics import HttpMetricsMiddleware, Metrics, make_metrics
 from app.server.routes import pages, rest, speech, ws
+from app.server.routes.depends import Manager
 from app.server.sessions import SessionManager
 from app.server.settings import ServerSettings
 from app.speech import RecogniserPool, parse_asr
@@ -145,8 +146,7 @@ def create_app(
         summary="Readiness: 200, or 503 with the reason while storage fails",
         responses={503: {"description": "Not ready (e.g. the store refuses writes)"}},
     )
-    def healthz(request: Request) -> JSONResponse:
-        manager: SessionManager = request.app.state.manager
+    def healthz(manager: Manager) -> JSONResponse:
         reason = manager.storage.reason
         if reason is not None:
             return JSONResponse(
@@ -172,8 +172,7 @@ def create_app(
             )
         },
     )
-    def metrics(request: Request) -> Response:
-        manager: SessionManager = request.app.state.manager
+    def metrics(manager: Manager) -> Response:
         sessions = list(manager.sessions.values())
         manager.metrics.sessions.set(len(sessions))
         manager.metrics.subscribers.set(sum(s.subscribers for s in sessions))

@@ -12,8 +12,13 @@ import hmac
 
 from fastapi import HTTPException, Request
 
-from app.server.residency import ResidentSessionsBusy
-from app.server.sessions import STORAGE_RETRY_AFTER_S, Session, SessionManager, token_matches
+from app.server.sessions import (
+    STORAGE_RETRY_AFTER_S,
+    ResidentSessionsBusy,
+    Session,
+    SessionManager,
+    token_matches,
+)
 from app.store import SessionHeld, StoreUnavailableError
 
 

@@ -2,7 +2,7 @@
 
 DESIGN.md, "Fairness (15)": mapping work is round-robin across sessions with a pending
 keyframe, so no session waits behind more than one keyframe of each other session. Each
-session asks for a worker for one keyframe at a time (`SessionManager._map_loop`), and
+session asks for a worker for one keyframe at a time (`KeyframePipeline._map_loop`), and
 sessions are served in the order they started waiting; a session that has just been served
 waits again behind every session already waiting. One session's slow keyframe holds one
 worker; the others keep taking turns on the rest.

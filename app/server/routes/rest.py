@@ -1,4 +1,4 @@
-"""REST: sessions, knobs, objects, queries (DESIGN.md "Wire protocol v1", REST)."""
+"""REST: sessions, knobs, objects, queries (docs/protocol.md, "REST")."""
 
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ from app.server.auth import (
     require_api_key,
     retry_later,
 )
-from app.server.residency import ResidentSessionsBusy
-from app.server.sessions import Session, SessionManager, StoredSessionsFull
+from app.server.routes.depends import Manager
+from app.server.sessions import ResidentSessionsBusy, Session, SessionManager, StoredSessionsFull
 from app.store import StoreUnavailableError
 
 
@@ -68,20 +68,16 @@ CREATE_ERRORS = _errors(
 )
 
 
-def manager(request: Request) -> SessionManager:
-    return request.app.state.manager
-
-
 @contextmanager
-def session_in_use(request: Request, sid: str) -> Iterator[Session]:
+def session_in_use(manager: SessionManager, request: Request, sid: str) -> Iterator[Session]:
     """The session the caller may use, loaded if need be and kept in memory until the block
     ends (HTTPException otherwise: 401/403/404, or 503 with Retry-After). Route functions
     are plain `def`s, so FastAPI runs them, and loads, in a worker thread."""
-    session = authorize_session(manager(request), sid, bearer(request.headers))
+    session = authorize_session(manager, sid, bearer(request.headers))
     try:
         yield session
     finally:
-        manager(request).release(session)
+        manager.release(session)
 
 
 def created_or_refused(create) -> tuple[Session, str]:
@@ -180,9 +176,9 @@ def _created(session: Session, token: str) -> protocol.SessionCreated:
         "perception backend the server did not load, or an `up` that is not an axis",
     ),
 )
-def create_session(body: protocol.CreateSession, request: Request) -> protocol.SessionCreated:
+def create_session(body: protocol.CreateSession, manager: Manager) -> protocol.SessionCreated:
     session, token = created_or_refused(
-        lambda: manager(request).create(body.name, body.mode, body.knobs, body.perception, body.up)
+        lambda: manager.create(body.name, body.mode, body.knobs, body.perception, body.up)
     )
     return _created(session, token)
 
@@ -193,8 +189,8 @@ def create_session(body: protocol.CreateSession, request: Request) -> protocol.S
     dependencies=[Depends(require_api_key)],
     summary="List stored sessions, in memory or not (no map is loaded)",
 )
-def list_sessions(request: Request) -> list[protocol.SessionSummary]:
-    return manager(request).list_sessions()
+def list_sessions(manager: Manager) -> list[protocol.SessionSummary]:
+    return manager.list_sessions()
 
 
 @router.get(
@@ -203,8 +199,8 @@ def list_sessions(request: Request) -> list[protocol.SessionSummary]:
     summary="Session statistics",
     responses=SESSION_ERRORS,
 )
-def get_session(sid: str, request: Request) -> protocol.SessionStats:
-    with session_in_use(request, sid) as session:
+def get_session(sid: str, request: Request, manager: Manager) -> protocol.SessionStats:
+    with session_in_use(manager, request, sid) as session:
         return session.stats()
 
 
@@ -214,8 +210,8 @@ def get_session(sid: str, request: Request) -> protocol.SessionStats:
     summary="Knobs in force",
     responses=SESSION_ERRORS,
 )
-def get_knobs(sid: str, request: Request) -> dict:
-    with session_in_use(request, sid) as session:
+def get_knobs(sid: str, request: Request, manager: Manager) -> dict:
+    with session_in_use(manager, request, sid) as session:
         return knobs_to_dict(session.knobs)
 
 
@@ -233,11 +229,12 @@ def get_knobs(sid: str, request: Request) -> dict:
 def patch_knobs(
     sid: str,
     request: Request,
+    manager: Manager,
     changes: Annotated[dict[str, Any], Body(json_schema_extra=protocol.KNOB_CHANGES_SCHEMA)],
 ) -> dict:
-    with session_in_use(request, sid) as session:
+    with session_in_use(manager, request, sid) as session:
         try:
-            return knobs_to_dict(manager(request).set_knobs(session, changes))
+            return knobs_to_dict(manager.set_knobs(session, changes))
         except KnobError as exc:
             raise HTTPException(422, str(exc)) from None
 
@@ -251,13 +248,14 @@ def patch_knobs(
 def list_objects(
     sid: str,
     request: Request,
+    manager: Manager,
     points: bool = Query(False, description="include points"),
     include: Literal["removed"] | None = Query(None, description=INCLUDE_DOC),
 ) -> list[protocol.ObjectRecord]:
-    with session_in_use(request, sid) as session:
+    with session_in_use(manager, request, sid) as session:
         objects = session.objects()
         if include == "removed":
-            removed = manager(request).removed_objects(session)
+            removed = manager.removed_objects(session)
             objects = sorted([*objects, *removed], key=lambda o: o.id)
         return [_object_record(o, session, points) for o in objects]
 
@@ -271,9 +269,11 @@ def list_objects(
         **_errors(_404="no such session (server without an API key), or no such object"),
     },
 )
-def object_history(sid: str, object_id: int, request: Request) -> protocol.ObjectHistory:
-    with session_in_use(request, sid) as session:
-        obj = manager(request).find_object(session, object_id)
+def object_history(
+    sid: str, object_id: int, request: Request, manager: Manager
+) -> protocol.ObjectHistory:
+    with session_in_use(manager, request, sid) as session:
+        obj = manager.find_object(session, object_id)
     if obj is None:
         raise HTTPException(404, f"object {object_id} is not in this session's map or history")
     return protocol.ObjectHistory(
@@ -295,6 +295,7 @@ def object_history(sid: str, object_id: int, request: Request) -> protocol.Objec
 def list_changes(
     sid: str,
     request: Request,
+    manager: Manager,
     since_t: float | None = Query(None, description="from this frame `t` on (seconds)"),
     until_t: float | None = Query(None, description="up to this frame `t` (seconds)"),
     since_seq: int | None = Query(
@@ -305,8 +306,8 @@ def list_changes(
 ) -> protocol.ChangeList:
     _finite("since_t", since_t)
     _finite("until_t", until_t)
-    with session_in_use(request, sid) as session:
-        changes = manager(request).changes(
+    with session_in_use(manager, request, sid) as session:
+        changes = manager.changes(
             session,
             since_t=since_t,
             until_t=until_t,
@@ -341,9 +342,9 @@ QueryFrom = Annotated[
 """The query parameters a typed and a spoken question share."""
 
 
-def checked_query_options(request: Request, k: int, from_: str | None) -> np.ndarray | None:
+def checked_query_options(manager: SessionManager, k: int, from_: str | None) -> np.ndarray | None:
     """422 for a k over the server's max_query_k or a bad `from`; the asker's position."""
-    max_k = manager(request).settings.max_query_k
+    max_k = manager.settings.max_query_k
     if k > max_k:
         raise HTTPException(422, f"k: {k} is over this server's limit of {max_k}")
     return None if from_ is None else _position("from", from_)
@@ -358,6 +359,7 @@ def checked_query_options(request: Request, k: int, from_: str | None) -> np.nda
 def query(
     sid: str,
     request: Request,
+    manager: Manager,
     text: str = Query(
         ..., min_length=1, max_length=protocol.MAX_QUERY_CHARS, description="what to look for"
     ),
@@ -366,13 +368,13 @@ def query(
     include: QueryInclude = None,
     from_: QueryFrom = None,
 ) -> protocol.QueryResult:
-    asker = checked_query_options(request, k, from_)
-    with session_in_use(request, sid) as session:
-        return answer_query(request, session, text, k, points, include, asker)
+    asker = checked_query_options(manager, k, from_)
+    with session_in_use(manager, request, sid) as session:
+        return answer_query(manager, session, text, k, points, include, asker)
 
 
 def answer_query(
-    request: Request,
+    manager: SessionManager,
     session: Session,
     text: str,
     k: int,
@@ -389,9 +391,9 @@ def answer_query(
     if related is not None:
         result = _relational_result(session, text, *related, points)
         result.latency_ms = (time.perf_counter() - t0) * 1e3
-        manager(request).metrics.query_latency.observe(result.latency_ms / 1e3)
+        manager.metrics.query_latency.observe(result.latency_ms / 1e3)
         return result
-    removed = manager(request).removed_objects(session) if include == "removed" else None
+    removed = manager.removed_objects(session) if include == "removed" else None
     hits, rating = session.rated_query(text, k, removed)
     now_t = session.engine.last_t
     places = _places_of(session, [h.object.centroid for h in hits], [h.object.id for h in hits])
@@ -412,7 +414,7 @@ def answer_query(
         for hit, relevance, place in zip(hits, rating.relevance, places, strict=True)
     ]
     latency_ms = (time.perf_counter() - t0) * 1e3
-    manager(request).metrics.query_latency.observe(latency_ms / 1e3)
+    manager.metrics.query_latency.observe(latency_ms / 1e3)
     return protocol.QueryResult(
         text=text, match=rating.match, results=results, latency_ms=latency_ms, now_t=now_t
     )
@@ -484,9 +486,9 @@ def _relational_result(
     summary="Delete a session and its map",
     responses=SESSION_ERRORS,
 )
-def delete_session(sid: str, request: Request) -> Response:
-    check_session_access(manager(request), sid, bearer(request.headers))  # no map is loaded
-    manager(request).delete(sid)
+def delete_session(sid: str, request: Request, manager: Manager) -> Response:
+    check_session_access(manager, sid, bearer(request.headers))  # no map is loaded
+    manager.delete(sid)
     return Response(status_code=204)
 
 
@@ -508,12 +510,13 @@ def delete_session(sid: str, request: Request) -> Response:
 def export_map(
     sid: str,
     request: Request,
+    manager: Manager,
     format: Literal["json", "ply"] = Query("json", description="json or ply"),
     embeddings: bool = Query(False, description="include each object's embedding (JSON)"),
 ) -> Response:
-    with session_in_use(request, sid) as session:
+    with session_in_use(manager, request, sid) as session:
         # Taken under the map lock; points are replaced, never edited.
-        objects, removed_objects, changes = manager(request).export_contents(session)
+        objects, removed_objects, changes = manager.export_contents(session)
         encoder = session.engine.encoder
         header = {
             "format": protocol.rest.EXPORT_FORMAT,
@@ -556,7 +559,7 @@ def export_map(
         "a number that is not finite, a repeated object id, or a bad knob",
     ),
 )
-def import_map(body: MapExport, request: Request) -> protocol.SessionCreated:
+def import_map(body: MapExport, manager: Manager) -> protocol.SessionCreated:
     seen: set[int] = set()
     for i, obj in enumerate(body.objects):
         if obj.id in seen:
@@ -564,5 +567,5 @@ def import_map(body: MapExport, request: Request) -> protocol.SessionCreated:
         seen.add(obj.id)
         if np.abs(np.asarray(obj.points)).max() > MAX_WORLD_M:
             raise HTTPException(422, f"objects[{i}].points: over {MAX_WORLD_M:g} m from the origin")
-    session, token = created_or_refused(lambda: manager(request).import_session(body))
+    session, token = created_or_refused(lambda: manager.import_session(body))
     return _created(session, token)

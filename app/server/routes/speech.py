@@ -17,6 +17,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
 from app import protocol
+from app.server.routes.depends import Manager
 from app.server.routes.rest import (
     ROUTER_ERRORS,
     SESSION_ERRORS,
@@ -29,6 +30,7 @@ from app.server.routes.rest import (
     checked_query_options,
     session_in_use,
 )
+from app.server.sessions import SessionManager
 from app.speech import (
     AUDIO_TYPES,
     MAX_SPEECH_S,
@@ -68,16 +70,16 @@ def speech_pool(request: Request) -> RecogniserPool:
     return request.app.state.speech
 
 
-def _session_labels(request: Request, sid: str) -> list[str]:
+def _session_labels(manager: SessionManager, request: Request, sid: str) -> list[str]:
     """The caller's session's labels (present objects), after its credentials are checked
     (HTTPException otherwise, as for every session call)."""
-    with session_in_use(request, sid) as session:
+    with session_in_use(manager, request, sid) as session:
         return sorted({o.label for o in session.objects()})
 
 
-def _answer(request, sid, text, k, points, include, asker) -> protocol.QueryResult:
-    with session_in_use(request, sid) as session:
-        return answer_query(request, session, text, k, points, include, asker)
+def _answer(manager, request, sid, text, k, points, include, asker) -> protocol.QueryResult:
+    with session_in_use(manager, request, sid) as session:
+        return answer_query(manager, session, text, k, points, include, asker)
 
 
 @router.post(
@@ -90,13 +92,14 @@ def _answer(request, sid, text, k, points, include, asker) -> protocol.QueryResu
 async def query_speech(
     sid: str,
     request: Request,
+    manager: Manager,
     k: QueryK = 5,
     points: QueryPoints = True,
     include: QueryInclude = None,
     from_: QueryFrom = None,
 ) -> protocol.SpokenQueryResult | Response:
-    asker = checked_query_options(request, k, from_)
-    labels = await run_in_threadpool(_session_labels, request, sid)  # auth before the body
+    asker = checked_query_options(manager, k, from_)
+    labels = await run_in_threadpool(_session_labels, manager, request, sid)  # auth before the body
     content_type = request.headers.get("content-type")
     try:
         audio_type(content_type)  # 415 before reading the body
@@ -125,7 +128,9 @@ async def query_speech(
             f"no speech recognised in {heard.duration_s:.1f} s of audio: ask again, closer to "
             "the microphone",
         )
-    result = await run_in_threadpool(_answer, request, sid, text, k, points, include, asker)
+    result = await run_in_threadpool(
+        _answer, manager, request, sid, text, k, points, include, asker
+    )
     return protocol.SpokenQueryResult(
         **dict(result), transcript=text, confidence=heard.confidence, asr_ms=asr_ms
     )

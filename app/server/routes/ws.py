@@ -26,7 +26,12 @@ from app.protocol import (
     parse_sighting,
     unpack_frame_message,
 )
+from app.protocol.delta import SINCE_PARAM, delta_seq, has_news
+from app.protocol.frame import TYPE_FIELD, part_sizes, stream_message_seq
+from app.protocol.rest import UPDATES_BYTES
+from app.protocol.sighting import is_sighting
 from app.server.auth import authorize_session, bearer
+from app.server.routes.depends import Manager
 from app.server.sessions import Session, SessionManager
 
 log = logging.getLogger(__name__)
@@ -50,12 +55,11 @@ STREAM_ID_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXY
 MAX_STREAM_ID = 64
 
 
-async def _authorize(ws: WebSocket, sid: str) -> Session | None:
+async def _authorize(ws: WebSocket, manager: SessionManager, sid: str) -> Session | None:
     """The session in use for this socket (release it when the socket ends), loaded in a
     thread if need be; None once the handshake was refused: HTTP 403 for a caller who may
     not use it (nothing about the session revealed), 503 with Retry-After when there is no
     room to load it now."""
-    manager: SessionManager = ws.app.state.manager
     try:
         return await manager.in_thread(
             authorize_session, manager, sid, bearer(ws.headers, ws.query_params)
@@ -79,15 +83,6 @@ async def _refuse_for_now(ws: WebSocket, exc: HTTPException) -> None:
         return
     await ws.accept()
     await ws.close(code=CLOSE_TRY_LATER, reason=str(exc.detail)[:120])
-
-
-def _payload_bytes(message: dict) -> dict[str, int]:
-    sizes = {}
-    for kind in ("rgb", "depth", "detections"):
-        part = message.get(kind)
-        if isinstance(part, dict) and isinstance(part.get("data"), bytes):
-            sizes[kind] = len(part["data"])
-    return sizes
 
 
 @dataclass
@@ -134,14 +129,13 @@ def _decode_and_validate(
         message = unpack_frame_message(data)
     except InputError as exc:
         raise _Refused(ErrorReply(None, "bad_message", str(exc)), is_frame=False) from None
-    seq = message.get("seq") if isinstance(message, dict) else None
-    seq = seq if isinstance(seq, int) and not isinstance(seq, bool) else None
+    seq = stream_message_seq(message)
     engine = session.engine
-    sighting = isinstance(message, dict) and message.get("type") == "sighting"
+    sighting = is_sighting(message)
     try:
         if sighting and not sightings:
             raise InputError(
-                "type",
+                TYPE_FIELD,
                 "a 'sighting' needs the stream socket opened with the WebSocket subprotocol "
                 f"{SIGHTINGS_SUBPROTOCOL!r} (the sightings extension); send frames whole here",
             )
@@ -162,27 +156,27 @@ def _decode_and_validate(
         frame,
         sent,
         (time.perf_counter() - t0) * 1e3,
-        _payload_bytes(message),
+        part_sizes(message),
         sighting,
         mapped=not sighting and (sightings or keyframe_next),
     )
 
 
 @router.websocket("/sessions/{sid}/stream")
-async def stream(ws: WebSocket, sid: str) -> None:
+async def stream(ws: WebSocket, sid: str, manager: Manager) -> None:
     """Frames in, exactly one ack or error out per frame.
 
     A device offering the WebSocket subprotocol SIGHTINGS_SUBPROTOCOL gets it selected: it
     then picks the keyframes (every `frame` it sends is mapped) and sends `sighting`s between
     them (app/protocol/sighting.py). Otherwise the server picks the keyframes among the
     frames it receives (app.keyframes)."""
-    session = await _authorize(ws, sid)
+    session = await _authorize(ws, manager, sid)
     if session is None:
         return
     try:
-        await _stream_frames(ws, session)
+        await _stream_frames(ws, manager, session)
     finally:
-        ws.app.state.manager.release(session)
+        manager.release(session)
 
 
 def _stream_id(ws: WebSocket) -> str | None:
@@ -196,8 +190,7 @@ def _stream_id(ws: WebSocket) -> str | None:
     return given
 
 
-async def _stream_frames(ws: WebSocket, session: Session) -> None:
-    manager: SessionManager = ws.app.state.manager
+async def _stream_frames(ws: WebSocket, manager: SessionManager, session: Session) -> None:
     settings = manager.settings
     try:
         stream_id = _stream_id(ws)
@@ -303,25 +296,24 @@ async def _close_if_gone(ws: WebSocket, session: Session) -> None:
 
 
 @router.websocket("/sessions/{sid}/updates")
-async def updates(ws: WebSocket, sid: str) -> None:
+async def updates(ws: WebSocket, sid: str, manager: Manager) -> None:
     """Per-object deltas since `since`, then one per publication, coalesced per object.
 
     One message is in flight at a time; publications meanwhile wait as a count (the next
     delta coalesces them). A subscriber more than SUBSCRIBER_QUEUE_UPDATES publications
     behind, or whose send has not gone out within SUBSCRIBER_STALL_S, is closed with 1013:
     it resumes with `since` = the last seq it applied."""
-    session = await _authorize(ws, sid)
+    session = await _authorize(ws, manager, sid)
     if session is None:
         return
     try:
-        await _follow_updates(ws, session)
+        await _follow_updates(ws, manager, session)
     finally:
-        ws.app.state.manager.release(session)
+        manager.release(session)
 
 
-async def _follow_updates(ws: WebSocket, session: Session) -> None:
-    manager: SessionManager = ws.app.state.manager
-    raw_since = ws.query_params.get("since")
+async def _follow_updates(ws: WebSocket, manager: SessionManager, session: Session) -> None:
+    raw_since = ws.query_params.get(SINCE_PARAM)
     try:
         since = None if raw_since in (None, "") else int(raw_since)
     except ValueError:
@@ -342,8 +334,8 @@ async def _follow_updates(ws: WebSocket, session: Session) -> None:
 
     async def send(data: bytes) -> None:
         await ws.send_bytes(data)  # waits while the socket's write buffer is over its limit
-        session.bytes_out["updates"] += len(data)
-        manager.metrics.downstream_bytes.labels(kind="updates").inc(len(data))
+        session.bytes_out[UPDATES_BYTES] += len(data)
+        manager.metrics.downstream_bytes.labels(kind=UPDATES_BYTES).inc(len(data))
 
     watcher = asyncio.create_task(watch_disconnect())
     sending: asyncio.Task | None = None
@@ -360,11 +352,11 @@ async def _follow_updates(ws: WebSocket, session: Session) -> None:
                 sending = None
             if sending is None:
                 message = await asyncio.to_thread(session.build_delta, since)
-                if first or message["full"] or message["upserts"] or message["removed"]:
+                if first or has_news(message):
                     sending = asyncio.create_task(send(msgpack.packb(message)))
                     sending_since = time.monotonic()
                     first = False
-                since, behind = message["seq"], 0
+                since, behind = delta_seq(message), 0
             waiter = asyncio.create_task(published.wait())
             waiting = {waiter, watcher} | ({sending} if sending is not None else set())
             stall_left = (

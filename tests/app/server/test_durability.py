@@ -17,9 +17,9 @@ from analytic_world import BATHROOM, KITCHEN, render_rects
 from devices import frame_message, stream_in_step
 
 from app.mapping.publish import update_message
-from app.server import sessions as sessions_module
 from app.server.metrics import make_metrics
 from app.server.sessions import Session, SessionManager
+from app.server.sessions import storage as storage_module
 from app.server.settings import ServerSettings
 from app.store import StoreUnavailableError
 from app.store.sqlite import SqliteStore
@@ -55,7 +55,7 @@ class FlakyStore(SqliteStore):
 
 @pytest.fixture
 def manager(tmp_path, encoder, monkeypatch):
-    monkeypatch.setattr(sessions_module, "STORAGE_PROBE_INTERVAL_S", 0.0)  # probe every time
+    monkeypatch.setattr(storage_module, "STORAGE_PROBE_INTERVAL_S", 0.0)  # probe every time
     store = FlakyStore(tmp_path / "db.sqlite3")
     manager = SessionManager(ServerSettings(data_dir=str(tmp_path)), store, encoder, make_metrics())
     yield manager

@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from app.server.residency import Residency, ResidentSessionsBusy
+from app.server.sessions import Residency, ResidentSessionsBusy
 
 
 class Item:
