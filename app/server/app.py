@@ -13,8 +13,8 @@ from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Match
 
 from app import __version__
+from app.answering.relevance import rater_for
 from app.mapping.engine import limit_numpy_threads
-from app.mapping.relevance import rater_for
 from app.semantics import TextEncoder, get_text_encoder
 from app.server.auth import require_api_key
 from app.server.docs import install_docs

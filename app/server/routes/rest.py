@@ -13,6 +13,8 @@ from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, Res
 from fastapi.responses import StreamingResponse
 
 from app import protocol
+from app.answering.things import RelationalHit
+from app.answering.things import is_match as is_relational_match
 from app.config import KnobError, knobs_to_dict
 from app.errors import InputError
 from app.mapping.engine import MAX_WORLD_M
@@ -20,8 +22,6 @@ from app.mapping.export import export_change, export_json_chunks, exported_stay,
 from app.mapping.object import Change, MapObject
 from app.mapping.places import describe_places
 from app.mapping.publish import client_points
-from app.mapping.relational import RelationalHit
-from app.mapping.relational import is_match as is_relational_match
 from app.perception import UnknownBackendError
 from app.protocol.rest import MapExport
 from app.server.auth import (

@@ -17,20 +17,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from app.answering.ask import ask, relational_reading
+from app.answering.relevance import Rating, rate_hits
+from app.answering.things import MapThing, RelationalHit
 from app.config import Knobs, knobs_to_dict
 from app.mapping.engine import MappingEngine, QueryHit
-from app.mapping.grammar import is_relational, parse
 from app.mapping.held import held_points
 from app.mapping.object import MapObject
 from app.mapping.places import DEFAULT_UP, UpInference, up_vector
 from app.mapping.publish import client_points, update_message
-from app.mapping.relational import MapThing, RelationalHit, answer
-from app.mapping.relations import ObjectGeometry, RelationIndex
-from app.mapping.relevance import Rating, rate_hits
 from app.perception.base import FrameDetections
 from app.protocol import FrameInput
 from app.protocol.frame import FRAME_PARTS
 from app.protocol.rest import UPDATES_BYTES, EmbeddingInfo, LatencySummary, SessionStats
+from app.relations.index import ObjectGeometry, RelationIndex
 from app.server.sessions.lane import KeyframeLane
 from app.store import SessionRecord
 
@@ -54,15 +54,6 @@ def token_matches(record: SessionRecord, token: str | None) -> bool:
 
 
 @dataclass
-class _Relations:
-    """A session's relation index and the object versions it holds."""
-
-    index: RelationIndex
-    versions: dict[int, int]
-    """id -> the version of the object whose points the index holds."""
-
-
-@dataclass
 class Session:
     record: SessionRecord
     engine: MappingEngine
@@ -82,8 +73,8 @@ class Session:
     """The delta log floor the store holds (its tombstones at or below it are trimmed)."""
     warnings: list[str] = field(default_factory=list)
     """Problems worth a user's attention, each said once (in the log and in the stats)."""
-    _relations: _Relations | None = None
-    """The relation index of the confirmed objects, made by the first relational query."""
+    _relations: RelationIndex = field(default_factory=RelationIndex)
+    """The relation index of the confirmed objects, synced by each relational query."""
     _relations_lock: threading.Lock = field(default_factory=threading.Lock)
     users: int = 0
     """Sockets and requests using the session now (counted by `Residency`)."""
@@ -241,7 +232,7 @@ class Session:
     def rated_query(
         self, text: str, k: int, removed: list[MapObject] | None = None
     ) -> tuple[list[QueryHit], Rating]:
-        """The top-k hits, best first, and how well they answer (app.mapping.relevance).
+        """The top-k hits, best first, and how well they answer (app.answering.relevance).
 
         removed: objects of the map's history (state "removed") ranked with the present
         ones (`include=removed`: "where did I leave my laptop")."""
@@ -258,11 +249,17 @@ class Session:
         self, text: str, k: int, asker: np.ndarray | None = None
     ) -> tuple[list[RelationalHit], dict[int, MapObject]] | None:
         """The top-k hits of a question about how things stand ("the mug on the desk",
-        app.mapping.relational) and the objects they name by id; None for a question to
-        answer as plain (`rated_query`). Up is the session's (`up`); the asker stands at
-        `asker` (world metres), else at the camera of the newest device pose."""
-        reading = parse(text)
-        if not is_relational(reading):
+        app.answering.ask) and the objects they name by id; None for a question to answer
+        as plain (`rated_query`). Up is the session's (`up`); the asker stands at `asker`
+        (world metres), else at the camera of the newest device pose.
+
+        The relation index is synced to the confirmed objects (id, version) first, each by
+        exactly the points a device's local map holds (its client-capped points as the wire
+        and the local map store them: `held_points`), so a relation's degree is the same on
+        the server and on the device: only objects whose version changed get new bodies,
+        and only their pairs are recomputed, when read; a new up axis starts it afresh."""
+        reading = relational_reading(text)
+        if reading is None:
             return None
         with self.lane.lock:
             objects = [(o, o.version) for o in self.engine.confirmed_objects()]
@@ -270,38 +267,17 @@ class Session:
         up = self.up
         viewer = asker if asker is not None or pose is None else np.asarray(pose)[:3, 3]
         things = [MapThing(o.id, o.label, o.embedding) for o, _ in objects]
+        max_points = self.knobs.max_object_points_client
+
+        def held(o: MapObject) -> ObjectGeometry:
+            return ObjectGeometry(o.label, held_points(client_points(o, max_points)))
+
         with self._relations_lock:  # the index computes pairs as it is read
-            index = self._relation_index(objects, up)
-            hits = answer(reading, things, index, self.engine.encoder, viewer, k)
+            self._relations.sync(objects, up, held)
+            hits = ask(reading, things, self._relations, self.engine.encoder, viewer, k)
         if hits is None:
             return None
         return hits, {o.id: o for o, _ in objects}
-
-    def _relation_index(
-        self, objects: list[tuple[MapObject, int]], up: np.ndarray
-    ) -> RelationIndex:
-        """Under `_relations_lock`: the index brought up to the confirmed objects (id,
-        version), each by exactly the points a device's local map holds (its client-capped
-        points as the wire and the local map store them: `held_points`), so a relation's
-        degree is the same on the server and on the device. Each query pays a pass over the
-        ids; only objects whose version changed get new bodies, and only their pairs are
-        recomputed, when read. A new up axis starts a new index."""
-        held = self._relations
-        if held is None or not np.array_equal(held.index.up, up):
-            held = self._relations = _Relations(RelationIndex(up), {})
-        max_points = self.knobs.max_object_points_client
-        upserts = {
-            o.id: ObjectGeometry(o.label, held_points(client_points(o, max_points)))
-            for o, version in objects
-            if held.versions.get(o.id) != version
-        }
-        present = {o.id for o, _ in objects}
-        removed = [i for i in held.versions if i not in present]
-        held.index.update(upserts, removed)
-        for i in removed:
-            del held.versions[i]
-        held.versions.update({o.id: version for o, version in objects if o.id in upserts})
-        return held.index
 
     def build_delta(self, since: int | None) -> dict:
         """The update message for a subscriber whose last applied seq is `since`."""
