@@ -1,6 +1,6 @@
 """Knobs: one typed dataclass, a docstring per field, the single source of their defaults.
 
-The names and defaults follow the paper's Table 3 (see DESIGN.md "Knobs"). The CLI help and
+The names and defaults follow the paper's Table 3 (docs/architecture.md "Knobs"). The CLI help and
 the server's validation are generated from this module, so a knob is documented once.
 """
 

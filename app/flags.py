@@ -60,7 +60,7 @@ def add_tls_ca_flag(parser: argparse.ArgumentParser) -> None:
 
 def add_knob_flags(parser: argparse.ArgumentParser) -> None:
     """One --flag per knob, help text from the knob's docstring."""
-    group = parser.add_argument_group("knobs (DESIGN.md, paper Table 3)")
+    group = parser.add_argument_group('knobs (paper Table 3; docs/architecture.md "Knobs")')
     docs = knob_docs()
     for f in dataclasses.fields(Knobs):
         default = getattr(Knobs(), f.name)

@@ -1,6 +1,6 @@
 """The `semanticxr` command: one entry point, one subcommand per job, one module each.
 
-The top layer (DESIGN.md "Decisions on the open issues"): each module here holds one
+The top layer (docs/architecture.md "Layers"): each module here holds one
 command's argparse and its entry point (`add_parser(subparsers)`, `run(args)`), and may
 import anything below it (app, client_sim, viewer); nothing below imports this package.
 Modules load their heavy dependencies (torch, open3d, viser) when their command runs, not

@@ -1,4 +1,4 @@
-"""Scale-out: gateways in front of map shards (DESIGN.md "Many devices").
+"""Scale-out: gateways in front of map shards (docs/architecture.md "Many devices").
 
 `routing`: which shard serves a session (its live owner, else rendezvous hashing);
 `gateway`: the public port, relaying wire protocol v1 to the shards and across their

@@ -14,7 +14,7 @@ sample of the object's points is projected into the keyframe's depth and is
 - *occluded* otherwise: something lies in front, or there is no depth. **Occlusion is never
   evidence**: a thing hidden behind or inside something new stays.
 
-Two kinds of evidence (DESIGN.md "The living map: settled before work starts"):
+Two kinds of evidence (docs/architecture.md "The living map"):
 
 - `depth`: at least `absence_min_visible` of the in-view points are visible (matching or
   seen through), at least `absence_min_seen_through` of those are seen through, and no

@@ -14,8 +14,8 @@ from app.mapping.geometry import EMPTY_POINTS, bbox_of
 ObjectState = Literal["present", "removed"]
 OBJECT_STATES: tuple[str, ...] = ("present", "removed")
 MAX_STAYS = 32
-"""Stays kept per object; beyond it the two oldest are merged into one (DESIGN.md: at most
-32 binary stays, <= 2 KB)."""
+"""Stays kept per object; beyond it the two oldest are merged into one (at most 32
+binary stays, <= 2 KB; docs/architecture.md "The store")."""
 
 
 @dataclass

@@ -71,7 +71,7 @@ def update_message(engine: MappingEngine, since: int | None) -> dict:
     """The update a subscriber whose last applied seq is `since` receives.
 
     semanticxr: the objects changed since `since`, coalesced, at client resolution.
-    baseline: the whole confirmed map at full resolution, every time (DESIGN.md's table).
+    baseline: the whole confirmed map at full resolution, every time (docs/architecture.md "Two system organisations").
     With the v1 extension "device_pose": the newest mapped keyframe's pose, so viewers can
     show where the device is.
     """

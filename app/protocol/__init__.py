@@ -1,4 +1,4 @@
-"""Wire protocol v1 (DESIGN.md "Wire protocol v1"): the one place that knows its field names.
+"""Wire protocol v1 (docs/protocol.md): the one place that knows its field names.
 
 Every message has one typed definition here, its pack and its parse side by side; the
 server, the device, the viewer, the benches and the tests all use them, and nothing else

@@ -1,4 +1,4 @@
-"""Who may reach the server, and what its logs may say (issue 15: origins and secrets).
+"""Who may reach the server, and what its logs may say (origins, hosts and secrets; docs/faults.md).
 
 - `HostOriginMiddleware`: a request whose `Host` is not one the server answers to gets 400
   naming `--allowed-hosts` (DNS rebinding: a page on any site that resolves its own name to
@@ -32,7 +32,7 @@ WILDCARD_BINDS = ("0.0.0.0", "::", "")
 def default_allowed_hosts(bind_host: str) -> list[str] | None:
     """The Host names a server bound to `bind_host` answers to; None means any.
 
-    DESIGN.md, "Allowed hosts (15)": a loopback bind answers to the loopback names; a
+    docs/architecture.md, "Allowed hosts": a loopback bind answers to the loopback names; a
     wildcard bind answers to every Host; any other bind answers to its own address and the
     loopback names.
     """

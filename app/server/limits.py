@@ -136,7 +136,7 @@ async def send_json(
 ) -> None:
     """A whole JSON answer {"detail": ...}; kind: "http.response" or, to refuse a WebSocket
     handshake, "websocket.http.response". The connection closes after it. retry_after_s:
-    a Retry-After header (every 503 carries one, DESIGN.md)."""
+    a Retry-After header (every 503 carries one: docs/architecture.md "Rules the code keeps")."""
     body = json.dumps({"detail": detail}).encode()
     headers = [
         (b"content-type", b"application/json"),

@@ -1,6 +1,6 @@
 """Fair mapping: keyframes of all sessions share the mapping workers round-robin.
 
-DESIGN.md, "Fairness (15)": mapping work is round-robin across sessions with a pending
+docs/architecture.md, "Fairness": mapping work is round-robin across sessions with a pending
 keyframe, so no session waits behind more than one keyframe of each other session. Each
 session asks for a worker for one keyframe at a time (`KeyframePipeline._map_loop`), and
 sessions are served in the order they started waiting; a session that has just been served

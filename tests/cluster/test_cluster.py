@@ -1,5 +1,5 @@
 """Map shards on Ray behind two gateways: routing, relaying, and shard failures that lose
-nothing acknowledged (DESIGN.md "Many devices")."""
+nothing acknowledged (docs/architecture.md "Many devices")."""
 
 from __future__ import annotations
 

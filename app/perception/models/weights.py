@@ -50,7 +50,7 @@ CPU_PROFILE = Profile(
     embedder=ModelSpec("embedder", "openai/clip-vit-base-patch32", "clip-vit-base-patch32"),
 )
 """OWL-ViT B/32 boxes + depth-mode masks + CLIP ViT-B/32 crop embeddings (~2 s per keyframe
-on 2 CPU cores, DESIGN.md "Measured facts")."""
+on 2 CPU cores, docs/evaluation.md "Measured facts")."""
 
 PROFILES = {p.name: p for p in (CPU_PROFILE,)}
 

@@ -1,4 +1,4 @@
-"""Fairness (DESIGN.md, "Fairness (15)"): mapping work is round-robin across sessions with a
+"""Fairness (docs/architecture.md, "Fairness"): mapping work is round-robin across sessions with a
 pending keyframe; no session waits behind more than one keyframe of each other session."""
 
 from __future__ import annotations
