@@ -30,8 +30,8 @@ MAX_IMAGE_SIDE_PX = 8192
 """Largest width or height any image decoder accepts (decompression-bomb guard); the
 protocol's limit on image sides (`app.protocol.limits` re-exports it)."""
 
-# Default levels of uint16 images, the device's (chosen with `python -m bench.device`, issue
-# 4); any level decodes the same way.
+# Default levels of uint16 images, the device's (chosen with `python -m bench.device`); any
+# level decodes the same way.
 ZSTD_LEVEL = 12
 """zstd level of uint16 images; 12 shrinks instance images by a third against level 3 for
 ~1 ms per 640x480 frame (levels from 15 on cost several times more)."""

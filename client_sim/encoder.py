@@ -50,7 +50,7 @@ DEPTH_DOWNSAMPLING_METHODS: tuple[str, ...] = ("nearest", "min")
 
 MAX_UINT16 = 65535
 
-# Upstream defaults, chosen with `python -m bench.device` (issue 4): together they keep a
+# Upstream defaults, chosen with `python -m bench.device`: together they keep a
 # 640x480 frame with depth ÷5 and detections under 1.25 Mbps at 5 fps.
 DEFAULT_JPEG_QUALITY = 50
 """RGB JPEG quality (pillow's 1..100 scale). The `detections` backend never looks at RGB."""
@@ -87,7 +87,8 @@ def session_encoder_options(knobs: Knobs, options: dict | None = None) -> dict:
 
 # A sighting (the sightings extension, app/protocol/sighting.py) carries what confirmation
 # needs at coarse resolution; chosen on the 400-frame apartment walk, where these ratios
-# confirm the same objects as whole frames do (issue 13, target 6).
+# confirm the same objects as whole frames do (a glance is enough: docs/evaluation.md,
+# "Targets").
 DEFAULT_SIGHTING_DETECTIONS_RATIO = 8
 """A sighting's instance image is the RGB size divided by this (80x60 at 640x480, ~250 B)."""
 DEFAULT_SIGHTING_DEPTH_RATIO = 20

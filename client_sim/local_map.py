@@ -4,7 +4,8 @@ It answers local queries (LQ) when the network is down, so it must be light: mem
 only with the number of objects it holds, never with the history of updates.
 
 Storage (one row per object, rows dense in [0, n) thanks to swap-remove), 8-bit where the
-bulk is (issue 13, target 5: 50k objects of 200 points and 384-d embeddings within 64 MB):
+bulk is (docs/evaluation.md "Targets": 50k objects of 200 points and 384-d embeddings within
+64 MB):
 
 - embeddings: ONE contiguous int8 matrix [capacity, dim] plus a float32 scale per row. A row
   is the received unit vector divided by its largest magnitude and rounded to [-127, 127];
@@ -23,7 +24,8 @@ bulk is (issue 13, target 5: 50k objects of 200 points and 384-d embeddings with
   3.9 mm at 8-16 m from the origin and 15.6 mm at 32-64 m).
 - ids, versions, boxes, centroids, n_obs, last_seen_t, update clock: numpy columns of the
   same rows (last_seen_t float64 device-clock seconds, NaN when the server did not send it:
-  DESIGN "The living map"; removed objects and their history are not kept on the device);
+  docs/protocol.md "The living map"; removed objects and their history are not kept on the
+  device);
   labels (interned) and point bytes in python lists; id -> row by a sorted index (ids
   int64 and rows int32, 12 bytes an object, rebuilt when rows come or go) rather than a dict
   (~100 bytes an object in python ints and table slots).

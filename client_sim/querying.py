@@ -17,13 +17,13 @@ reconnecting), one `GET /healthz` is timed and that round trip is the RTT for th
 a probe that fails or takes longer than `server_timeout_s` means LQ.
 
 Questions about how things stand ("the mug on the desk", "the lamp closest to me") are
-answered alike both ways (issue 27, DESIGN "LQ = SQ"): SQ sends the device's position
-(`from`, the local map's user position, which the streaming client sets to its newest pose),
-and LQ asks the local map (`LocalMap.relational_query`: the server's own
-`app.answering.ask` on the same points) from that position, along the session's
-up axis (the session record's `up`, learnt while online; Z until it says). Each relational hit
-carries `relation` {"kind", "anchors": [{"id", "label"}], "degree"} and the answer's `match` is
-the relational one (best score >= app.answering.things.MATCH_MIN_SCORE) both ways.
+answered alike both ways (LQ = SQ, docs/evaluation.md "Relations"): SQ sends the device's
+position (`from`, the local map's user position, which the streaming client sets to its newest
+pose), and LQ asks the local map (`LocalMap.relational_query`: the server's own
+`app.answering.ask` on the same points) from that position, along the session's up axis (the
+session record's `up`, learnt while online; Z until it says). Each relational hit carries
+`relation` {"kind", "anchors": [{"id", "label"}], "degree"} and the answer's `match` is the
+relational one (best score >= app.answering.things.MATCH_MIN_SCORE) both ways.
 
 LQ needs the session's own text encoder: the model and dimension the session announces in
 `embedding` (MiniLM, packaged, or CLIP's text tower on the `models` backend, read from

@@ -10,7 +10,7 @@ python=${1:-.venv/bin/python}
 apt_get=${APT_GET:-apt-get}
 
 # Capture the error first: piping python into `grep -q` under pipefail takes python's
-# exit status, so the libusb branch never ran (issue 14).
+# exit status, so the libusb branch once never ran.
 if import_error=$("$python" -c "import open3d" 2>&1); then
   exit 0
 fi

@@ -1,7 +1,7 @@
 """A room of sampled-point boxes with duplicate categories in distinct relations (three mugs
 on a desk, a shelf and a table; a chair at the desk and one next to the sofa; a bag under
-the table): Z-up, metres. For the relational query tests (issue 27); its shapes (`faces`,
-`block`, `table`, `chair`) serve the relation tests too."""
+the table): Z-up, metres. For the relational query tests; its shapes (`faces`, `block`,
+`table`, `chair`) serve the relation tests too."""
 
 from __future__ import annotations
 

@@ -28,7 +28,7 @@ reason and so that hiding them all is one operation.
 While a query is highlighted the other objects are dimmed (points and boxes) and the plain
 labels are hidden, so the hits stand out.
 
-A relational answer ("the mug on the desk", issue 27) also shows what it is measured
+A relational answer ("the mug on the desk") also shows what it is measured
 against: the target (the top hit) and its anchors are drawn in two colours of their own,
 points and boxes, with a line from the target's centre to each anchor's; the target's label
 says the relation in words ("mug — on the desk"). Anchors are drawn from the objects the

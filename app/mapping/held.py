@@ -1,10 +1,11 @@
-"""An object's points as the device's local map holds them (issue 13, issue 27 "LQ = SQ").
+"""An object's points as the device's local map holds them.
 
 The server sends each confirmed object's client-capped points (`max_object_points_client`)
 as float16 on the wire; the device's local map stores them as uint8 offsets in the object's
 own point box (3 bytes a point). Both ends import this module: the device to store and read
 its points, the server to measure relations on exactly the points a device holds
-(`held_points`), so a relation's degree is the same on both ends.
+(`held_points`), so a relation's degree is the same on both ends (LQ = SQ:
+docs/evaluation.md "Relations").
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """Where a thing is, in words: "on the dining table", "near the sofa".
 
-A place is described by the nearest large object it rests on or stands near (issue 24, "People
-see it"). Pure geometry on the objects' boxes, no I/O: the server describes where a change
-happened and where a query's hit is, against the present map, when it answers.
+A place is described by the nearest large object it rests on or stands near, as people see it
+(docs/protocol.md, "The living map": places in words). Pure geometry on the objects' boxes, no
+I/O: the server describes where a change happened and where a query's hit is, against the
+present map, when it answers.
 
 - **on**: an object whose top surface lies just below the point (at most ON_MAX_GAP_M below
   it along up, or ON_SLACK_M above it: a noisy top) with the point inside its footprint (its

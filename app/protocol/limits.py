@@ -59,7 +59,7 @@ MAX_LABEL_CHARS = 200
 
 MAX_UPSERTS_PER_DELTA = 50_000
 """Most `upserts` one delta may hold: a full snapshot of the largest map a session is sized
-for (DESIGN's device target: 50k objects)."""
+for (the device's target: 50k objects, docs/evaluation.md "Targets")."""
 
 MAX_REMOVED_PER_DELTA = 100_000
 """Most `removed` ids one delta may hold: the tombstones the delta log keeps at most."""

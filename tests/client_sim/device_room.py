@@ -1,7 +1,7 @@
 """A room for relational questions asked of the device's local map and of the server alike
-(issue 27, item 3): duplicate categories in distinct relations, every object at most 200
-points (the client cap, so the server sends them all and the device keeps them all). Z-up,
-metres; shapes from tests/relation_scene.py."""
+(LQ = SQ: docs/evaluation.md "Relations"): duplicate categories in distinct relations, every
+object at most 200 points (the client cap, so the server sends them all and the device keeps
+them all). Z-up, metres; shapes from tests/relation_scene.py."""
 
 from __future__ import annotations
 

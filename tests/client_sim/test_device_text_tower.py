@@ -1,7 +1,7 @@
-"""The device's text tower on a `--perception models` session (DESIGN: "The device's text
-tower (12)"): the `device` command's code path against a real server on loopback, streaming
-frames WITHOUT detections (what a real headset sends), with tiny random models (plumbing,
-not quality).
+"""The device's text tower on a `--perception models` session (local queries need CLIP's text
+tower on the device too: README.md, "Perception from pixels"): the `device` command's code
+path against a real server on loopback, streaming frames WITHOUT detections (what a real
+headset sends), with tiny random models (plumbing, not quality).
 
 - with --models-dir it loads the session's CLIP text tower and answers locally (LQ forced
   by a threshold of 0 ms), with the server's ranking;

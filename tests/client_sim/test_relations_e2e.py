@@ -1,5 +1,5 @@
-"""LQ = SQ for questions about how things stand, end to end (issue 27, item 3; DESIGN "LQ =
-SQ"): a real server on loopback holds a room of duplicate categories in distinct relations
+"""LQ = SQ for questions about how things stand, end to end (docs/evaluation.md "Relations"):
+a real server on loopback holds a room of duplicate categories in distinct relations
 (imported), the device's local map is fed by the server's own update messages, and every
 relational question is answered by the server (SQ, asked from where the device stands) and by
 the local map (LQ, the link down) with the same top-1, relation kind, anchors and `match`,

@@ -1,6 +1,6 @@
 """An independent client, written from docs/protocol.md alone, streams through one gateway,
 follows the map through another, and survives a kill -9 of the session's map shard with
-nothing acknowledged lost (issue 25).
+nothing acknowledged lost (docs/architecture.md, "Many devices: gateways and map shards").
 
 Only the test function touches the cluster's machinery (the gateways' addresses, the owner
 shard, the kill); everything that crosses the wire is built and read here, from the

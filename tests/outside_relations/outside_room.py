@@ -1,4 +1,4 @@
-"""A room of our own, built as a sensor would see it, for an independent client (issue 27).
+"""A room of our own, built as a sensor would see it, for an independent client.
 
 Written from the documented contract only (README.md, docs/protocol.md): the map goes in
 through `POST /v1/sessions/import` as a JSON export (`format: semanticxr-map`), one object

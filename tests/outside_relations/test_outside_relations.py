@@ -1,13 +1,15 @@
-"""Issue 27, from outside: a client written only from README.md and docs/protocol.md, with
-its own room (outside_room.py) and its own phrasing set (outside_phrasings.py), asks a real
-server relational, negative and plain questions and measures:
+"""Questions about relations, from outside: a client written only from README.md and
+docs/protocol.md, with its own room (outside_room.py) and its own phrasing set
+(outside_phrasings.py), asks a real server relational, negative and plain questions and
+measures:
 
 - top-1 on the relational questions (the first hit is one of the right objects),
 - the share of negatives answered `match: false`,
 - top-1 on the plain questions (and that they are answered plainly: `relation` null).
 
-It prints a per-question table (`pytest -s` shows it) and holds the server to the issue's
-targets: >= 90 % top-1, every negative no match, every plain question right.
+It prints a per-question table (`pytest -s` shows it) and holds the server to the relations
+targets (docs/evaluation.md "Targets"): >= 90 % top-1, every negative no match, every plain
+question right.
 """
 
 import urllib.parse

@@ -1,6 +1,6 @@
 """Relational answers from a map of sampled-point boxes, with the real text encoder: the right
 copy of a duplicated category, no match when nothing satisfies the relation, plain questions
-left plain (issue 27)."""
+left plain."""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
 """msgpack unpacking within the protocol's limits: hostile messages are refused while they
-are unpacked, before they cost memory (issue 15's amplification)."""
+are unpacked, before a few bytes can amplify into much memory (docs/faults.md, "Limits on
+what the network may send")."""
 
 from __future__ import annotations
 

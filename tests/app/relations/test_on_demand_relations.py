@@ -1,6 +1,6 @@
 """Relations measured when asked (`OnDemandRelations`, the device's local map) are the ones the
 server's index keeps (`RelationIndex`), whatever the scene, the up axis or how much wider than
-its points each prefilter box is (issue 27, item 3)."""
+its points each prefilter box is (LQ = SQ: docs/evaluation.md "Relations")."""
 
 from __future__ import annotations
 

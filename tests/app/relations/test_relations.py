@@ -1,5 +1,5 @@
 """Relations from points: each relation on small scenes, their symmetries, the thresholds at
-their edges, and the index against a full recompute (issue 27)."""
+their edges, and the index against a full recompute."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Who may reach the server: Host and Origin checks, /metrics auth, credentials kept out of
-URLs and logs (issue 15). Through a real server on loopback."""
+URLs and logs (docs/faults.md, "Credentials and origins"). Through a real server on loopback."""
 
 import asyncio
 import os

@@ -1,9 +1,9 @@
-"""A glance is enough (issue 13, target 4), through a real server on loopback: a plain v1
+"""A glance is enough (docs/evaluation.md "Targets"), through a real server on loopback: a plain v1
 client sends every frame whole, the server maps one in five (keyframe_interval 5) and counts
 the detections of the others as sightings, so an object in clear view for 8 frames (about
 1.5 s at 5 fps) is confirmed and published, while a detection of one frame never is. The
-same holds for our device with the sightings extension (target 6: it sends only the
-keyframes whole)."""
+same holds for our device with the sightings extension (it sends only the keyframes
+whole)."""
 
 from __future__ import annotations
 

@@ -1,9 +1,11 @@
-"""No client stalls the server (issue 15, items 2 and 3), against a real server process.
+"""No client stalls the server, against a real server process (docs/faults.md, "No client can
+stall the server").
 
 Each hostile message is sent while another thread polls /healthz: the worst answer time
 stays under 1 s, the server's RSS (/proc/PID/status) grows by less than 256 MB (512 MB for
 eight at once), each message gets a clear error, and the server stays up. The budgets'
-refusals come back within 1.5 s. Bounds are the issue's; the figures are printed (-s)."""
+refusals come back within 1.5 s. Bounds are the faults target's (docs/evaluation.md
+"Targets"); the figures are printed (-s)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Relational questions through a real server on loopback: a known map imported, the right
-copy at top-1 with its relation, plain questions answered exactly as before (issue 27)."""
+copy at top-1 with its relation, plain questions answered exactly as before."""
 
 from __future__ import annotations
 

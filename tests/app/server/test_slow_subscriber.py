@@ -1,5 +1,6 @@
 """A subscriber that stops reading is closed with 1013 (counted, logged) long before the ping
-timeout, and resumes with `since` to end equal to the server (issue 15, item 6)."""
+timeout, and resumes with `since` to end equal to the server (docs/faults.md,
+"No client can stall the server")."""
 
 from __future__ import annotations
 
