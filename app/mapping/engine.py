@@ -21,8 +21,7 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -30,8 +29,29 @@ from app.codecs import validate_rigid_pose
 from app.config import MODES, Knobs, Mode
 from app.mapping import geometry as geo
 from app.mapping import living
+from app.mapping.changes import (
+    PLACE_TAKEN_BOX_IOU,
+    PLACE_TAKEN_OVERLAP,
+    RECENTLY_REMOVED,
+    REMEMBERED_VIEW_BLOCK,
+    REMEMBERED_VIEWS,
+    REVIVE_WINDOW_S,
+    VACATED_INSIDE,
+)
 from app.mapping.deltas import Delta, DeltaLog
 from app.mapping.object import Change, MapObject
+from app.mapping.organisation import BASELINE_RESOLUTION_M, _Observation, _patch_covering
+from app.mapping.sightings import (
+    SIGHTING_AGREEMENT,
+    SIGHTING_COVER,
+    SIGHTING_DEPTH_TOLERANCE_M,
+    SIGHTING_MIN_POINTS,
+    SIGHTING_SAMPLE_POINTS,
+    _Glimpses,
+    _project,
+    _SightSamples,
+)
+from app.mapping.stats import IntegrationStats
 from app.perception import DEFAULT_BACKEND, make_backend
 from app.perception.base import (
     Detection,
@@ -54,138 +74,14 @@ OUTLIER_EPS_M = 0.1
 MAX_WORLD_M = 10_000.0
 """A camera farther than this from the map's origin (per axis) is refused: no XR map is that
 big, and it keeps lifted points finite whatever the pose bytes say."""
-SIGHTING_MIN_POINTS = 5
-"""A candidate object is sighted on a non-keyframe only if at least this many of its points
-are visible there (in the image, in front of the camera, not hidden behind nearer depth)..."""
-SIGHTING_COVER = 0.5
-"""...and at least this fraction of those fall in one detection carrying one of its labels."""
-SIGHTING_AGREEMENT = 0.5
-"""A candidate is confirmed by sightings only if it was seen on at least this fraction of
-the frames it was in view: a detection with a confused label (the detector calls a window a
-door one frame in twenty) builds a candidate that its frames rarely agree with."""
-SIGHTING_SAMPLE_POINTS = 200
-"""Points of each object projected into a non-keyframe (a regular subsample)."""
-SIGHTING_DEPTH_TOLERANCE_M = 0.1
-"""A projected point is visible when its depth is within this (plus 5 %) of the sensed depth."""
-BASELINE_RESOLUTION_M = 0.01
-"""The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
-a depth pixel at mapping range, so repeated views do not stack identical points."""
-REMEMBERED_VIEWS = 600
-"""Keyframes remembered (coarse, ~3 KB each) to tell whether a new object's place was seen
-empty before: ten minutes of keyframes at one a second."""
-REMEMBERED_VIEW_BLOCK = 4
-"""Remembered depth keeps the nearest surface of each 4 x 4 block of the uploaded depth."""
-REVIVE_WINDOW_S = 120.0
-"""A removed object is still found at a new place (moved, not removed) when a like thing
-appears within this much device time of its removal: the mug taken from the table before
-the shelf it went to came into view."""
-RECENTLY_REMOVED = 256
-"""Most removed objects kept in memory for REVIVE_WINDOW_S."""
-PLACE_TAKEN_OVERLAP = 0.5
-"""A new object is no `added` change when this much of it lies on another confirmed object
-that is alike..."""
-PLACE_TAKEN_BOX_IOU = 0.15
-"""...or whose box it shares this much of (intersection over union)."""
-VACATED_INSIDE = 0.5
-"""An object leaving with most of its box in a place just vacated is a second reading of the
-thing that left (`_second_reading_of_vacated`)."""
 RECENT_CHANGES = 256
 """Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
-
-
-def _patch_covering(
-    patches: list[DepthPatch], box_px: tuple[int, int, int, int]
-) -> DepthPatch | None:
-    """The first depth patch whose box holds all of `box_px` (x0, y0, x1, y1), or None."""
-    x0, y0, x1, y1 = box_px
-    for patch in patches:
-        px0, py0, px1, py1 = patch.box_px
-        if px0 <= x0 and py0 <= y0 and x1 <= px1 and y1 <= py1:
-            return patch
-    return None
-
-
-@dataclass
-class IntegrationStats:
-    """What one keyframe did to the map."""
-
-    seq: int
-    keyframe: int
-    detections: int = 0
-    skipped: int = 0
-    deferred: int = 0
-    too_small: int = 0
-    over_cap: int = 0
-    """New objects not created because the map holds max_objects (their matches still map)."""
-    created: int = 0
-    matched: int = 0
-    removed: int = 0
-    objects: int = 0
-    confirmed: int = 0
-    cleanup: bool = False
-    published_ids: list[int] = field(default_factory=list)
-    """Confirmed objects this keyframe created or changed (at log seq `seq`)."""
-    removed_ids: list[int] = field(default_factory=list)
-    """Published objects this keyframe removed (merged, moved into another, or retired)."""
-    retired: list[MapObject] = field(default_factory=list)
-    """Objects this keyframe found gone from the world: out of the present map (their ids are
-    in removed_ids), kept as history with state "removed"."""
-    changes: list[Change] = field(default_factory=list)
-    """What this keyframe concluded about the world (added, moved, removed)."""
-    retracted_added: list[int] = field(default_factory=list)
-    """Published objects merged into another: an `added` change of theirs no longer stands."""
-    unremoved_ids: list[int] = field(default_factory=list)
-    """Objects this keyframe removed and then found at a new place (moved, not removed)."""
-    dropped_ids: list[int] = field(default_factory=list)
-    """Duplicates of things that moved or left, taken out with them (no change of their own)."""
-    retracted_removed: list[int] = field(default_factory=list)
-    """Removed objects found at a new place: their `removed` change gives way to `moved`."""
-    timings_ms: dict[str, float] = field(default_factory=dict)
-
-
-@dataclass
-class _Glimpses:
-    """What the frames said about one candidate object (frame seqs)."""
-
-    seen: set[int] = field(default_factory=set)
-    """Keyframes where it was observed and non-keyframes where it was sighted."""
-    missed: set[int] = field(default_factory=set)
-    """Non-keyframes where it was in view but no detection of its own sighted it."""
-
-    def update(self, other: _Glimpses) -> None:
-        self.seen |= other.seen
-        self.missed |= other.missed - self.seen
 
 
 @dataclass
 class QueryHit:
     object: MapObject
     score: float
-
-
-@dataclass
-class _Observation:
-    """A lifted detection, ready to associate. points: float32 [N, 3] (de-duplicated)."""
-
-    detection: Detection
-    points: np.ndarray
-    embedding: np.ndarray
-    bbox: np.ndarray
-
-
-class _SightSamples(NamedTuple):
-    """What sightings project between two keyframes."""
-
-    keyframe: int
-    """The engine's keyframe count they were drawn at."""
-    objects: list[MapObject]
-    """The objects with points."""
-    points: np.ndarray
-    """float32 [N, 3]: about SIGHTING_SAMPLE_POINTS of each object's points, concatenated."""
-    owner: np.ndarray
-    """int [N]: the index in `objects` of each point."""
-    sizes: np.ndarray
-    """int64 [len(objects)]: each sample's size."""
 
 
 def limit_numpy_threads() -> None:
@@ -198,17 +94,6 @@ def limit_numpy_threads() -> None:
     from threadpoolctl import ThreadpoolController
 
     ThreadpoolController().select(internal_api="openblas").limit(limits=1)
-
-
-def _project(
-    points: np.ndarray, frame: FrameInput
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """World points float32 [N, 3] into the frame's RGB image: (u, v) int pixel, z metres
-    (in front of the camera, inside the image) and the bool [N] mask of those points."""
-    u, v, z = geo.project_to_pixels(points, frame.pose, frame.intrinsics)
-    width, height = frame.rgb_size
-    kept = (z > 1e-3) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    return u[kept].astype(np.int64), v[kept].astype(np.int64), z[kept], kept
 
 
 def _check_size_ratio(field_name: str, image: np.ndarray, rgb_size: tuple[int, int]) -> None:
