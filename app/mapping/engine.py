@@ -41,16 +41,7 @@ from app.mapping.changes import (
 from app.mapping.deltas import Delta, DeltaLog
 from app.mapping.object import Change, MapObject
 from app.mapping.organisation import BASELINE_RESOLUTION_M, _Observation, _patch_covering
-from app.mapping.sightings import (
-    SIGHTING_AGREEMENT,
-    SIGHTING_COVER,
-    SIGHTING_DEPTH_TOLERANCE_M,
-    SIGHTING_MIN_POINTS,
-    SIGHTING_SAMPLE_POINTS,
-    _Glimpses,
-    _project,
-    _SightSamples,
-)
+from app.mapping.sightings import SIGHTING_MIN_POINTS, Sightings
 from app.mapping.stats import IntegrationStats
 from app.perception import DEFAULT_BACKEND, make_backend
 from app.perception.base import (
@@ -158,15 +149,9 @@ class MappingEngine:
         """Objects changed since they were last denoised."""
         self._changed_since_merge_check: set[int] = set()
         """Objects changed since they were last compared with their neighbours for a merge."""
-        self._sightings: dict[int, _Glimpses] = {}
-        """Candidate (unconfirmed) object id -> the frames it was seen on, keyframes
-        (observations) and non-keyframes (`sight`) alike, and the non-keyframes where it was
-        in view but not sighted."""
-        self._sighted: set[int] = set()
-        """Candidates sighted since the last keyframe: `_confirm` considers them there."""
+        self.sightings = Sightings()
+        """What the frames said about the candidates (keyframes and sightings alike)."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
-        self._sight_samples: _SightSamples | None = None
-        """What every sighting projects, the same from one keyframe to the next."""
 
     def restore(
         self,
@@ -193,10 +178,8 @@ class MappingEngine:
         self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
         self._changed_since_cleanup = set(self.objects)  # cleaned again once
         self._changed_since_merge_check = set(self.objects)
-        self._sightings.clear()
-        self._sighted.clear()
+        self.sightings.clear()
         self._confirmed_matrix = None
-        self._sight_samples = None
 
     # ------------------------------------------------------------------ validation
     def validate_frame(self, frame: FrameInput) -> FrameDetections | None:
@@ -298,7 +281,7 @@ class MappingEngine:
         touched = self._apply(observations, matches, stats)
         for oid in touched:
             if not self.objects[oid].confirmed:
-                self._sightings.setdefault(oid, _Glimpses()).seen.add(int(frame.seq))
+                self.sightings.observed(oid, int(frame.seq))
         removed: set[int] = set()
         view = None
         if self.knobs.negative_evidence:
@@ -313,8 +296,8 @@ class MappingEngine:
         t4 = time.perf_counter()
 
         moved = {c.id for c in stats.changes if c.kind == "moved"}  # found from the old side
-        published = self._confirm((touched | self._sighted | moved) - removed, stats)
-        self._sighted.clear()
+        sighted = self.sightings.take_sighted()
+        published = self._confirm((touched | sighted | moved) - removed, stats)
         removed |= set(stats.dropped_ids)
         removed -= set(stats.unremoved_ids)
         published -= removed
@@ -564,9 +547,7 @@ class MappingEngine:
         del self.objects[gone.id]
         self._suspects.pop(gone.id, None)
         self._appeared.discard(gone.id)
-        gone_seen = self._sightings.pop(gone.id, None)
-        if not keep.confirmed and gone_seen is not None:
-            self._sightings.setdefault(keep.id, _Glimpses()).update(gone_seen)
+        self.sightings.merge(keep, gone)
 
     def _denoise_due(self) -> list[int]:
         """The objects whose outliers this keyframe removes, in id order.
@@ -650,29 +631,17 @@ class MappingEngine:
                 del self.objects[obj.id]
                 self._changed_since_cleanup.discard(obj.id)
                 self._changed_since_merge_check.discard(obj.id)
-                self._sightings.pop(obj.id, None)
+                self.sightings.forget(obj.id)
                 touched.discard(obj.id)
         return removed
 
     def _qualifies(self, obj: MapObject) -> bool:
-        """Seen on `min_observations` keyframes, or on `min_observations` frames (keyframes
-        and non-keyframe sightings) whose seqs span more than `min_observations` frames
-        (first and last at least that far apart) and that are at least SIGHTING_AGREEMENT of
-        the frames it was in view: an object in view for a second or two of a sweep (one
-        keyframe and the frames after it) is confirmed; a detection that lives for
-        `min_observations` frames or fewer (a transient), and one whose label the other
-        frames mostly contradict (a label confusion), are not."""
+        """Seen on `min_observations` keyframes, or by sightings (`Sightings.qualifies`): an
+        object in view for a second or two of a sweep (one keyframe and the frames after
+        it) is confirmed; a transient and a label confusion are not."""
         if obj.frames_seen >= self.knobs.min_observations:
             return True
-        glimpses = self._sightings.get(obj.id)
-        if glimpses is None:
-            return False
-        seqs = glimpses.seen
-        return (
-            len(seqs) >= self.knobs.min_observations
-            and max(seqs) - min(seqs) >= self.knobs.min_observations
-            and len(seqs) >= SIGHTING_AGREEMENT * (len(seqs) + len(glimpses.missed))
-        )
+        return self.sightings.qualifies(obj.id, self.knobs.min_observations)
 
     def _confirm(self, touched: set[int], stats: IntegrationStats) -> set[int]:
         """Confirm objects seen often enough; returns the confirmed ids that changed.
@@ -688,7 +657,7 @@ class MappingEngine:
             if obj is None:
                 continue
             if not obj.confirmed and self._qualifies(obj):
-                self._sightings.pop(oid, None)
+                self.sightings.forget(oid)
                 suspect = self._like_object(obj, self._suspected_objects(), obj_is_new=True)
                 if suspect is None:
                     suspect = self._revived(obj, stats)
@@ -856,7 +825,7 @@ class MappingEngine:
         for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
             ids.discard(new.id)
             ids.add(old.id)
-        self._sightings.pop(new.id, None)
+        self.sightings.forget(new.id)
         self._suspects.pop(new.id, None)
         self._suspects.pop(old.id, None)
         to_xyz, _ = old.place()
@@ -986,100 +955,18 @@ class MappingEngine:
         )
 
     def sight(self, frame: FrameInput, sent: FrameDetections | None) -> list[int]:
-        """Count a non-keyframe's detections as sightings of candidate objects (DESIGN.md
-        "Keyframes": a detection sent with a non-keyframe may count towards confirmation).
+        """Count a non-keyframe's detections as sightings of candidate objects
+        (`Sightings.sight`); a sighting that shows a suspect object where it was also
+        clears its suspicion.
 
-        frame: validated by `validate_frame`, which returned `sent` (its instance image and
-        depth may be at the RGB size divided by any integer ratio). Every object is projected
-        into the frame (a sample of SIGHTING_SAMPLE_POINTS points); a candidate (unconfirmed
-        object) is in view when at least SIGHTING_MIN_POINTS of them are visible (in the
-        image, in front of the camera, not hidden behind nearer depth). It is sighted when
-        at least SIGHTING_COVER of its visible points fall in one detection that is its own:
-        the detection carries one of its labels, no confirmed object carrying that label is
-        visible in it (the candidate would be a fragment or a duplicate of that object), and
-        no other candidate carrying the label has more points in it. A candidate in view but
-        not sighted is missed there (`_qualifies` weighs sightings against misses).
-
-        Nothing is lifted and no geometry changes; a candidate that now qualifies is
-        confirmed, and published, by the next keyframe. Returns the sighted ids."""
+        frame: validated by `validate_sighting` (or `validate_frame`), which returned
+        `sent`. A candidate that now qualifies is confirmed, and published, by the next
+        keyframe. Returns the sighted ids."""
         if sent is None:
             return []
         if self._suspects:
             self._clear_seen_suspects(frame, sent)
-        if not any(not o.confirmed for o in self.objects.values()):
-            return []
-        _, objects, points, owner, sample_sizes = self._samples_to_sight()
-        if not objects:
-            return []
-        u, v, z, kept = _project(points, frame)
-        owner = owner[kept]
-        width, height = frame.rgb_size
-        sensed = geo.pixels_of(frame.depth_m, u, v, width)
-        visible = (sensed > 0) & (np.abs(z - sensed) <= SIGHTING_DEPTH_TOLERANCE_M + 0.05 * z)
-        owner, u, v = owner[visible], u[visible], v[visible]
-        det_ids, column = np.unique(
-            geo.pixels_of(sent.instance_image, u, v, width), return_inverse=True
-        )
-        # counts[i, k]: visible sample points of objects[i] in detection det_ids[k] (0: none)
-        counts = np.bincount(
-            owner * len(det_ids) + column, minlength=len(objects) * len(det_ids)
-        ).reshape(len(objects), len(det_ids))
-        n_visible = counts.sum(axis=1)
-        in_view = np.flatnonzero(n_visible >= np.minimum(SIGHTING_MIN_POINTS, sample_sizes))
-
-        skip = {label.lower() for label in self.knobs.skip_mapping_set}
-        label_of = {i: label for i, label in sent.labels().items() if label.lower() not in skip}
-        labels = [label_of.get(int(d)) for d in det_ids]
-        taken: set[int] = set()  # columns a confirmed object carrying their label is seen in
-        best_candidate: dict[int, tuple[int, int]] = {}  # column -> (points, object index)
-        claim_of: dict[int, int] = {}  # candidate index -> the column it would be sighted by
-        for i in in_view:
-            obj = objects[i]
-            row = counts[i]
-            for k in np.flatnonzero(row):
-                if labels[k] is None or labels[k] not in obj.label_counts:
-                    continue
-                if obj.confirmed:
-                    if row[k] >= SIGHTING_MIN_POINTS:
-                        taken.add(int(k))
-                elif (int(row[k]), int(i)) > best_candidate.get(int(k), (0, -1)):
-                    best_candidate[int(k)] = (int(row[k]), int(i))
-            if not obj.confirmed:
-                k = int(np.argmax(row * (det_ids > 0)))
-                if det_ids[k] and row[k] >= SIGHTING_COVER * n_visible[i]:
-                    claim_of[int(i)] = k
-        sighted = []
-        seq = int(frame.seq)
-        for i in in_view:
-            obj = objects[i]
-            if obj.confirmed:
-                continue
-            k = claim_of.get(int(i))
-            glimpses = self._sightings.setdefault(obj.id, _Glimpses())
-            if k is None or k in taken or best_candidate.get(k, (0, -1))[1] != i:
-                glimpses.missed.add(seq)
-                continue
-            glimpses.seen.add(seq)
-            self._sighted.add(obj.id)
-            sighted.append(obj.id)
-        return sorted(sighted)
-
-    def _samples_to_sight(self) -> _SightSamples:
-        """The objects' samples, drawn once per keyframe: the geometry only changes when a
-        keyframe is mapped."""
-        cached = self._sight_samples
-        if cached is None or cached.keyframe != self.keyframes:
-            objects = [o for o in self.objects.values() if len(o.points)]
-            samples = [
-                o.points[:: max(1, len(o.points) // SIGHTING_SAMPLE_POINTS)] for o in objects
-            ]
-            sizes = np.array([len(p) for p in samples], np.int64)
-            points = np.concatenate(samples) if samples else np.zeros((0, 3), np.float32)
-            owner = np.repeat(np.arange(len(objects)), sizes)
-            cached = self._sight_samples = _SightSamples(
-                self.keyframes, objects, points, owner, sizes
-            )
-        return cached
+        return self.sightings.sight(self.objects, self.keyframes, frame, sent, self.knobs)
 
     def _clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
         """A sighting that shows a suspect object where it was clears its suspicion: at
