@@ -28,20 +28,11 @@ import numpy as np
 from app.codecs import validate_rigid_pose
 from app.config import MODES, Knobs, Mode
 from app.mapping import geometry as geo
-from app.mapping import living
-from app.mapping.changes import (
-    PLACE_TAKEN_BOX_IOU,
-    PLACE_TAKEN_OVERLAP,
-    RECENTLY_REMOVED,
-    REMEMBERED_VIEW_BLOCK,
-    REMEMBERED_VIEWS,
-    REVIVE_WINDOW_S,
-    VACATED_INSIDE,
-)
+from app.mapping.changes import ChangeDetector
 from app.mapping.deltas import Delta, DeltaLog
 from app.mapping.object import Change, MapObject
 from app.mapping.organisation import BASELINE_RESOLUTION_M, _Observation, _patch_covering
-from app.mapping.sightings import SIGHTING_MIN_POINTS, Sightings
+from app.mapping.sightings import Sightings
 from app.mapping.stats import IntegrationStats
 from app.perception import DEFAULT_BACKEND, make_backend
 from app.perception.base import (
@@ -127,21 +118,10 @@ class MappingEngine:
         """Camera-to-world [4, 4] of the newest mapped keyframe (where the device is)."""
         self.last_t: float | None = None
         """Device-clock time (frame `t`) of the newest mapped keyframe: what "ago" counts from."""
-        self._suspects: dict[int, list[living.Evidence]] = {}
-        """Confirmed object id -> the keyframes that showed its place without it (in memory,
-        like sightings: suspicion starts over after a restart)."""
-        self._views: deque[living.EvidenceView] = deque(maxlen=REMEMBERED_VIEWS)
-        """Coarse copies of recent keyframes, oldest first (for `added`)."""
         self.recent_changes: deque[Change] = deque(maxlen=RECENT_CHANGES)
         """The newest changes, with the seq that published them (for deltas)."""
-        self._vacated: deque[tuple[int, np.ndarray]] = deque()
-        """(keyframe, box) of the places objects left recently, oldest first."""
-        self._recently_removed: dict[int, tuple[int, float, MapObject]] = {}
-        """Objects removed within REVIVE_WINDOW_S of the newest keyframe, with the keyframe
-        and time of their removal (in memory, at most RECENTLY_REMOVED)."""
-        self._appeared: set[int] = set()
-        """Present objects with an `added` change standing (in memory: a move found after a
-        restart needs a fresh appearance)."""
+        self.changes = ChangeDetector(self)
+        """Suspicion, removals, moves and appearances (`app.mapping.changes`)."""
         self.next_object_id = 1
         self.max_objects = max_objects
         self._at_cap = False
@@ -166,11 +146,7 @@ class MappingEngine:
         keyframe's time and the newest changes)."""
         self.objects = {o.id: o for o in objects}
         self.last_t = last_t
-        self._suspects.clear()
-        self._views.clear()
-        self._appeared.clear()
-        self._recently_removed.clear()
-        self._vacated.clear()
+        self.changes.clear()
         self.recent_changes.clear()
         self.recent_changes.extend(recent_changes or [])
         self.log = log
@@ -285,8 +261,8 @@ class MappingEngine:
         removed: set[int] = set()
         view = None
         if self.knobs.negative_evidence:
-            view = self._evidence_view(frame, detections)
-            removed |= self._gather_evidence(view, touched, stats)
+            view = self.changes.evidence_view(frame, detections)
+            removed |= self.changes.gather_evidence(view, touched, stats)
         due = self._denoise_due()
         if due or self.keyframes % self.knobs.cleanup_interval == 0:
             merged_away = self._cleanup(touched, due)
@@ -304,7 +280,7 @@ class MappingEngine:
         for oid in published:
             self.objects[oid].refresh_stay()
         if view is not None:
-            self._views.append(living.coarse_view(view, REMEMBERED_VIEW_BLOCK))
+            self.changes.remember(view)
         stats.removed = len(removed)
         stats.seq = self.log.commit(published, removed)
         stats.published_ids, stats.removed_ids = sorted(published), sorted(removed)
@@ -545,9 +521,21 @@ class MappingEngine:
             keep.last_seen, keep.last_seen_t = gone.last_seen, gone.last_seen_t
         keep.version += 1
         del self.objects[gone.id]
-        self._suspects.pop(gone.id, None)
-        self._appeared.discard(gone.id)
+        self.changes.forget(gone.id)
         self.sightings.merge(keep, gone)
+
+    def take_out(self, oid: int) -> None:
+        """Remove object `oid` from the map, its clean-up and its sightings (change
+        detection found it gone, moved into another, or a second reading of one)."""
+        del self.objects[oid]
+        self._changed_since_cleanup.discard(oid)
+        self._changed_since_merge_check.discard(oid)
+        self.sightings.forget(oid)
+
+    def mark_changed(self, oid: int) -> None:
+        """Object `oid` changed: denoised and compared for a merge again."""
+        self._changed_since_cleanup.add(oid)
+        self._changed_since_merge_check.add(oid)
 
     def _denoise_due(self) -> list[int]:
         """The objects whose outliers this keyframe removes, in id order.
@@ -658,301 +646,16 @@ class MappingEngine:
                 continue
             if not obj.confirmed and self._qualifies(obj):
                 self.sightings.forget(oid)
-                suspect = self._like_object(obj, self._suspected_objects(), obj_is_new=True)
-                if suspect is None:
-                    suspect = self._revived(obj, stats)
-                if suspect is not None:
-                    self._move(suspect, obj, stats)
-                    published.add(suspect.id)
+                old = self.changes.found_moved(obj, stats)
+                if old is not None:
+                    published.add(old.id)
                     continue
                 obj.confirmed = True
-                if (
-                    self.knobs.negative_evidence
-                    and not self._place_taken(obj)
-                    and self._place_seen_empty(obj)
-                ):
-                    self._appeared.add(obj.id)
-                    centroid, _ = obj.place()
-                    stats.changes.append(
-                        Change(obj.id, "added", self._now, obj.label, to_xyz=centroid)
-                    )
+                if self.knobs.negative_evidence:
+                    self.changes.note_confirmed(obj, stats)
             if obj.confirmed:
                 published.add(oid)
         return published
-
-    # ------------------------------------------------------------------ the living map
-    @property
-    def _now(self) -> float:
-        return self.last_t if self.last_t is not None else 0.0
-
-    def _evidence_view(self, frame: FrameInput, detections: FrameDetections) -> living.EvidenceView:
-        """The keyframe as the evidence test reads it: its depth and every detection it
-        carried (deferred and skipped ones too: a thing detected is not absent)."""
-        return living.EvidenceView(
-            pose=np.asarray(frame.pose, np.float64),
-            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
-            rgb_size=frame.rgb_size,
-            depth_m=frame.depth_m,
-            label_image=detections.instance_image,
-            labels={d.instance_id: d.label for d in detections.detections},
-            areas={d.instance_id: float(d.bbox_area_px) for d in detections.detections},
-            t=self._now,
-            keyframe=self.keyframes,
-        )
-
-    def _gather_evidence(
-        self, view: living.EvidenceView, observed: set[int], stats: IntegrationStats
-    ) -> set[int]:
-        """Negative evidence for one keyframe (DESIGN.md "The living map"): an observation
-        clears suspicion and drops the points the keyframe sees through (a short move does
-        not smear an object over both places); every other confirmed object whose place the
-        keyframe shows without it gathers evidence, and is removed, or found moved, once
-        `living.removal_due`. Returns the published ids it took out of the present map."""
-        for oid in observed:
-            self._suspects.pop(oid, None)
-        seen = [self.objects[i] for i in sorted(observed) if self.objects[i].confirmed]
-        worth = living.seen_through_any_batched(
-            [living.object_sample(o.points) for o in seen], view, self.knobs
-        )
-        for obj in (o for o, w in zip(seen, worth, strict=True) if w):
-            through = living.classify_points(obj.points, view, self.knobs).seen_through
-            if not through.all():
-                obj.set_points(obj.points[~through], obj.resolution_m)
-        floor = self.keyframes - living.SUSPICION_MAX_KEYFRAMES
-        for oid in list(self._suspects):
-            kept = [e for e in self._suspects[oid] if e.keyframe > floor]
-            if kept:
-                self._suspects[oid] = kept
-            else:
-                del self._suspects[oid]
-        tested = [
-            o
-            for o in self.objects.values()
-            if o.confirmed and o.id not in observed and len(o.points)
-        ]
-        kinds = living.absence_evidence_batched(
-            [living.object_sample(o.points) for o in tested],
-            self._own_labels(tested, view),
-            view,
-            self.knobs,
-        )
-        due = []
-        for obj, kind in zip(tested, kinds, strict=True):
-            if kind is None:
-                continue
-            evidence = self._suspects.setdefault(obj.id, [])
-            evidence.append(
-                living.Evidence(kind, view.t, view.keyframe, view.position, view.direction)
-            )
-            if living.removal_due(evidence, self.knobs):
-                due.append(obj)
-        removed: set[int] = set()
-        # the most observed first: a second reading of the same thing (a confused label)
-        # that leaves with it is then seen to share its old place
-        for obj in sorted(due, key=lambda o: (-o.n_obs, o.id)):
-            if obj.id in self.objects:
-                removed |= self._conclude_absent(obj, stats)
-        return removed
-
-    def _own_labels(self, objects: list[MapObject], view: living.EvidenceView) -> list[set[str]]:
-        """Per object, the labels a detection of it may carry: every label it has carried,
-        and the keyframe's labels alike to its embedding (`association_min_semantic`): the
-        detector calling a chair a stool still sees the chair."""
-        own = [set(o.label_counts) for o in objects]
-        labels = sorted(set(view.labels.values()))
-        if not objects or not labels:
-            return own
-        alike = np.stack([o.embedding for o in objects]) @ self.encoder.encode(labels).T
-        for i, j in zip(*np.nonzero(alike >= self.knobs.association_min_semantic), strict=True):
-            own[i].add(labels[j])
-        return own
-
-    def _suspected_objects(self) -> list[MapObject]:
-        return [self.objects[i] for i in sorted(self._suspects) if i in self.objects]
-
-    def _like_object(
-        self, obj: MapObject, others: list[MapObject], obj_is_new: bool
-    ) -> MapObject | None:
-        """The object among `others` that is `obj` at another place (obj_is_new: `obj` is
-        the new place, `others` old ones; else the other way round), the most alike, then
-        the nearest. Old and new must be alike (same label, or embeddings
-        `move_min_similarity` alike), the old one not observed since the new one appeared
-        (two like things seen at once are two things), and the new one must have appeared:
-        at a place seen empty before and not on another object (a second reading of the
-        old one, say, from a new viewpoint, is not a move)."""
-        best, best_key = None, None
-        centroid = obj.centroid
-        for other in others:
-            old, new = (other, obj) if obj_is_new else (obj, other)
-            if old.id == new.id or old.last_seen >= new.first_seen:
-                continue
-            similarity = float(old.embedding @ new.embedding)
-            same = old.label == new.label
-            if not same and similarity < self.knobs.move_min_similarity:
-                continue
-            key = (same, similarity, -float(np.linalg.norm(other.centroid - centroid)))
-            if best_key is not None and key <= best_key:
-                continue
-            if not self._appeared_at(new, as_candidate=obj_is_new):
-                continue
-            best, best_key = other, key
-        return best
-
-    def _appeared_at(self, new: MapObject, as_candidate: bool) -> bool:
-        """Whether `new` appeared in the world (`_like_object`): a published object had its
-        `added` change; a candidate is checked now."""
-        if not as_candidate:
-            return new.id in self._appeared
-        return not self._place_taken(new) and self._place_seen_empty(new)
-
-    def _move(self, old: MapObject, new: MapObject, stats: IntegrationStats) -> None:
-        """`old` is found at `new`'s place: it keeps its id and history, takes `new`'s
-        geometry and observations (its old points are dropped), starts a new stay; `new`
-        leaves the map. A `moved` change."""
-        old.refresh_stay()
-        self._vacate(old, stats, keep=new.id)
-        from_xyz, _ = old.place()
-        old.set_points(new.points.copy(), new.resolution_m)
-        old.absorb_labels(new)
-        old.n_obs += new.n_obs
-        old.frames_seen += new.frames_seen
-        old.last_seen, old.last_seen_t = new.last_seen, new.last_seen_t
-        t_from = new.first_seen_t if new.first_seen_t is not None else self._now
-        old.start_stay(t_from)
-        old.version += 1
-        del self.objects[new.id]
-        self._appeared.discard(new.id)
-        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
-            ids.discard(new.id)
-            ids.add(old.id)
-        self.sightings.forget(new.id)
-        self._suspects.pop(new.id, None)
-        self._suspects.pop(old.id, None)
-        to_xyz, _ = old.place()
-        stats.changes.append(Change(old.id, "moved", self._now, old.label, from_xyz, to_xyz))
-
-    def _conclude_absent(self, obj: MapObject, stats: IntegrationStats) -> set[int]:
-        """The evidence removes `obj` from its place: moved, when a like object appeared
-        elsewhere since it was last seen (that one merges into it and its id is removed),
-        else removed from the present map (kept as history). Returns the ids removed."""
-        self._suspects.pop(obj.id, None)
-        if self._second_reading_of_vacated(obj):
-            self._drop_second_reading(obj, stats)
-            return {obj.id}
-        appeared = [o for o in self.objects.values() if o.confirmed and o.id not in self._suspects]
-        new = self._like_object(obj, appeared, obj_is_new=False)
-        if new is not None:
-            self._move(obj, new, stats)
-            stats.retracted_added.append(new.id)
-            return {new.id}
-        self._vacate(obj, stats)
-        obj.refresh_stay()
-        from_xyz, _ = obj.place()
-        obj.state = "removed"
-        obj.version += 1
-        del self.objects[obj.id]
-        self._appeared.discard(obj.id)
-        self._recently_removed[obj.id] = (self.keyframes, self._now, obj)
-        while len(self._recently_removed) > RECENTLY_REMOVED:
-            del self._recently_removed[next(iter(self._recently_removed))]
-        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
-            ids.discard(obj.id)
-        stats.retired.append(obj)
-        stats.changes.append(Change(obj.id, "removed", self._now, obj.label, from_xyz=from_xyz))
-        return {obj.id}
-
-    def _revived(self, new: MapObject, stats: IntegrationStats) -> MapObject | None:
-        """The recently removed object `new` is (`_like_object`), back in the map (state
-        present, its removal retracted) for `_move` to take it to its new place; or None."""
-        for oid, (_, t_removed, _) in list(self._recently_removed.items()):
-            if self._now - t_removed > REVIVE_WINDOW_S:
-                del self._recently_removed[oid]
-        removed = [obj for _, _, obj in self._recently_removed.values()]
-        old = self._like_object(new, removed, obj_is_new=True)
-        if old is None:
-            return None
-        keyframe, _, _ = self._recently_removed.pop(old.id)
-        old.state = "present"
-        self.objects[old.id] = old
-        if keyframe < self.keyframes:
-            stats.retracted_removed.append(old.id)
-        else:  # removed by this very keyframe: its removal never leaves it
-            stats.retired.remove(old)
-            stats.changes[:] = [c for c in stats.changes if c.id != old.id]
-            stats.unremoved_ids.append(old.id)
-        return old
-
-    def _vacate(self, obj: MapObject, stats: IntegrationStats, keep: int | None = None) -> None:
-        """`obj` leaves its place: remember it (`_second_reading_of_vacated`), and drop the
-        like objects whose boxes lie mostly in it, second readings of the same thing that
-        would otherwise answer queries from where it no longer is (but `keep`)."""
-        box = obj.bbox.copy()
-        self._vacated.append((self.keyframes, box))
-        for other in list(self.objects.values()):
-            if other.id in (obj.id, keep) or not other.confirmed:
-                continue
-            alike = (
-                other.label == obj.label
-                or float(other.embedding @ obj.embedding) >= self.knobs.move_min_similarity
-            )
-            if alike and geo.bbox_inside_fraction(other.bbox, box) >= VACATED_INSIDE:
-                self._drop_second_reading(other, stats)
-
-    def _drop_second_reading(self, obj: MapObject, stats: IntegrationStats) -> None:
-        """Take a duplicate of a thing that moved or left out of the map, as a clean-up
-        merge would: its id is removed, with no change of its own."""
-        del self.objects[obj.id]
-        self._appeared.discard(obj.id)
-        self._suspects.pop(obj.id, None)
-        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
-            ids.discard(obj.id)
-        stats.retracted_added.append(obj.id)
-        stats.dropped_ids.append(obj.id)
-
-    def _second_reading_of_vacated(self, obj: MapObject) -> bool:
-        """Whether most of `obj`'s box lies in the box of a place vacated within
-        SUSPICION_MAX_KEYFRAMES: a second reading of the thing that left it (the back of a
-        chair read as a stool)."""
-        floor = self.keyframes - living.SUSPICION_MAX_KEYFRAMES
-        while self._vacated and self._vacated[0][0] <= floor:
-            self._vacated.popleft()
-        return any(
-            geo.bbox_inside_fraction(obj.bbox, box) >= VACATED_INSIDE for _, box in self._vacated
-        )
-
-    def _place_taken(self, obj: MapObject) -> bool:
-        """Whether another confirmed object holds most of `obj`'s place, so that `obj` is a
-        second reading of it (a fragment, a confused label), not a new thing: most of its
-        points lie on that object's, and the two are alike (embeddings
-        `association_min_semantic` alike) or share most of their boxes. Unlike things only
-        touching (a mug on a table, a book on a shelf) hold their own places."""
-        others = [o for o in self.objects.values() if o.confirmed and o.id != obj.id]
-        if not others or not len(obj.points):
-            return False
-        margin = self.knobs.voxel_size_m
-        boxes = np.stack([o.bbox for o in others])
-        near = np.flatnonzero(geo.bbox_intersects_matrix(obj.bbox[None], boxes, margin)[0])
-        for j in near:
-            other = others[j]
-            alike = float(other.embedding @ obj.embedding) >= self.knobs.association_min_semantic
-            if not alike and geo.bbox_iou(obj.bbox, other.bbox) < PLACE_TAKEN_BOX_IOU:
-                continue
-            if geo.overlap_fraction(obj.points, other.tree, margin) >= PLACE_TAKEN_OVERLAP:
-                return True
-        return False
-
-    def _place_seen_empty(self, obj: MapObject) -> bool:
-        """Whether keyframes from before `obj` was first seen showed its place without it."""
-        earlier = [v for v in self._views if v.keyframe < obj.first_seen]
-        if not earlier:
-            return False
-        seeing = living.views_seeing(obj.centroid, earlier, self.knobs)
-        return living.place_seen_empty(
-            living.object_sample(obj.points),
-            list(obj.label_counts),
-            [earlier[i] for i in seeing],
-            self.knobs,
-        )
 
     def sight(self, frame: FrameInput, sent: FrameDetections | None) -> list[int]:
         """Count a non-keyframe's detections as sightings of candidate objects
@@ -964,41 +667,9 @@ class MappingEngine:
         keyframe. Returns the sighted ids."""
         if sent is None:
             return []
-        if self._suspects:
-            self._clear_seen_suspects(frame, sent)
+        if self.changes.suspects:
+            self.changes.clear_seen_suspects(frame, sent)
         return self.sightings.sight(self.objects, self.keyframes, frame, sent, self.knobs)
-
-    def _clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
-        """A sighting that shows a suspect object where it was clears its suspicion: at
-        least SIGHTING_MIN_POINTS of its points at the sensed depth (the evidence test's
-        tolerance) under a detection of one of its labels. A like thing detected nearby, or
-        beyond its place, clears nothing."""
-        suspects = [self.objects[i] for i in list(self._suspects) if i in self.objects]
-        if not suspects:
-            return
-        view = living.EvidenceView(
-            pose=np.asarray(frame.pose, np.float64),
-            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
-            rgb_size=frame.rgb_size,
-            depth_m=frame.depth_m,
-            label_image=sent.instance_image,
-            labels=sent.labels(),
-        )
-        own = self._own_labels(suspects, view)
-        for obj, labels in zip(suspects, own, strict=True):
-            sample = living.object_sample(obj.points)
-            verdicts = living.classify_points(sample, view, self.knobs)
-            at = verdicts.matching
-            if at.sum() < SIGHTING_MIN_POINTS:
-                continue
-            ids = geo.pixels_of(view.label_image, verdicts.u[at], verdicts.v[at], frame.rgb_size[0])
-            hits = sum(
-                int(n)
-                for d, n in zip(*np.unique(ids, return_counts=True), strict=True)
-                if d and view.labels.get(int(d)) in labels
-            )
-            if hits >= SIGHTING_MIN_POINTS:
-                del self._suspects[obj.id]
 
     # ------------------------------------------------------------------ reading the map
     def confirmed_objects(self) -> list[MapObject]:

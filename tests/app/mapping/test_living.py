@@ -172,7 +172,7 @@ def test_a_thing_hidden_behind_something_new_stays(encoder):
     (mug,) = mug_ids(engine)
     later = walk.walk([WALL, BOX], 12)
     assert mug in engine.objects and (mug, "removed") not in changes(later)
-    assert mug not in engine._suspects
+    assert mug not in engine.changes.suspects
 
 
 @settings(max_examples=8, deadline=None)
@@ -291,10 +291,10 @@ def test_a_sighting_clears_suspicion(encoder):
     walk.walk([WALL, MUG], 3)
     (mug,) = mug_ids(engine)
     walk.walk([WALL], 1)
-    assert mug in engine._suspects
+    assert mug in engine.changes.suspects
     frame = render_rects([WALL, MUG], seq=999)
     engine.sight(frame, engine.validate_frame(frame))
-    assert mug not in engine._suspects
+    assert mug not in engine.changes.suspects
 
 
 def test_a_sighting_of_a_like_thing_elsewhere_clears_nothing(encoder):
@@ -305,7 +305,7 @@ def test_a_sighting_of_a_like_thing_elsewhere_clears_nothing(encoder):
     walk.walk([WALL], 1)
     frame = render_rects([WALL, MUG_MOVED], seq=999)  # a mug, but not where this one was
     engine.sight(frame, engine.validate_frame(frame))
-    assert mug in engine._suspects
+    assert mug in engine.changes.suspects
 
 
 def test_negative_evidence_off_keeps_everything(encoder):
