@@ -1,18 +1,9 @@
 """The mapping engine: per-frame detections -> a persistent, versioned map of objects.
 
-One algorithm, two organisations (DESIGN.md "Two system organisations"):
-
-- `semanticxr`: per-object work batched across the objects of a frame (one lifting pass for
-  all detections, one similarity matrix for association), per-object geometry capped at
-  `max_object_points_server`, and the depth co-design: detections too small to map well at
-  the uploaded depth resolution (`min_mapping_bbox_area`) are deferred until seen larger.
-- `baseline`: frame-level, objects one at a time (a full-image mask and lift per
-  detection, a pair-by-pair association loop), geometry at sensor resolution and uncapped,
-  every detection integrated as it comes (the paper's ConceptGraphs-style baseline).
-
-Both call the same geometry, similarity, denoising and merge functions, so they differ in
-how the work is organised and scheduled and how much geometry is kept, never in how a
-detection and an object are compared or fused.
+`MappingEngine` orchestrates one keyframe: validate, perceive (the perception backend it is
+given), lift and associate (its organisation, `app.mapping.organisation`: `semanticxr` or
+`baseline`), merge and clean up, detect changes (`app.mapping.changes`), count sightings
+towards confirmation (`app.mapping.sightings`), confirm and publish to the delta log.
 """
 
 from __future__ import annotations
@@ -26,12 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.codecs import validate_rigid_pose
-from app.config import MODES, Knobs, Mode
+from app.config import Knobs, Mode
 from app.mapping import geometry as geo
 from app.mapping.changes import ChangeDetector
 from app.mapping.deltas import Delta, DeltaLog
 from app.mapping.object import Change, MapObject
-from app.mapping.organisation import BASELINE_RESOLUTION_M, _Observation, _patch_covering
+from app.mapping.organisation import Observation, Organisation, organisation_for
 from app.mapping.sightings import Sightings
 from app.mapping.stats import IntegrationStats
 from app.perception import DEFAULT_BACKEND, make_backend
@@ -42,7 +33,7 @@ from app.perception.base import (
     PerceptionBackend,
 )
 from app.perception.detections import detections_from_instance_image
-from app.protocol import MAX_INTRINSIC_PX, DepthPatch, FrameInput
+from app.protocol import MAX_INTRINSIC_PX, FrameInput
 from app.semantics import TextEncoder
 
 log = logging.getLogger(__name__)
@@ -105,8 +96,8 @@ class MappingEngine:
         keyframe's observations that match an object still map, new ones are not created
         (refusing whole keyframes instead would also stop the pruning of transients that
         frees room, so a full map could never change again). None: no cap."""
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        self.organisation: Organisation = organisation_for(mode)
+        """How the work is organised: lifting, association, geometry kept, denoising."""
         self.encoder = encoder
         self.knobs = knobs or Knobs()
         self.mode = mode
@@ -248,10 +239,7 @@ class MappingEngine:
         observations = self._observe(frame, detections, stats)
         t2 = time.perf_counter()
 
-        if self.mode == "semanticxr":
-            matches = self._associate_batched(observations)
-        else:
-            matches = self._associate_one_by_one(observations)
+        matches = self.organisation.associate(observations, self.objects, self.knobs)
         t3 = time.perf_counter()
 
         touched = self._apply(observations, matches, stats)
@@ -303,166 +291,47 @@ class MappingEngine:
 
     def _observe(
         self, frame: FrameInput, detections: FrameDetections, stats: IntegrationStats
-    ) -> list[_Observation]:
-        """Filter (skip set, deferral), lift, de-duplicate and embed the frame's detections.
-
-        semanticxr lifts a detection from the frame's full-resolution depth patch over its box
-        when it is too small to map at the downsampled depth: its box is under
-        `min_mapping_bbox_area` (deferred without a patch), or the downsampled depth lifts it
-        to fewer than `min_detection_points` (a thin or partly visible thing: a picture frame
-        at the image border)."""
+    ) -> list[Observation]:
+        """Filter (skip set, then the organisation's deferral), lift, de-duplicate and embed
+        the frame's detections."""
         skip = {label.lower() for label in self.knobs.skip_mapping_set}
         kept: list[Detection] = []
-        patch_of: dict[int, DepthPatch] = {}
-        """Detections under the deferral area and the patch each is lifted from."""
         for det in detections.detections:
             if det.label.lower() in skip:
                 stats.skipped += 1
-            elif self.mode == "semanticxr" and det.bbox_area_px < self.knobs.min_mapping_bbox_area:
-                patch = _patch_covering(frame.depth_patches, det.bbox_px)
-                if patch is None:
-                    stats.deferred += 1  # too small to map well at this depth resolution
-                else:
-                    patch_of[det.instance_id] = patch
-                    kept.append(det)
             else:
                 kept.append(det)
         if not kept:
             return []
-
-        pose = np.asarray(frame.pose, np.float64)
-        args = (frame.depth_m, frame.intrinsics, pose, self.knobs.max_depth_m)
-        if self.mode == "semanticxr":
-            ids = [d.instance_id for d in kept if d.instance_id not in patch_of]
-            lifted = geo.lift_instances_batched(detections.instance_image, ids, *args)
-            for det in kept:
-                if len(lifted.get(det.instance_id, ())) < self.knobs.min_detection_points:
-                    patch = patch_of.get(det.instance_id) or _patch_covering(
-                        frame.depth_patches, det.bbox_px
-                    )
-                    if patch is not None:
-                        lifted[det.instance_id] = geo.lift_in_patch(
-                            detections.instance_image,
-                            det.instance_id,
-                            patch.box_px,
-                            patch.depth_m,
-                            frame.intrinsics,
-                            pose,
-                            self.knobs.max_depth_m,
-                        )
-            points = [lifted[d.instance_id] for d in kept]
-        else:
-            points = [geo.lift_detection(detections.mask(d), *args) for d in kept]
+        kept, points = self.organisation.lift(frame, detections, kept, self.knobs, stats)
+        if not kept:
+            return []
 
         text_rows = self.encoder.encode([d.label for d in kept])
+        resolution_m = self.organisation.resolution_m(self.knobs)
         observations = []
         for det, pts, text_row in zip(kept, points, text_rows, strict=True):
             if len(pts) < self.knobs.min_detection_points:
                 stats.too_small += 1
                 continue
-            pts = geo.voxel_downsample(pts, self._resolution_m)
+            pts = geo.voxel_downsample(pts, resolution_m)
             emb = text_row if det.embedding is None else det.embedding
-            observations.append(_Observation(det, pts, emb.astype(np.float32), geo.bbox_of(pts)))
+            observations.append(Observation(det, pts, emb.astype(np.float32), geo.bbox_of(pts)))
         return observations
 
-    # ------------------------------------------------------------------ association
-    def _match_radius_m(self, obj: MapObject) -> float:
-        """One voxel, or the object's own sampling once a cap has coarsened it (a new view of
-        a capped surface is then still found; the semantic floor keeps small things lying on
-        it apart)."""
-        return max(self.knobs.voxel_size_m, obj.resolution_m)
-
-    def _combined_score(self, spatial, semantic):
-        """ConceptGraphs' match score (scalars or arrays): spatial + semantic, or -inf where
-        the observation does not touch the object or the two disagree semantically."""
-        ok = (semantic >= self.knobs.association_min_semantic) & (spatial > 0)
-        return np.where(ok, spatial + semantic, -np.inf)
-
-    def _similarity(self, obs: _Observation, obj: MapObject, semantic: float) -> float:
-        """Spatial + semantic similarity of one observation and one object (ConceptGraphs).
-
-        Spatial: the fraction of the observation's points within one voxel of the object's
-        points, the voxel being the object's own sampling (coarser once capped).
-        """
-        if semantic < self.knobs.association_min_semantic:
-            return -math.inf
-        spatial = geo.overlap_fraction(obs.points, obj.tree, self._match_radius_m(obj))
-        return float(self._combined_score(spatial, semantic))
-
-    def _associate_batched(self, observations: list[_Observation]) -> list[int | None]:
-        """Object id per observation (None = new object), all observations at once.
-
-        One box test and one semantic matrix for every pair, then one tree query per
-        candidate object for all the observations that may match it.
-        """
-        if not observations or not self.objects:
-            return [None] * len(observations)
-        objects = list(self.objects.values())
-        obs_boxes = np.stack([o.bbox for o in observations])
-        obj_boxes = np.stack([o.bbox for o in objects])
-        semantic = (
-            np.stack([o.embedding for o in observations])
-            @ np.stack([o.embedding for o in objects]).T
-        )
-        candidates = geo.bbox_intersects_matrix(obs_boxes, obj_boxes, self.knobs.voxel_size_m)
-        candidates &= semantic >= self.knobs.association_min_semantic
-        scores = np.full(semantic.shape, -np.inf)
-        for j in np.flatnonzero(candidates.any(axis=0)):
-            rows = np.flatnonzero(candidates[:, j])
-            spatial = geo.overlap_fractions(
-                [observations[i].points for i in rows],
-                objects[j].tree,
-                self._match_radius_m(objects[j]),
-                objects[j].bbox,
-            )
-            scores[rows, j] = self._combined_score(spatial, semantic[rows, j])
-        matches: list[int | None] = []
-        for row in scores:
-            j = len(row) - 1 - int(np.argmax(row[::-1]))  # ties: the last, as pair by pair
-            matches.append(objects[j].id if row[j] >= self.knobs.association_threshold else None)
-        return matches
-
-    def _associate_one_by_one(self, observations: list[_Observation]) -> list[int | None]:
-        """Object id per observation (None = new object), pair by pair."""
-        matches: list[int | None] = []
-        margin = self.knobs.voxel_size_m
-        for obs in observations:
-            best, best_score = None, self.knobs.association_threshold
-            for obj in self.objects.values():
-                if not geo.bbox_intersects_matrix(obs.bbox[None], obj.bbox[None], margin)[0, 0]:
-                    continue
-                score = self._similarity(obs, obj, float(obs.embedding @ obj.embedding))
-                if score >= best_score:
-                    best, best_score = obj.id, score
-            matches.append(best)
-        return matches
-
     # ------------------------------------------------------------------ merging
-    @property
-    def _resolution_m(self) -> float:
-        """Voxel at which object geometry is kept: coarse and capped, or sensor resolution."""
-        return self.knobs.voxel_size_m if self.mode == "semanticxr" else BASELINE_RESOLUTION_M
-
     def _cap(self, points: np.ndarray, start_m: float | None = None) -> tuple[np.ndarray, float]:
-        """The object's geometry after a merge: capped in semanticxr mode, not in baseline.
+        """The object's geometry after a merge, as the organisation keeps it.
 
         start_m: the merged objects' current spacing (the cap never refines it)."""
-        if self.mode == "baseline":
-            return geo.cap_points(points, 1 << 62, self._resolution_m, start_m)
-        return geo.cap_points(
-            points,
-            self.knobs.max_object_points_server,
-            self._resolution_m,
-            start_m,
-            self.knobs.max_object_spacing_m,
-        )
+        return self.organisation.cap(points, self.knobs, start_m)
 
     @property
     def _full(self) -> bool:
         return self.max_objects is not None and len(self.objects) >= self.max_objects
 
     def _apply(
-        self, observations: list[_Observation], matches: list[int | None], stats: IntegrationStats
+        self, observations: list[Observation], matches: list[int | None], stats: IntegrationStats
     ) -> set[int]:
         """Merge matched observations, create new objects; returns the ids touched."""
         touched: set[int] = set()
@@ -538,20 +407,11 @@ class MappingEngine:
         self._changed_since_merge_check.add(oid)
 
     def _denoise_due(self) -> list[int]:
-        """The objects whose outliers this keyframe removes, in id order.
-
-        semanticxr spreads the denoising (the costly part of the clean-up) over keyframes:
-        an object changed since it was last denoised is due on the keyframes where
-        `keyframes % cleanup_interval` equals `id % cleanup_interval`, so each is denoised
-        within `cleanup_interval` keyframes of changing and each keyframe carries about
-        1/cleanup_interval of the changed objects, never the whole map. The baseline keeps
-        the per-scene organisation: every changed object every `cleanup_interval` keyframes.
-        """
-        interval = self.knobs.cleanup_interval
-        if self.mode == "baseline":
-            return sorted(self._changed_since_cleanup) if self.keyframes % interval == 0 else []
-        slot = self.keyframes % interval
-        return sorted(oid for oid in self._changed_since_cleanup if oid % interval == slot)
+        """The objects whose outliers this keyframe removes, in id order: the
+        organisation's schedule (`Organisation.denoise_due`)."""
+        return self.organisation.denoise_due(
+            self._changed_since_cleanup, self.keyframes, self.knobs.cleanup_interval
+        )
 
     def _cleanup(self, touched: set[int], due: list[int]) -> set[int]:
         """Outlier removal on the `due` objects (`_denoise_due`); every `cleanup_interval`
