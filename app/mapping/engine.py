@@ -25,7 +25,7 @@ from app.mapping.object import Change, MapObject
 from app.mapping.organisation import Observation, Organisation, organisation_for
 from app.mapping.sightings import Sightings
 from app.mapping.stats import IntegrationStats
-from app.perception import DEFAULT_BACKEND, make_backend
+from app.perception import DEFAULT_BACKEND, BackendOptions, make_backend
 from app.perception.base import (
     Detection,
     FrameDetections,
@@ -81,6 +81,15 @@ def _check_size_ratio(field_name: str, image: np.ndarray, rgb_size: tuple[int, i
         )
 
 
+def make_perception(
+    name: str = DEFAULT_BACKEND, mode: Mode = "semanticxr", options: BackendOptions | None = None
+) -> PerceptionBackend:
+    """The perception backend called `name` (`app.perception.BACKENDS`), as organisation
+    `mode` uses it: what a caller passes to `MappingEngine`. A server loads each backend
+    once and passes every session its `for_mode` view instead."""
+    return make_backend(name, options).for_mode(mode)
+
+
 class MappingEngine:
     """Fuses frames into a map of objects. Not thread-safe: one frame at a time per map."""
 
@@ -92,7 +101,11 @@ class MappingEngine:
         backend: PerceptionBackend | None = None,
         max_objects: int | None = None,
     ):
-        """max_objects: most objects (candidates and confirmed) the map holds; at the cap a
+        """backend: the perception backend, as organisation `mode` uses it (the caller builds
+        it, `make_perception`). None builds the default one: a compatibility path for the
+        callers that do not pass one yet, to be removed.
+
+        max_objects: most objects (candidates and confirmed) the map holds; at the cap a
         keyframe's observations that match an object still map, new ones are not created
         (refusing whole keyframes instead would also stop the pruning of transients that
         frees room, so a full map could never change again). None: no cap."""
@@ -101,7 +114,8 @@ class MappingEngine:
         self.encoder = encoder
         self.knobs = knobs or Knobs()
         self.mode = mode
-        self.backend = backend or make_backend(DEFAULT_BACKEND)
+        self.backend = backend if backend is not None else make_perception(DEFAULT_BACKEND, mode)
+        """The perception backend that detects a keyframe's objects (`perceive`)."""
         self.objects: dict[int, MapObject] = {}
         self.log = DeltaLog()
         self.keyframes = 0

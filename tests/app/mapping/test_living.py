@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from app.config import Knobs
 from app.mapping import living
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 from app.mapping.object import MAX_STAYS, Stay, stays_from_bytes, stays_to_bytes
 
 WALL = Rect(9, "whiteboard", -3.0, -2.0, 3.0, 2.0, 3.0)
@@ -26,7 +26,9 @@ SECOND_MUG = Rect(7, "mug", 0.4, -0.2, 0.6, 0.0, 2.0)
 
 def make_engine(encoder, mode="semanticxr", **knobs) -> MappingEngine:
     defaults = {"min_mapping_bbox_area": 100, "min_observations": 2, "cleanup_interval": 1000}
-    return MappingEngine(encoder, Knobs(**{**defaults, **knobs}), mode=mode)
+    return MappingEngine(
+        encoder, Knobs(**{**defaults, **knobs}), mode=mode, backend=make_perception(mode=mode)
+    )
 
 
 class Walk:
