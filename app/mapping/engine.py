@@ -34,6 +34,13 @@ from app.perception.base import (
 )
 from app.perception.detections import detections_from_instance_image
 from app.protocol import MAX_INTRINSIC_PX, FrameInput
+from app.protocol.frame import (
+    DEPTH_FIELD,
+    DETECTIONS_FIELD,
+    INTRINSICS_FIELD,
+    POSE_FIELD,
+    RGB_FIELD,
+)
 from app.semantics import TextEncoder
 
 log = logging.getLogger(__name__)
@@ -184,8 +191,8 @@ class MappingEngine:
         the instance image's pixels)."""
         self._validate_view(frame)
         if frame.instance_ids is None:
-            raise InputError("detections", "a sighting must carry detections")
-        _check_size_ratio("detections", frame.instance_ids, frame.rgb_size)
+            raise InputError(DETECTIONS_FIELD, "a sighting must carry detections")
+        _check_size_ratio(DETECTIONS_FIELD, frame.instance_ids, frame.rgb_size)
         h, w = frame.instance_ids.shape
         return detections_from_instance_image(frame.instance_ids, frame.instances, (w, h))
 
@@ -194,29 +201,32 @@ class MappingEngine:
         pose = validate_rigid_pose(np.asarray(frame.pose, np.float64))
         if np.abs(pose[:3, 3]).max() > MAX_WORLD_M:
             raise InputError(
-                "pose",
+                POSE_FIELD,
                 f"translation {pose[:3, 3].tolist()} is over {MAX_WORLD_M:g} m from the origin",
             )
         intr = frame.intrinsics
         if len(intr) != 4 or not all(isinstance(v, int | float) and math.isfinite(v) for v in intr):
-            raise InputError("intrinsics", "must be 4 finite numbers [fx, fy, cx, cy]")
+            raise InputError(INTRINSICS_FIELD, "must be 4 finite numbers [fx, fy, cx, cy]")
         if intr[0] <= 0 or intr[1] <= 0:
-            raise InputError("intrinsics", "fx and fy must be positive")
+            raise InputError(INTRINSICS_FIELD, "fx and fy must be positive")
         if max(abs(v) for v in intr) > MAX_INTRINSIC_PX:
-            raise InputError("intrinsics", f"values must be within ±{MAX_INTRINSIC_PX:g} pixels")
+            raise InputError(
+                INTRINSICS_FIELD, f"values must be within ±{MAX_INTRINSIC_PX:g} pixels"
+            )
         width, height = frame.rgb_size
         if width <= 0 or height <= 0:
-            raise InputError("rgb", f"image size must be positive, got {width}x{height}")
+            raise InputError(RGB_FIELD, f"image size must be positive, got {width}x{height}")
         if frame.rgb is not None and frame.rgb.shape[:2] != (height, width):
             raise InputError(
-                "rgb", f"is {frame.rgb.shape[1]}x{frame.rgb.shape[0]}, expected {width}x{height}"
+                RGB_FIELD,
+                f"is {frame.rgb.shape[1]}x{frame.rgb.shape[0]}, expected {width}x{height}",
             )
         depth = frame.depth_m
         if not isinstance(depth, np.ndarray) or depth.ndim != 2:
-            raise InputError("depth", "must be a 2-D array")
+            raise InputError(DEPTH_FIELD, "must be a 2-D array")
         if depth.dtype != np.float32:
-            raise InputError("depth", f"must be float32 metres, got {depth.dtype}")
-        _check_size_ratio("depth", depth, frame.rgb_size)
+            raise InputError(DEPTH_FIELD, f"must be float32 metres, got {depth.dtype}")
+        _check_size_ratio(DEPTH_FIELD, depth, frame.rgb_size)
 
     # ------------------------------------------------------------------ integration
     def integrate(self, frame: FrameInput) -> IntegrationStats:
