@@ -9,38 +9,29 @@ towards confirmation (`app.mapping.sightings`), confirm and publish to the delta
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
-from app.codecs import validate_rigid_pose
 from app.config import Knobs, Mode
 from app.mapping import geometry as geo
+from app.mapping import validation
 from app.mapping.changes import ChangeDetector
 from app.mapping.deltas import Delta, DeltaLog
 from app.mapping.object import Change, MapObject
 from app.mapping.organisation import Observation, Organisation, organisation_for
 from app.mapping.sightings import Sightings
 from app.mapping.stats import IntegrationStats
+from app.mapping.validation import MAX_WORLD_M  # noqa: F401 (imported from here by the server)
 from app.perception import DEFAULT_BACKEND, BackendOptions, make_backend
 from app.perception.base import (
     Detection,
     FrameDetections,
-    InputError,
     PerceptionBackend,
 )
-from app.perception.detections import detections_from_instance_image
-from app.protocol import MAX_INTRINSIC_PX, FrameInput
-from app.protocol.frame import (
-    DEPTH_FIELD,
-    DETECTIONS_FIELD,
-    INTRINSICS_FIELD,
-    POSE_FIELD,
-    RGB_FIELD,
-)
+from app.protocol import FrameInput
 from app.semantics import TextEncoder
 
 log = logging.getLogger(__name__)
@@ -51,9 +42,6 @@ MERGE_SEMANTIC = 0.8
 """...and their embeddings agree at least this much (ConceptGraphs' defaults)."""
 OUTLIER_EPS_M = 0.1
 """DBSCAN radius for outlier removal on changed objects."""
-MAX_WORLD_M = 10_000.0
-"""A camera farther than this from the map's origin (per axis) is refused: no XR map is that
-big, and it keeps lifted points finite whatever the pose bytes say."""
 RECENT_CHANGES = 256
 """Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
 
@@ -74,18 +62,6 @@ def limit_numpy_threads() -> None:
     from threadpoolctl import ThreadpoolController
 
     ThreadpoolController().select(internal_api="openblas").limit(limits=1)
-
-
-def _check_size_ratio(field_name: str, image: np.ndarray, rgb_size: tuple[int, int]) -> None:
-    """InputError unless `image` [h, w] is the RGB size (W, H) divided by an integer ratio."""
-    width, height = rgb_size
-    h, w = image.shape[:2]
-    ratio = max(1, round(width / max(w, 1)))
-    if w == 0 or h == 0 or width // ratio != w or height // ratio != h:
-        raise InputError(
-            field_name,
-            f"is {w}x{h}, which is not the RGB size {width}x{height} divided by an integer ratio",
-        )
 
 
 def make_perception(
@@ -171,62 +147,16 @@ class MappingEngine:
 
     # ------------------------------------------------------------------ validation
     def validate_frame(self, frame: FrameInput) -> FrameDetections | None:
-        """Every check the engine makes on a frame, run once per frame (keyframe or not).
-
-        Raises InputError naming the field if the frame cannot be mapped: pose (rigid,
-        within MAX_WORLD_M), intrinsics, RGB size, depth (float32, the RGB size divided by an
-        integer ratio), and the detections the device sent (instance image vs labels).
-        Returns those detections indexed (None when the frame carries none): what a
-        keyframe's perception gets as `sent`. Nothing after this re-validates the frame.
-        """
-        self._validate_view(frame)
-        if frame.instance_ids is None:
-            return None
-        return detections_from_instance_image(frame.instance_ids, frame.instances, frame.rgb_size)
+        """Every check the engine makes on a frame, run once per frame (keyframe or not):
+        `app.mapping.validation.validate_frame`. Returns the detections the device sent,
+        indexed (None when the frame carries none): what a keyframe's perception gets as
+        `sent`."""
+        return validation.validate_frame(frame)
 
     def validate_sighting(self, frame: FrameInput) -> FrameDetections:
-        """The checks of `validate_frame` for a sighting (`app.protocol.parse_sighting`),
-        whose instance image, which it must carry, may be the RGB size divided by an
-        integer ratio, as its depth is. Returns the detections for `sight` (their boxes in
-        the instance image's pixels)."""
-        self._validate_view(frame)
-        if frame.instance_ids is None:
-            raise InputError(DETECTIONS_FIELD, "a sighting must carry detections")
-        _check_size_ratio(DETECTIONS_FIELD, frame.instance_ids, frame.rgb_size)
-        h, w = frame.instance_ids.shape
-        return detections_from_instance_image(frame.instance_ids, frame.instances, (w, h))
-
-    def _validate_view(self, frame: FrameInput) -> None:
-        """Pose, intrinsics, RGB size and depth of a frame or a sighting."""
-        pose = validate_rigid_pose(np.asarray(frame.pose, np.float64))
-        if np.abs(pose[:3, 3]).max() > MAX_WORLD_M:
-            raise InputError(
-                POSE_FIELD,
-                f"translation {pose[:3, 3].tolist()} is over {MAX_WORLD_M:g} m from the origin",
-            )
-        intr = frame.intrinsics
-        if len(intr) != 4 or not all(isinstance(v, int | float) and math.isfinite(v) for v in intr):
-            raise InputError(INTRINSICS_FIELD, "must be 4 finite numbers [fx, fy, cx, cy]")
-        if intr[0] <= 0 or intr[1] <= 0:
-            raise InputError(INTRINSICS_FIELD, "fx and fy must be positive")
-        if max(abs(v) for v in intr) > MAX_INTRINSIC_PX:
-            raise InputError(
-                INTRINSICS_FIELD, f"values must be within ±{MAX_INTRINSIC_PX:g} pixels"
-            )
-        width, height = frame.rgb_size
-        if width <= 0 or height <= 0:
-            raise InputError(RGB_FIELD, f"image size must be positive, got {width}x{height}")
-        if frame.rgb is not None and frame.rgb.shape[:2] != (height, width):
-            raise InputError(
-                RGB_FIELD,
-                f"is {frame.rgb.shape[1]}x{frame.rgb.shape[0]}, expected {width}x{height}",
-            )
-        depth = frame.depth_m
-        if not isinstance(depth, np.ndarray) or depth.ndim != 2:
-            raise InputError(DEPTH_FIELD, "must be a 2-D array")
-        if depth.dtype != np.float32:
-            raise InputError(DEPTH_FIELD, f"must be float32 metres, got {depth.dtype}")
-        _check_size_ratio(DEPTH_FIELD, depth, frame.rgb_size)
+        """The checks of `validate_frame` for a sighting, which must carry detections:
+        `app.mapping.validation.validate_sighting`. Returns the detections for `sight`."""
+        return validation.validate_sighting(frame)
 
     # ------------------------------------------------------------------ integration
     def integrate(self, frame: FrameInput) -> IntegrationStats:
