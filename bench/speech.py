@@ -32,7 +32,7 @@ VOICES = (("en-us", 150), ("en-us+f3", 175), ("en-gb", 130), ("en-us+m3", 190))
 def build_map(scene: str, frames: int, seed: int):
     """The semanticxr engine after the eval walk, and each object's true category."""
     from app.cli.evaluation import EvalConfig, _encode_keyframes, map_keyframes
-    from app.mapping.engine import MappingEngine
+    from app.mapping.engine import MappingEngine, make_perception
     from app.mapping.evaluation import majority_gt_class
     from app.semantics import get_text_encoder
     from client_sim.world.gt import gt_point_cloud
@@ -40,7 +40,9 @@ def build_map(scene: str, frames: int, seed: int):
     cfg = EvalConfig(scene=scene, frames=frames, seed=seed, modes=("semanticxr",))
     ratio = cfg.knobs.depth_downsampling_ratio
     messages, world, _, in_view, sightings = _encode_keyframes(cfg, [ratio], print)
-    engine = MappingEngine(get_text_encoder(), cfg.knobs, "semanticxr")
+    engine = MappingEngine(
+        get_text_encoder(), cfg.knobs, "semanticxr", backend=make_perception(mode="semanticxr")
+    )
     map_keyframes(
         {"semanticxr": messages[ratio]},
         {"semanticxr": engine},

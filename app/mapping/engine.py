@@ -1,46 +1,37 @@
 """The mapping engine: per-frame detections -> a persistent, versioned map of objects.
 
-One algorithm, two organisations (DESIGN.md "Two system organisations"):
-
-- `semanticxr`: per-object work batched across the objects of a frame (one lifting pass for
-  all detections, one similarity matrix for association), per-object geometry capped at
-  `max_object_points_server`, and the depth co-design: detections too small to map well at
-  the uploaded depth resolution (`min_mapping_bbox_area`) are deferred until seen larger.
-- `baseline`: frame-level, objects one at a time (a full-image mask and lift per
-  detection, a pair-by-pair association loop), geometry at sensor resolution and uncapped,
-  every detection integrated as it comes (the paper's ConceptGraphs-style baseline).
-
-Both call the same geometry, similarity, denoising and merge functions, so they differ in
-how the work is organised and scheduled and how much geometry is kept, never in how a
-detection and an object are compared or fused.
+`MappingEngine` orchestrates one keyframe: validate, perceive (the perception backend it is
+given), lift and associate (its organisation, `app.mapping.organisation`: `semanticxr` or
+`baseline`), merge and clean up, detect changes (`app.mapping.changes`), count sightings
+towards confirmation (`app.mapping.sightings`), confirm and publish to the delta log.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 
-from app.codecs import validate_rigid_pose
-from app.config import MODES, Knobs, Mode
+from app.config import Knobs, Mode
 from app.mapping import geometry as geo
-from app.mapping import living
+from app.mapping import validation
+from app.mapping.changes import ChangeDetector
 from app.mapping.deltas import Delta, DeltaLog
 from app.mapping.object import Change, MapObject
-from app.perception import DEFAULT_BACKEND, make_backend
+from app.mapping.organisation import Observation, Organisation, organisation_for
+from app.mapping.sightings import Sightings
+from app.mapping.stats import IntegrationStats
+from app.mapping.validation import MAX_WORLD_M  # noqa: F401 (imported from here by the server)
+from app.perception import DEFAULT_BACKEND, BackendOptions, make_backend
 from app.perception.base import (
     Detection,
     FrameDetections,
-    InputError,
     PerceptionBackend,
 )
-from app.perception.detections import detections_from_instance_image
-from app.protocol import MAX_INTRINSIC_PX, DepthPatch, FrameInput
+from app.protocol import FrameInput
 from app.semantics import TextEncoder
 
 log = logging.getLogger(__name__)
@@ -51,141 +42,14 @@ MERGE_SEMANTIC = 0.8
 """...and their embeddings agree at least this much (ConceptGraphs' defaults)."""
 OUTLIER_EPS_M = 0.1
 """DBSCAN radius for outlier removal on changed objects."""
-MAX_WORLD_M = 10_000.0
-"""A camera farther than this from the map's origin (per axis) is refused: no XR map is that
-big, and it keeps lifted points finite whatever the pose bytes say."""
-SIGHTING_MIN_POINTS = 5
-"""A candidate object is sighted on a non-keyframe only if at least this many of its points
-are visible there (in the image, in front of the camera, not hidden behind nearer depth)..."""
-SIGHTING_COVER = 0.5
-"""...and at least this fraction of those fall in one detection carrying one of its labels."""
-SIGHTING_AGREEMENT = 0.5
-"""A candidate is confirmed by sightings only if it was seen on at least this fraction of
-the frames it was in view: a detection with a confused label (the detector calls a window a
-door one frame in twenty) builds a candidate that its frames rarely agree with."""
-SIGHTING_SAMPLE_POINTS = 200
-"""Points of each object projected into a non-keyframe (a regular subsample)."""
-SIGHTING_DEPTH_TOLERANCE_M = 0.1
-"""A projected point is visible when its depth is within this (plus 5 %) of the sensed depth."""
-BASELINE_RESOLUTION_M = 0.01
-"""The baseline keeps geometry at sensor resolution: de-duplicated only at 1 cm, finer than
-a depth pixel at mapping range, so repeated views do not stack identical points."""
-REMEMBERED_VIEWS = 600
-"""Keyframes remembered (coarse, ~3 KB each) to tell whether a new object's place was seen
-empty before: ten minutes of keyframes at one a second."""
-REMEMBERED_VIEW_BLOCK = 4
-"""Remembered depth keeps the nearest surface of each 4 x 4 block of the uploaded depth."""
-REVIVE_WINDOW_S = 120.0
-"""A removed object is still found at a new place (moved, not removed) when a like thing
-appears within this much device time of its removal: the mug taken from the table before
-the shelf it went to came into view."""
-RECENTLY_REMOVED = 256
-"""Most removed objects kept in memory for REVIVE_WINDOW_S."""
-PLACE_TAKEN_OVERLAP = 0.5
-"""A new object is no `added` change when this much of it lies on another confirmed object
-that is alike..."""
-PLACE_TAKEN_BOX_IOU = 0.15
-"""...or whose box it shares this much of (intersection over union)."""
-VACATED_INSIDE = 0.5
-"""An object leaving with most of its box in a place just vacated is a second reading of the
-thing that left (`_second_reading_of_vacated`)."""
 RECENT_CHANGES = 256
 """Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
-
-
-def _patch_covering(
-    patches: list[DepthPatch], box_px: tuple[int, int, int, int]
-) -> DepthPatch | None:
-    """The first depth patch whose box holds all of `box_px` (x0, y0, x1, y1), or None."""
-    x0, y0, x1, y1 = box_px
-    for patch in patches:
-        px0, py0, px1, py1 = patch.box_px
-        if px0 <= x0 and py0 <= y0 and x1 <= px1 and y1 <= py1:
-            return patch
-    return None
-
-
-@dataclass
-class IntegrationStats:
-    """What one keyframe did to the map."""
-
-    seq: int
-    keyframe: int
-    detections: int = 0
-    skipped: int = 0
-    deferred: int = 0
-    too_small: int = 0
-    over_cap: int = 0
-    """New objects not created because the map holds max_objects (their matches still map)."""
-    created: int = 0
-    matched: int = 0
-    removed: int = 0
-    objects: int = 0
-    confirmed: int = 0
-    cleanup: bool = False
-    published_ids: list[int] = field(default_factory=list)
-    """Confirmed objects this keyframe created or changed (at log seq `seq`)."""
-    removed_ids: list[int] = field(default_factory=list)
-    """Published objects this keyframe removed (merged, moved into another, or retired)."""
-    retired: list[MapObject] = field(default_factory=list)
-    """Objects this keyframe found gone from the world: out of the present map (their ids are
-    in removed_ids), kept as history with state "removed"."""
-    changes: list[Change] = field(default_factory=list)
-    """What this keyframe concluded about the world (added, moved, removed)."""
-    retracted_added: list[int] = field(default_factory=list)
-    """Published objects merged into another: an `added` change of theirs no longer stands."""
-    unremoved_ids: list[int] = field(default_factory=list)
-    """Objects this keyframe removed and then found at a new place (moved, not removed)."""
-    dropped_ids: list[int] = field(default_factory=list)
-    """Duplicates of things that moved or left, taken out with them (no change of their own)."""
-    retracted_removed: list[int] = field(default_factory=list)
-    """Removed objects found at a new place: their `removed` change gives way to `moved`."""
-    timings_ms: dict[str, float] = field(default_factory=dict)
-
-
-@dataclass
-class _Glimpses:
-    """What the frames said about one candidate object (frame seqs)."""
-
-    seen: set[int] = field(default_factory=set)
-    """Keyframes where it was observed and non-keyframes where it was sighted."""
-    missed: set[int] = field(default_factory=set)
-    """Non-keyframes where it was in view but no detection of its own sighted it."""
-
-    def update(self, other: _Glimpses) -> None:
-        self.seen |= other.seen
-        self.missed |= other.missed - self.seen
 
 
 @dataclass
 class QueryHit:
     object: MapObject
     score: float
-
-
-@dataclass
-class _Observation:
-    """A lifted detection, ready to associate. points: float32 [N, 3] (de-duplicated)."""
-
-    detection: Detection
-    points: np.ndarray
-    embedding: np.ndarray
-    bbox: np.ndarray
-
-
-class _SightSamples(NamedTuple):
-    """What sightings project between two keyframes."""
-
-    keyframe: int
-    """The engine's keyframe count they were drawn at."""
-    objects: list[MapObject]
-    """The objects with points."""
-    points: np.ndarray
-    """float32 [N, 3]: about SIGHTING_SAMPLE_POINTS of each object's points, concatenated."""
-    owner: np.ndarray
-    """int [N]: the index in `objects` of each point."""
-    sizes: np.ndarray
-    """int64 [len(objects)]: each sample's size."""
 
 
 def limit_numpy_threads() -> None:
@@ -200,27 +64,13 @@ def limit_numpy_threads() -> None:
     ThreadpoolController().select(internal_api="openblas").limit(limits=1)
 
 
-def _project(
-    points: np.ndarray, frame: FrameInput
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """World points float32 [N, 3] into the frame's RGB image: (u, v) int pixel, z metres
-    (in front of the camera, inside the image) and the bool [N] mask of those points."""
-    u, v, z = geo.project_to_pixels(points, frame.pose, frame.intrinsics)
-    width, height = frame.rgb_size
-    kept = (z > 1e-3) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    return u[kept].astype(np.int64), v[kept].astype(np.int64), z[kept], kept
-
-
-def _check_size_ratio(field_name: str, image: np.ndarray, rgb_size: tuple[int, int]) -> None:
-    """InputError unless `image` [h, w] is the RGB size (W, H) divided by an integer ratio."""
-    width, height = rgb_size
-    h, w = image.shape[:2]
-    ratio = max(1, round(width / max(w, 1)))
-    if w == 0 or h == 0 or width // ratio != w or height // ratio != h:
-        raise InputError(
-            field_name,
-            f"is {w}x{h}, which is not the RGB size {width}x{height} divided by an integer ratio",
-        )
+def make_perception(
+    name: str = DEFAULT_BACKEND, mode: Mode = "semanticxr", options: BackendOptions | None = None
+) -> PerceptionBackend:
+    """The perception backend called `name` (`app.perception.BACKENDS`), as organisation
+    `mode` uses it: what a caller passes to `MappingEngine`. A server loads each backend
+    once and passes every session its `for_mode` view instead."""
+    return make_backend(name, options).for_mode(mode)
 
 
 class MappingEngine:
@@ -234,16 +84,21 @@ class MappingEngine:
         backend: PerceptionBackend | None = None,
         max_objects: int | None = None,
     ):
-        """max_objects: most objects (candidates and confirmed) the map holds; at the cap a
+        """backend: the perception backend, as organisation `mode` uses it (the caller builds
+        it, `make_perception`). None builds the default one: a compatibility path for the
+        callers that do not pass one yet, to be removed.
+
+        max_objects: most objects (candidates and confirmed) the map holds; at the cap a
         keyframe's observations that match an object still map, new ones are not created
         (refusing whole keyframes instead would also stop the pruning of transients that
         frees room, so a full map could never change again). None: no cap."""
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        self.organisation: Organisation = organisation_for(mode)
+        """How the work is organised: lifting, association, geometry kept, denoising."""
         self.encoder = encoder
         self.knobs = knobs or Knobs()
         self.mode = mode
-        self.backend = backend or make_backend(DEFAULT_BACKEND)
+        self.backend = backend if backend is not None else make_perception(DEFAULT_BACKEND, mode)
+        """The perception backend that detects a keyframe's objects (`perceive`)."""
         self.objects: dict[int, MapObject] = {}
         self.log = DeltaLog()
         self.keyframes = 0
@@ -251,21 +106,10 @@ class MappingEngine:
         """Camera-to-world [4, 4] of the newest mapped keyframe (where the device is)."""
         self.last_t: float | None = None
         """Device-clock time (frame `t`) of the newest mapped keyframe: what "ago" counts from."""
-        self._suspects: dict[int, list[living.Evidence]] = {}
-        """Confirmed object id -> the keyframes that showed its place without it (in memory,
-        like sightings: suspicion starts over after a restart)."""
-        self._views: deque[living.EvidenceView] = deque(maxlen=REMEMBERED_VIEWS)
-        """Coarse copies of recent keyframes, oldest first (for `added`)."""
         self.recent_changes: deque[Change] = deque(maxlen=RECENT_CHANGES)
         """The newest changes, with the seq that published them (for deltas)."""
-        self._vacated: deque[tuple[int, np.ndarray]] = deque()
-        """(keyframe, box) of the places objects left recently, oldest first."""
-        self._recently_removed: dict[int, tuple[int, float, MapObject]] = {}
-        """Objects removed within REVIVE_WINDOW_S of the newest keyframe, with the keyframe
-        and time of their removal (in memory, at most RECENTLY_REMOVED)."""
-        self._appeared: set[int] = set()
-        """Present objects with an `added` change standing (in memory: a move found after a
-        restart needs a fresh appearance)."""
+        self.changes = ChangeDetector(self)
+        """Suspicion, removals, moves and appearances (`app.mapping.changes`)."""
         self.next_object_id = 1
         self.max_objects = max_objects
         self._at_cap = False
@@ -273,15 +117,9 @@ class MappingEngine:
         """Objects changed since they were last denoised."""
         self._changed_since_merge_check: set[int] = set()
         """Objects changed since they were last compared with their neighbours for a merge."""
-        self._sightings: dict[int, _Glimpses] = {}
-        """Candidate (unconfirmed) object id -> the frames it was seen on, keyframes
-        (observations) and non-keyframes (`sight`) alike, and the non-keyframes where it was
-        in view but not sighted."""
-        self._sighted: set[int] = set()
-        """Candidates sighted since the last keyframe: `_confirm` considers them there."""
+        self.sightings = Sightings()
+        """What the frames said about the candidates (keyframes and sightings alike)."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
-        self._sight_samples: _SightSamples | None = None
-        """What every sighting projects, the same from one keyframe to the next."""
 
     def restore(
         self,
@@ -296,11 +134,7 @@ class MappingEngine:
         keyframe's time and the newest changes)."""
         self.objects = {o.id: o for o in objects}
         self.last_t = last_t
-        self._suspects.clear()
-        self._views.clear()
-        self._appeared.clear()
-        self._recently_removed.clear()
-        self._vacated.clear()
+        self.changes.clear()
         self.recent_changes.clear()
         self.recent_changes.extend(recent_changes or [])
         self.log = log
@@ -308,66 +142,21 @@ class MappingEngine:
         self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
         self._changed_since_cleanup = set(self.objects)  # cleaned again once
         self._changed_since_merge_check = set(self.objects)
-        self._sightings.clear()
-        self._sighted.clear()
+        self.sightings.clear()
         self._confirmed_matrix = None
-        self._sight_samples = None
 
     # ------------------------------------------------------------------ validation
     def validate_frame(self, frame: FrameInput) -> FrameDetections | None:
-        """Every check the engine makes on a frame, run once per frame (keyframe or not).
-
-        Raises InputError naming the field if the frame cannot be mapped: pose (rigid,
-        within MAX_WORLD_M), intrinsics, RGB size, depth (float32, the RGB size divided by an
-        integer ratio), and the detections the device sent (instance image vs labels).
-        Returns those detections indexed (None when the frame carries none): what a
-        keyframe's perception gets as `sent`. Nothing after this re-validates the frame.
-        """
-        self._validate_view(frame)
-        if frame.instance_ids is None:
-            return None
-        return detections_from_instance_image(frame.instance_ids, frame.instances, frame.rgb_size)
+        """Every check the engine makes on a frame, run once per frame (keyframe or not):
+        `app.mapping.validation.validate_frame`. Returns the detections the device sent,
+        indexed (None when the frame carries none): what a keyframe's perception gets as
+        `sent`."""
+        return validation.validate_frame(frame)
 
     def validate_sighting(self, frame: FrameInput) -> FrameDetections:
-        """The checks of `validate_frame` for a sighting (`app.protocol.parse_sighting`),
-        whose instance image, which it must carry, may be the RGB size divided by an
-        integer ratio, as its depth is. Returns the detections for `sight` (their boxes in
-        the instance image's pixels)."""
-        self._validate_view(frame)
-        if frame.instance_ids is None:
-            raise InputError("detections", "a sighting must carry detections")
-        _check_size_ratio("detections", frame.instance_ids, frame.rgb_size)
-        h, w = frame.instance_ids.shape
-        return detections_from_instance_image(frame.instance_ids, frame.instances, (w, h))
-
-    def _validate_view(self, frame: FrameInput) -> None:
-        """Pose, intrinsics, RGB size and depth of a frame or a sighting."""
-        pose = validate_rigid_pose(np.asarray(frame.pose, np.float64))
-        if np.abs(pose[:3, 3]).max() > MAX_WORLD_M:
-            raise InputError(
-                "pose",
-                f"translation {pose[:3, 3].tolist()} is over {MAX_WORLD_M:g} m from the origin",
-            )
-        intr = frame.intrinsics
-        if len(intr) != 4 or not all(isinstance(v, int | float) and math.isfinite(v) for v in intr):
-            raise InputError("intrinsics", "must be 4 finite numbers [fx, fy, cx, cy]")
-        if intr[0] <= 0 or intr[1] <= 0:
-            raise InputError("intrinsics", "fx and fy must be positive")
-        if max(abs(v) for v in intr) > MAX_INTRINSIC_PX:
-            raise InputError("intrinsics", f"values must be within ±{MAX_INTRINSIC_PX:g} pixels")
-        width, height = frame.rgb_size
-        if width <= 0 or height <= 0:
-            raise InputError("rgb", f"image size must be positive, got {width}x{height}")
-        if frame.rgb is not None and frame.rgb.shape[:2] != (height, width):
-            raise InputError(
-                "rgb", f"is {frame.rgb.shape[1]}x{frame.rgb.shape[0]}, expected {width}x{height}"
-            )
-        depth = frame.depth_m
-        if not isinstance(depth, np.ndarray) or depth.ndim != 2:
-            raise InputError("depth", "must be a 2-D array")
-        if depth.dtype != np.float32:
-            raise InputError("depth", f"must be float32 metres, got {depth.dtype}")
-        _check_size_ratio("depth", depth, frame.rgb_size)
+        """The checks of `validate_frame` for a sighting, which must carry detections:
+        `app.mapping.validation.validate_sighting`. Returns the detections for `sight`."""
+        return validation.validate_sighting(frame)
 
     # ------------------------------------------------------------------ integration
     def integrate(self, frame: FrameInput) -> IntegrationStats:
@@ -404,21 +193,18 @@ class MappingEngine:
         observations = self._observe(frame, detections, stats)
         t2 = time.perf_counter()
 
-        if self.mode == "semanticxr":
-            matches = self._associate_batched(observations)
-        else:
-            matches = self._associate_one_by_one(observations)
+        matches = self.organisation.associate(observations, self.objects, self.knobs)
         t3 = time.perf_counter()
 
         touched = self._apply(observations, matches, stats)
         for oid in touched:
             if not self.objects[oid].confirmed:
-                self._sightings.setdefault(oid, _Glimpses()).seen.add(int(frame.seq))
+                self.sightings.observed(oid, int(frame.seq))
         removed: set[int] = set()
         view = None
         if self.knobs.negative_evidence:
-            view = self._evidence_view(frame, detections)
-            removed |= self._gather_evidence(view, touched, stats)
+            view = self.changes.evidence_view(frame, detections)
+            removed |= self.changes.gather_evidence(view, touched, stats)
         due = self._denoise_due()
         if due or self.keyframes % self.knobs.cleanup_interval == 0:
             merged_away = self._cleanup(touched, due)
@@ -428,15 +214,15 @@ class MappingEngine:
         t4 = time.perf_counter()
 
         moved = {c.id for c in stats.changes if c.kind == "moved"}  # found from the old side
-        published = self._confirm((touched | self._sighted | moved) - removed, stats)
-        self._sighted.clear()
+        sighted = self.sightings.take_sighted()
+        published = self._confirm((touched | sighted | moved) - removed, stats)
         removed |= set(stats.dropped_ids)
         removed -= set(stats.unremoved_ids)
         published -= removed
         for oid in published:
             self.objects[oid].refresh_stay()
         if view is not None:
-            self._views.append(living.coarse_view(view, REMEMBERED_VIEW_BLOCK))
+            self.changes.remember(view)
         stats.removed = len(removed)
         stats.seq = self.log.commit(published, removed)
         stats.published_ids, stats.removed_ids = sorted(published), sorted(removed)
@@ -459,166 +245,47 @@ class MappingEngine:
 
     def _observe(
         self, frame: FrameInput, detections: FrameDetections, stats: IntegrationStats
-    ) -> list[_Observation]:
-        """Filter (skip set, deferral), lift, de-duplicate and embed the frame's detections.
-
-        semanticxr lifts a detection from the frame's full-resolution depth patch over its box
-        when it is too small to map at the downsampled depth: its box is under
-        `min_mapping_bbox_area` (deferred without a patch), or the downsampled depth lifts it
-        to fewer than `min_detection_points` (a thin or partly visible thing: a picture frame
-        at the image border)."""
+    ) -> list[Observation]:
+        """Filter (skip set, then the organisation's deferral), lift, de-duplicate and embed
+        the frame's detections."""
         skip = {label.lower() for label in self.knobs.skip_mapping_set}
         kept: list[Detection] = []
-        patch_of: dict[int, DepthPatch] = {}
-        """Detections under the deferral area and the patch each is lifted from."""
         for det in detections.detections:
             if det.label.lower() in skip:
                 stats.skipped += 1
-            elif self.mode == "semanticxr" and det.bbox_area_px < self.knobs.min_mapping_bbox_area:
-                patch = _patch_covering(frame.depth_patches, det.bbox_px)
-                if patch is None:
-                    stats.deferred += 1  # too small to map well at this depth resolution
-                else:
-                    patch_of[det.instance_id] = patch
-                    kept.append(det)
             else:
                 kept.append(det)
         if not kept:
             return []
-
-        pose = np.asarray(frame.pose, np.float64)
-        args = (frame.depth_m, frame.intrinsics, pose, self.knobs.max_depth_m)
-        if self.mode == "semanticxr":
-            ids = [d.instance_id for d in kept if d.instance_id not in patch_of]
-            lifted = geo.lift_instances_batched(detections.instance_image, ids, *args)
-            for det in kept:
-                if len(lifted.get(det.instance_id, ())) < self.knobs.min_detection_points:
-                    patch = patch_of.get(det.instance_id) or _patch_covering(
-                        frame.depth_patches, det.bbox_px
-                    )
-                    if patch is not None:
-                        lifted[det.instance_id] = geo.lift_in_patch(
-                            detections.instance_image,
-                            det.instance_id,
-                            patch.box_px,
-                            patch.depth_m,
-                            frame.intrinsics,
-                            pose,
-                            self.knobs.max_depth_m,
-                        )
-            points = [lifted[d.instance_id] for d in kept]
-        else:
-            points = [geo.lift_detection(detections.mask(d), *args) for d in kept]
+        kept, points = self.organisation.lift(frame, detections, kept, self.knobs, stats)
+        if not kept:
+            return []
 
         text_rows = self.encoder.encode([d.label for d in kept])
+        resolution_m = self.organisation.resolution_m(self.knobs)
         observations = []
         for det, pts, text_row in zip(kept, points, text_rows, strict=True):
             if len(pts) < self.knobs.min_detection_points:
                 stats.too_small += 1
                 continue
-            pts = geo.voxel_downsample(pts, self._resolution_m)
+            pts = geo.voxel_downsample(pts, resolution_m)
             emb = text_row if det.embedding is None else det.embedding
-            observations.append(_Observation(det, pts, emb.astype(np.float32), geo.bbox_of(pts)))
+            observations.append(Observation(det, pts, emb.astype(np.float32), geo.bbox_of(pts)))
         return observations
 
-    # ------------------------------------------------------------------ association
-    def _match_radius_m(self, obj: MapObject) -> float:
-        """One voxel, or the object's own sampling once a cap has coarsened it (a new view of
-        a capped surface is then still found; the semantic floor keeps small things lying on
-        it apart)."""
-        return max(self.knobs.voxel_size_m, obj.resolution_m)
-
-    def _combined_score(self, spatial, semantic):
-        """ConceptGraphs' match score (scalars or arrays): spatial + semantic, or -inf where
-        the observation does not touch the object or the two disagree semantically."""
-        ok = (semantic >= self.knobs.association_min_semantic) & (spatial > 0)
-        return np.where(ok, spatial + semantic, -np.inf)
-
-    def _similarity(self, obs: _Observation, obj: MapObject, semantic: float) -> float:
-        """Spatial + semantic similarity of one observation and one object (ConceptGraphs).
-
-        Spatial: the fraction of the observation's points within one voxel of the object's
-        points, the voxel being the object's own sampling (coarser once capped).
-        """
-        if semantic < self.knobs.association_min_semantic:
-            return -math.inf
-        spatial = geo.overlap_fraction(obs.points, obj.tree, self._match_radius_m(obj))
-        return float(self._combined_score(spatial, semantic))
-
-    def _associate_batched(self, observations: list[_Observation]) -> list[int | None]:
-        """Object id per observation (None = new object), all observations at once.
-
-        One box test and one semantic matrix for every pair, then one tree query per
-        candidate object for all the observations that may match it.
-        """
-        if not observations or not self.objects:
-            return [None] * len(observations)
-        objects = list(self.objects.values())
-        obs_boxes = np.stack([o.bbox for o in observations])
-        obj_boxes = np.stack([o.bbox for o in objects])
-        semantic = (
-            np.stack([o.embedding for o in observations])
-            @ np.stack([o.embedding for o in objects]).T
-        )
-        candidates = geo.bbox_intersects_matrix(obs_boxes, obj_boxes, self.knobs.voxel_size_m)
-        candidates &= semantic >= self.knobs.association_min_semantic
-        scores = np.full(semantic.shape, -np.inf)
-        for j in np.flatnonzero(candidates.any(axis=0)):
-            rows = np.flatnonzero(candidates[:, j])
-            spatial = geo.overlap_fractions(
-                [observations[i].points for i in rows],
-                objects[j].tree,
-                self._match_radius_m(objects[j]),
-                objects[j].bbox,
-            )
-            scores[rows, j] = self._combined_score(spatial, semantic[rows, j])
-        matches: list[int | None] = []
-        for row in scores:
-            j = len(row) - 1 - int(np.argmax(row[::-1]))  # ties: the last, as pair by pair
-            matches.append(objects[j].id if row[j] >= self.knobs.association_threshold else None)
-        return matches
-
-    def _associate_one_by_one(self, observations: list[_Observation]) -> list[int | None]:
-        """Object id per observation (None = new object), pair by pair."""
-        matches: list[int | None] = []
-        margin = self.knobs.voxel_size_m
-        for obs in observations:
-            best, best_score = None, self.knobs.association_threshold
-            for obj in self.objects.values():
-                if not geo.bbox_intersects_matrix(obs.bbox[None], obj.bbox[None], margin)[0, 0]:
-                    continue
-                score = self._similarity(obs, obj, float(obs.embedding @ obj.embedding))
-                if score >= best_score:
-                    best, best_score = obj.id, score
-            matches.append(best)
-        return matches
-
     # ------------------------------------------------------------------ merging
-    @property
-    def _resolution_m(self) -> float:
-        """Voxel at which object geometry is kept: coarse and capped, or sensor resolution."""
-        return self.knobs.voxel_size_m if self.mode == "semanticxr" else BASELINE_RESOLUTION_M
-
     def _cap(self, points: np.ndarray, start_m: float | None = None) -> tuple[np.ndarray, float]:
-        """The object's geometry after a merge: capped in semanticxr mode, not in baseline.
+        """The object's geometry after a merge, as the organisation keeps it.
 
         start_m: the merged objects' current spacing (the cap never refines it)."""
-        if self.mode == "baseline":
-            return geo.cap_points(points, 1 << 62, self._resolution_m, start_m)
-        return geo.cap_points(
-            points,
-            self.knobs.max_object_points_server,
-            self._resolution_m,
-            start_m,
-            self.knobs.max_object_spacing_m,
-        )
+        return self.organisation.cap(points, self.knobs, start_m)
 
     @property
     def _full(self) -> bool:
         return self.max_objects is not None and len(self.objects) >= self.max_objects
 
     def _apply(
-        self, observations: list[_Observation], matches: list[int | None], stats: IntegrationStats
+        self, observations: list[Observation], matches: list[int | None], stats: IntegrationStats
     ) -> set[int]:
         """Merge matched observations, create new objects; returns the ids touched."""
         touched: set[int] = set()
@@ -677,27 +344,28 @@ class MappingEngine:
             keep.last_seen, keep.last_seen_t = gone.last_seen, gone.last_seen_t
         keep.version += 1
         del self.objects[gone.id]
-        self._suspects.pop(gone.id, None)
-        self._appeared.discard(gone.id)
-        gone_seen = self._sightings.pop(gone.id, None)
-        if not keep.confirmed and gone_seen is not None:
-            self._sightings.setdefault(keep.id, _Glimpses()).update(gone_seen)
+        self.changes.forget(gone.id)
+        self.sightings.merge(keep, gone)
+
+    def take_out(self, oid: int) -> None:
+        """Remove object `oid` from the map, its clean-up and its sightings (change
+        detection found it gone, moved into another, or a second reading of one)."""
+        del self.objects[oid]
+        self._changed_since_cleanup.discard(oid)
+        self._changed_since_merge_check.discard(oid)
+        self.sightings.forget(oid)
+
+    def mark_changed(self, oid: int) -> None:
+        """Object `oid` changed: denoised and compared for a merge again."""
+        self._changed_since_cleanup.add(oid)
+        self._changed_since_merge_check.add(oid)
 
     def _denoise_due(self) -> list[int]:
-        """The objects whose outliers this keyframe removes, in id order.
-
-        semanticxr spreads the denoising (the costly part of the clean-up) over keyframes:
-        an object changed since it was last denoised is due on the keyframes where
-        `keyframes % cleanup_interval` equals `id % cleanup_interval`, so each is denoised
-        within `cleanup_interval` keyframes of changing and each keyframe carries about
-        1/cleanup_interval of the changed objects, never the whole map. The baseline keeps
-        the per-scene organisation: every changed object every `cleanup_interval` keyframes.
-        """
-        interval = self.knobs.cleanup_interval
-        if self.mode == "baseline":
-            return sorted(self._changed_since_cleanup) if self.keyframes % interval == 0 else []
-        slot = self.keyframes % interval
-        return sorted(oid for oid in self._changed_since_cleanup if oid % interval == slot)
+        """The objects whose outliers this keyframe removes, in id order: the
+        organisation's schedule (`Organisation.denoise_due`)."""
+        return self.organisation.denoise_due(
+            self._changed_since_cleanup, self.keyframes, self.knobs.cleanup_interval
+        )
 
     def _cleanup(self, touched: set[int], due: list[int]) -> set[int]:
         """Outlier removal on the `due` objects (`_denoise_due`); every `cleanup_interval`
@@ -765,29 +433,17 @@ class MappingEngine:
                 del self.objects[obj.id]
                 self._changed_since_cleanup.discard(obj.id)
                 self._changed_since_merge_check.discard(obj.id)
-                self._sightings.pop(obj.id, None)
+                self.sightings.forget(obj.id)
                 touched.discard(obj.id)
         return removed
 
     def _qualifies(self, obj: MapObject) -> bool:
-        """Seen on `min_observations` keyframes, or on `min_observations` frames (keyframes
-        and non-keyframe sightings) whose seqs span more than `min_observations` frames
-        (first and last at least that far apart) and that are at least SIGHTING_AGREEMENT of
-        the frames it was in view: an object in view for a second or two of a sweep (one
-        keyframe and the frames after it) is confirmed; a detection that lives for
-        `min_observations` frames or fewer (a transient), and one whose label the other
-        frames mostly contradict (a label confusion), are not."""
+        """Seen on `min_observations` keyframes, or by sightings (`Sightings.qualifies`): an
+        object in view for a second or two of a sweep (one keyframe and the frames after
+        it) is confirmed; a transient and a label confusion are not."""
         if obj.frames_seen >= self.knobs.min_observations:
             return True
-        glimpses = self._sightings.get(obj.id)
-        if glimpses is None:
-            return False
-        seqs = glimpses.seen
-        return (
-            len(seqs) >= self.knobs.min_observations
-            and max(seqs) - min(seqs) >= self.knobs.min_observations
-            and len(seqs) >= SIGHTING_AGREEMENT * (len(seqs) + len(glimpses.missed))
-        )
+        return self.sightings.qualifies(obj.id, self.knobs.min_observations)
 
     def _confirm(self, touched: set[int], stats: IntegrationStats) -> set[int]:
         """Confirm objects seen often enough; returns the confirmed ids that changed.
@@ -795,438 +451,40 @@ class MappingEngine:
         With negative evidence, a candidate that qualifies while a like object is suspect
         (same label, or embeddings `move_min_similarity` alike, and not seen since the
         candidate appeared) is that object at its new place: it merges into it as a move and
-        its own id is never published. Otherwise it is confirmed, `added` when remembered
-        keyframes had shown its place empty (`living.place_seen_empty`)."""
+        its own id is never published (`ChangeDetector.found_moved`). Otherwise it is
+        confirmed, `added` when remembered keyframes had shown its place empty
+        (`ChangeDetector.note_confirmed`)."""
         published = set()
         for oid in sorted(touched):
             obj = self.objects.get(oid)
             if obj is None:
                 continue
             if not obj.confirmed and self._qualifies(obj):
-                self._sightings.pop(oid, None)
-                suspect = self._like_object(obj, self._suspected_objects(), obj_is_new=True)
-                if suspect is None:
-                    suspect = self._revived(obj, stats)
-                if suspect is not None:
-                    self._move(suspect, obj, stats)
-                    published.add(suspect.id)
+                self.sightings.forget(oid)
+                old = self.changes.found_moved(obj, stats)
+                if old is not None:
+                    published.add(old.id)
                     continue
                 obj.confirmed = True
-                if (
-                    self.knobs.negative_evidence
-                    and not self._place_taken(obj)
-                    and self._place_seen_empty(obj)
-                ):
-                    self._appeared.add(obj.id)
-                    centroid, _ = obj.place()
-                    stats.changes.append(
-                        Change(obj.id, "added", self._now, obj.label, to_xyz=centroid)
-                    )
+                if self.knobs.negative_evidence:
+                    self.changes.note_confirmed(obj, stats)
             if obj.confirmed:
                 published.add(oid)
         return published
 
-    # ------------------------------------------------------------------ the living map
-    @property
-    def _now(self) -> float:
-        return self.last_t if self.last_t is not None else 0.0
-
-    def _evidence_view(self, frame: FrameInput, detections: FrameDetections) -> living.EvidenceView:
-        """The keyframe as the evidence test reads it: its depth and every detection it
-        carried (deferred and skipped ones too: a thing detected is not absent)."""
-        return living.EvidenceView(
-            pose=np.asarray(frame.pose, np.float64),
-            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
-            rgb_size=frame.rgb_size,
-            depth_m=frame.depth_m,
-            label_image=detections.instance_image,
-            labels={d.instance_id: d.label for d in detections.detections},
-            areas={d.instance_id: float(d.bbox_area_px) for d in detections.detections},
-            t=self._now,
-            keyframe=self.keyframes,
-        )
-
-    def _gather_evidence(
-        self, view: living.EvidenceView, observed: set[int], stats: IntegrationStats
-    ) -> set[int]:
-        """Negative evidence for one keyframe (DESIGN.md "The living map"): an observation
-        clears suspicion and drops the points the keyframe sees through (a short move does
-        not smear an object over both places); every other confirmed object whose place the
-        keyframe shows without it gathers evidence, and is removed, or found moved, once
-        `living.removal_due`. Returns the published ids it took out of the present map."""
-        for oid in observed:
-            self._suspects.pop(oid, None)
-        seen = [self.objects[i] for i in sorted(observed) if self.objects[i].confirmed]
-        worth = living.seen_through_any_batched(
-            [living.object_sample(o.points) for o in seen], view, self.knobs
-        )
-        for obj in (o for o, w in zip(seen, worth, strict=True) if w):
-            through = living.classify_points(obj.points, view, self.knobs).seen_through
-            if not through.all():
-                obj.set_points(obj.points[~through], obj.resolution_m)
-        floor = self.keyframes - living.SUSPICION_MAX_KEYFRAMES
-        for oid in list(self._suspects):
-            kept = [e for e in self._suspects[oid] if e.keyframe > floor]
-            if kept:
-                self._suspects[oid] = kept
-            else:
-                del self._suspects[oid]
-        tested = [
-            o
-            for o in self.objects.values()
-            if o.confirmed and o.id not in observed and len(o.points)
-        ]
-        kinds = living.absence_evidence_batched(
-            [living.object_sample(o.points) for o in tested],
-            self._own_labels(tested, view),
-            view,
-            self.knobs,
-        )
-        due = []
-        for obj, kind in zip(tested, kinds, strict=True):
-            if kind is None:
-                continue
-            evidence = self._suspects.setdefault(obj.id, [])
-            evidence.append(
-                living.Evidence(kind, view.t, view.keyframe, view.position, view.direction)
-            )
-            if living.removal_due(evidence, self.knobs):
-                due.append(obj)
-        removed: set[int] = set()
-        # the most observed first: a second reading of the same thing (a confused label)
-        # that leaves with it is then seen to share its old place
-        for obj in sorted(due, key=lambda o: (-o.n_obs, o.id)):
-            if obj.id in self.objects:
-                removed |= self._conclude_absent(obj, stats)
-        return removed
-
-    def _own_labels(self, objects: list[MapObject], view: living.EvidenceView) -> list[set[str]]:
-        """Per object, the labels a detection of it may carry: every label it has carried,
-        and the keyframe's labels alike to its embedding (`association_min_semantic`): the
-        detector calling a chair a stool still sees the chair."""
-        own = [set(o.label_counts) for o in objects]
-        labels = sorted(set(view.labels.values()))
-        if not objects or not labels:
-            return own
-        alike = np.stack([o.embedding for o in objects]) @ self.encoder.encode(labels).T
-        for i, j in zip(*np.nonzero(alike >= self.knobs.association_min_semantic), strict=True):
-            own[i].add(labels[j])
-        return own
-
-    def _suspected_objects(self) -> list[MapObject]:
-        return [self.objects[i] for i in sorted(self._suspects) if i in self.objects]
-
-    def _like_object(
-        self, obj: MapObject, others: list[MapObject], obj_is_new: bool
-    ) -> MapObject | None:
-        """The object among `others` that is `obj` at another place (obj_is_new: `obj` is
-        the new place, `others` old ones; else the other way round), the most alike, then
-        the nearest. Old and new must be alike (same label, or embeddings
-        `move_min_similarity` alike), the old one not observed since the new one appeared
-        (two like things seen at once are two things), and the new one must have appeared:
-        at a place seen empty before and not on another object (a second reading of the
-        old one, say, from a new viewpoint, is not a move)."""
-        best, best_key = None, None
-        centroid = obj.centroid
-        for other in others:
-            old, new = (other, obj) if obj_is_new else (obj, other)
-            if old.id == new.id or old.last_seen >= new.first_seen:
-                continue
-            similarity = float(old.embedding @ new.embedding)
-            same = old.label == new.label
-            if not same and similarity < self.knobs.move_min_similarity:
-                continue
-            key = (same, similarity, -float(np.linalg.norm(other.centroid - centroid)))
-            if best_key is not None and key <= best_key:
-                continue
-            if not self._appeared_at(new, as_candidate=obj_is_new):
-                continue
-            best, best_key = other, key
-        return best
-
-    def _appeared_at(self, new: MapObject, as_candidate: bool) -> bool:
-        """Whether `new` appeared in the world (`_like_object`): a published object had its
-        `added` change; a candidate is checked now."""
-        if not as_candidate:
-            return new.id in self._appeared
-        return not self._place_taken(new) and self._place_seen_empty(new)
-
-    def _move(self, old: MapObject, new: MapObject, stats: IntegrationStats) -> None:
-        """`old` is found at `new`'s place: it keeps its id and history, takes `new`'s
-        geometry and observations (its old points are dropped), starts a new stay; `new`
-        leaves the map. A `moved` change."""
-        old.refresh_stay()
-        self._vacate(old, stats, keep=new.id)
-        from_xyz, _ = old.place()
-        old.set_points(new.points.copy(), new.resolution_m)
-        old.absorb_labels(new)
-        old.n_obs += new.n_obs
-        old.frames_seen += new.frames_seen
-        old.last_seen, old.last_seen_t = new.last_seen, new.last_seen_t
-        t_from = new.first_seen_t if new.first_seen_t is not None else self._now
-        old.start_stay(t_from)
-        old.version += 1
-        del self.objects[new.id]
-        self._appeared.discard(new.id)
-        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
-            ids.discard(new.id)
-            ids.add(old.id)
-        self._sightings.pop(new.id, None)
-        self._suspects.pop(new.id, None)
-        self._suspects.pop(old.id, None)
-        to_xyz, _ = old.place()
-        stats.changes.append(Change(old.id, "moved", self._now, old.label, from_xyz, to_xyz))
-
-    def _conclude_absent(self, obj: MapObject, stats: IntegrationStats) -> set[int]:
-        """The evidence removes `obj` from its place: moved, when a like object appeared
-        elsewhere since it was last seen (that one merges into it and its id is removed),
-        else removed from the present map (kept as history). Returns the ids removed."""
-        self._suspects.pop(obj.id, None)
-        if self._second_reading_of_vacated(obj):
-            self._drop_second_reading(obj, stats)
-            return {obj.id}
-        appeared = [o for o in self.objects.values() if o.confirmed and o.id not in self._suspects]
-        new = self._like_object(obj, appeared, obj_is_new=False)
-        if new is not None:
-            self._move(obj, new, stats)
-            stats.retracted_added.append(new.id)
-            return {new.id}
-        self._vacate(obj, stats)
-        obj.refresh_stay()
-        from_xyz, _ = obj.place()
-        obj.state = "removed"
-        obj.version += 1
-        del self.objects[obj.id]
-        self._appeared.discard(obj.id)
-        self._recently_removed[obj.id] = (self.keyframes, self._now, obj)
-        while len(self._recently_removed) > RECENTLY_REMOVED:
-            del self._recently_removed[next(iter(self._recently_removed))]
-        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
-            ids.discard(obj.id)
-        stats.retired.append(obj)
-        stats.changes.append(Change(obj.id, "removed", self._now, obj.label, from_xyz=from_xyz))
-        return {obj.id}
-
-    def _revived(self, new: MapObject, stats: IntegrationStats) -> MapObject | None:
-        """The recently removed object `new` is (`_like_object`), back in the map (state
-        present, its removal retracted) for `_move` to take it to its new place; or None."""
-        for oid, (_, t_removed, _) in list(self._recently_removed.items()):
-            if self._now - t_removed > REVIVE_WINDOW_S:
-                del self._recently_removed[oid]
-        removed = [obj for _, _, obj in self._recently_removed.values()]
-        old = self._like_object(new, removed, obj_is_new=True)
-        if old is None:
-            return None
-        keyframe, _, _ = self._recently_removed.pop(old.id)
-        old.state = "present"
-        self.objects[old.id] = old
-        if keyframe < self.keyframes:
-            stats.retracted_removed.append(old.id)
-        else:  # removed by this very keyframe: its removal never leaves it
-            stats.retired.remove(old)
-            stats.changes[:] = [c for c in stats.changes if c.id != old.id]
-            stats.unremoved_ids.append(old.id)
-        return old
-
-    def _vacate(self, obj: MapObject, stats: IntegrationStats, keep: int | None = None) -> None:
-        """`obj` leaves its place: remember it (`_second_reading_of_vacated`), and drop the
-        like objects whose boxes lie mostly in it, second readings of the same thing that
-        would otherwise answer queries from where it no longer is (but `keep`)."""
-        box = obj.bbox.copy()
-        self._vacated.append((self.keyframes, box))
-        for other in list(self.objects.values()):
-            if other.id in (obj.id, keep) or not other.confirmed:
-                continue
-            alike = (
-                other.label == obj.label
-                or float(other.embedding @ obj.embedding) >= self.knobs.move_min_similarity
-            )
-            if alike and geo.bbox_inside_fraction(other.bbox, box) >= VACATED_INSIDE:
-                self._drop_second_reading(other, stats)
-
-    def _drop_second_reading(self, obj: MapObject, stats: IntegrationStats) -> None:
-        """Take a duplicate of a thing that moved or left out of the map, as a clean-up
-        merge would: its id is removed, with no change of its own."""
-        del self.objects[obj.id]
-        self._appeared.discard(obj.id)
-        self._suspects.pop(obj.id, None)
-        for ids in (self._changed_since_cleanup, self._changed_since_merge_check):
-            ids.discard(obj.id)
-        stats.retracted_added.append(obj.id)
-        stats.dropped_ids.append(obj.id)
-
-    def _second_reading_of_vacated(self, obj: MapObject) -> bool:
-        """Whether most of `obj`'s box lies in the box of a place vacated within
-        SUSPICION_MAX_KEYFRAMES: a second reading of the thing that left it (the back of a
-        chair read as a stool)."""
-        floor = self.keyframes - living.SUSPICION_MAX_KEYFRAMES
-        while self._vacated and self._vacated[0][0] <= floor:
-            self._vacated.popleft()
-        return any(
-            geo.bbox_inside_fraction(obj.bbox, box) >= VACATED_INSIDE for _, box in self._vacated
-        )
-
-    def _place_taken(self, obj: MapObject) -> bool:
-        """Whether another confirmed object holds most of `obj`'s place, so that `obj` is a
-        second reading of it (a fragment, a confused label), not a new thing: most of its
-        points lie on that object's, and the two are alike (embeddings
-        `association_min_semantic` alike) or share most of their boxes. Unlike things only
-        touching (a mug on a table, a book on a shelf) hold their own places."""
-        others = [o for o in self.objects.values() if o.confirmed and o.id != obj.id]
-        if not others or not len(obj.points):
-            return False
-        margin = self.knobs.voxel_size_m
-        boxes = np.stack([o.bbox for o in others])
-        near = np.flatnonzero(geo.bbox_intersects_matrix(obj.bbox[None], boxes, margin)[0])
-        for j in near:
-            other = others[j]
-            alike = float(other.embedding @ obj.embedding) >= self.knobs.association_min_semantic
-            if not alike and geo.bbox_iou(obj.bbox, other.bbox) < PLACE_TAKEN_BOX_IOU:
-                continue
-            if geo.overlap_fraction(obj.points, other.tree, margin) >= PLACE_TAKEN_OVERLAP:
-                return True
-        return False
-
-    def _place_seen_empty(self, obj: MapObject) -> bool:
-        """Whether keyframes from before `obj` was first seen showed its place without it."""
-        earlier = [v for v in self._views if v.keyframe < obj.first_seen]
-        if not earlier:
-            return False
-        seeing = living.views_seeing(obj.centroid, earlier, self.knobs)
-        return living.place_seen_empty(
-            living.object_sample(obj.points),
-            list(obj.label_counts),
-            [earlier[i] for i in seeing],
-            self.knobs,
-        )
-
     def sight(self, frame: FrameInput, sent: FrameDetections | None) -> list[int]:
-        """Count a non-keyframe's detections as sightings of candidate objects (DESIGN.md
-        "Keyframes": a detection sent with a non-keyframe may count towards confirmation).
+        """Count a non-keyframe's detections as sightings of candidate objects
+        (`Sightings.sight`); a sighting that shows a suspect object where it was also
+        clears its suspicion.
 
-        frame: validated by `validate_frame`, which returned `sent` (its instance image and
-        depth may be at the RGB size divided by any integer ratio). Every object is projected
-        into the frame (a sample of SIGHTING_SAMPLE_POINTS points); a candidate (unconfirmed
-        object) is in view when at least SIGHTING_MIN_POINTS of them are visible (in the
-        image, in front of the camera, not hidden behind nearer depth). It is sighted when
-        at least SIGHTING_COVER of its visible points fall in one detection that is its own:
-        the detection carries one of its labels, no confirmed object carrying that label is
-        visible in it (the candidate would be a fragment or a duplicate of that object), and
-        no other candidate carrying the label has more points in it. A candidate in view but
-        not sighted is missed there (`_qualifies` weighs sightings against misses).
-
-        Nothing is lifted and no geometry changes; a candidate that now qualifies is
-        confirmed, and published, by the next keyframe. Returns the sighted ids."""
+        frame: validated by `validate_sighting` (or `validate_frame`), which returned
+        `sent`. A candidate that now qualifies is confirmed, and published, by the next
+        keyframe. Returns the sighted ids."""
         if sent is None:
             return []
-        if self._suspects:
-            self._clear_seen_suspects(frame, sent)
-        if not any(not o.confirmed for o in self.objects.values()):
-            return []
-        _, objects, points, owner, sample_sizes = self._samples_to_sight()
-        if not objects:
-            return []
-        u, v, z, kept = _project(points, frame)
-        owner = owner[kept]
-        width, height = frame.rgb_size
-        sensed = geo.pixels_of(frame.depth_m, u, v, width)
-        visible = (sensed > 0) & (np.abs(z - sensed) <= SIGHTING_DEPTH_TOLERANCE_M + 0.05 * z)
-        owner, u, v = owner[visible], u[visible], v[visible]
-        det_ids, column = np.unique(
-            geo.pixels_of(sent.instance_image, u, v, width), return_inverse=True
-        )
-        # counts[i, k]: visible sample points of objects[i] in detection det_ids[k] (0: none)
-        counts = np.bincount(
-            owner * len(det_ids) + column, minlength=len(objects) * len(det_ids)
-        ).reshape(len(objects), len(det_ids))
-        n_visible = counts.sum(axis=1)
-        in_view = np.flatnonzero(n_visible >= np.minimum(SIGHTING_MIN_POINTS, sample_sizes))
-
-        skip = {label.lower() for label in self.knobs.skip_mapping_set}
-        label_of = {i: label for i, label in sent.labels().items() if label.lower() not in skip}
-        labels = [label_of.get(int(d)) for d in det_ids]
-        taken: set[int] = set()  # columns a confirmed object carrying their label is seen in
-        best_candidate: dict[int, tuple[int, int]] = {}  # column -> (points, object index)
-        claim_of: dict[int, int] = {}  # candidate index -> the column it would be sighted by
-        for i in in_view:
-            obj = objects[i]
-            row = counts[i]
-            for k in np.flatnonzero(row):
-                if labels[k] is None or labels[k] not in obj.label_counts:
-                    continue
-                if obj.confirmed:
-                    if row[k] >= SIGHTING_MIN_POINTS:
-                        taken.add(int(k))
-                elif (int(row[k]), int(i)) > best_candidate.get(int(k), (0, -1)):
-                    best_candidate[int(k)] = (int(row[k]), int(i))
-            if not obj.confirmed:
-                k = int(np.argmax(row * (det_ids > 0)))
-                if det_ids[k] and row[k] >= SIGHTING_COVER * n_visible[i]:
-                    claim_of[int(i)] = k
-        sighted = []
-        seq = int(frame.seq)
-        for i in in_view:
-            obj = objects[i]
-            if obj.confirmed:
-                continue
-            k = claim_of.get(int(i))
-            glimpses = self._sightings.setdefault(obj.id, _Glimpses())
-            if k is None or k in taken or best_candidate.get(k, (0, -1))[1] != i:
-                glimpses.missed.add(seq)
-                continue
-            glimpses.seen.add(seq)
-            self._sighted.add(obj.id)
-            sighted.append(obj.id)
-        return sorted(sighted)
-
-    def _samples_to_sight(self) -> _SightSamples:
-        """The objects' samples, drawn once per keyframe: the geometry only changes when a
-        keyframe is mapped."""
-        cached = self._sight_samples
-        if cached is None or cached.keyframe != self.keyframes:
-            objects = [o for o in self.objects.values() if len(o.points)]
-            samples = [
-                o.points[:: max(1, len(o.points) // SIGHTING_SAMPLE_POINTS)] for o in objects
-            ]
-            sizes = np.array([len(p) for p in samples], np.int64)
-            points = np.concatenate(samples) if samples else np.zeros((0, 3), np.float32)
-            owner = np.repeat(np.arange(len(objects)), sizes)
-            cached = self._sight_samples = _SightSamples(
-                self.keyframes, objects, points, owner, sizes
-            )
-        return cached
-
-    def _clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
-        """A sighting that shows a suspect object where it was clears its suspicion: at
-        least SIGHTING_MIN_POINTS of its points at the sensed depth (the evidence test's
-        tolerance) under a detection of one of its labels. A like thing detected nearby, or
-        beyond its place, clears nothing."""
-        suspects = [self.objects[i] for i in list(self._suspects) if i in self.objects]
-        if not suspects:
-            return
-        view = living.EvidenceView(
-            pose=np.asarray(frame.pose, np.float64),
-            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
-            rgb_size=frame.rgb_size,
-            depth_m=frame.depth_m,
-            label_image=sent.instance_image,
-            labels=sent.labels(),
-        )
-        own = self._own_labels(suspects, view)
-        for obj, labels in zip(suspects, own, strict=True):
-            sample = living.object_sample(obj.points)
-            verdicts = living.classify_points(sample, view, self.knobs)
-            at = verdicts.matching
-            if at.sum() < SIGHTING_MIN_POINTS:
-                continue
-            ids = geo.pixels_of(view.label_image, verdicts.u[at], verdicts.v[at], frame.rgb_size[0])
-            hits = sum(
-                int(n)
-                for d, n in zip(*np.unique(ids, return_counts=True), strict=True)
-                if d and view.labels.get(int(d)) in labels
-            )
-            if hits >= SIGHTING_MIN_POINTS:
-                del self._suspects[obj.id]
+        if self.changes.suspects:
+            self.changes.clear_seen_suspects(frame, sent)
+        return self.sightings.sight(self.objects, self.keyframes, frame, sent, self.knobs)
 
     # ------------------------------------------------------------------ reading the map
     def confirmed_objects(self) -> list[MapObject]:

@@ -14,7 +14,7 @@ import pytest
 from app.cli.evaluation import EvalConfig, run_eval
 from app.config import Knobs
 from app.mapping import geometry as geo
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 from client_sim.encoder import downsample_depth
 from client_sim.sources.synthetic import SyntheticSource
 from client_sim.world.render import default_camera
@@ -86,7 +86,7 @@ def test_a_variant_named_like_a_mode_is_refused_before_any_work(encoder):
 
 
 def test_a_query_for_a_category_returns_an_object_of_that_category(living_room, encoder):
-    engine = MappingEngine(encoder, Knobs(min_mapping_bbox_area=100))
+    engine = MappingEngine(encoder, Knobs(min_mapping_bbox_area=100), backend=make_perception())
     for frame in living_room.frames(every=3):
         from app.protocol import FrameInput
 

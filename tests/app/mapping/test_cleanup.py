@@ -11,7 +11,7 @@ from analytic_world import Rect, render_rects
 
 from app.config import Knobs
 from app.mapping import geometry as geo
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 
 # two chairs whose boxes overlap at a corner (the right one hides the left one's corner):
 # compared for a merge, never merged
@@ -56,7 +56,9 @@ def make_engine(encoder, mode="semanticxr", **knobs) -> MappingEngine:
         "cleanup_interval": 2,
         "transient_max_age": 1000,
     }
-    return MappingEngine(encoder, Knobs(**{**defaults, **knobs}), mode=mode)
+    return MappingEngine(
+        encoder, Knobs(**{**defaults, **knobs}), mode=mode, backend=make_perception(mode=mode)
+    )
 
 
 @pytest.mark.parametrize("mode", ["semanticxr", "baseline"])

@@ -8,7 +8,7 @@ import pytest
 from analytic_world import Rect, render_rects
 
 from app.config import Knobs
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 
 CHAIR = Rect(1, "chair", -0.6, -0.3, -0.1, 0.3, 2.0)
 MUG = Rect(2, "mug", 0.2, -0.1, 0.4, 0.1, 1.5)
@@ -20,7 +20,7 @@ FRAMES = 40
 
 def make_engine(encoder) -> MappingEngine:
     knobs = Knobs(min_mapping_bbox_area=100, keyframe_interval=5, min_observations=3)
-    return MappingEngine(encoder, knobs)
+    return MappingEngine(encoder, knobs, backend=make_perception())
 
 
 def stream(engine: MappingEngine, scene) -> set[int]:

@@ -10,7 +10,7 @@ from analytic_world import Rect, render_rects
 
 from app.config import Knobs
 from app.mapping import geometry as geo
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 from app.perception.base import InputError
 
 CHAIR = Rect(1, "chair", -0.6, -0.3, -0.1, 0.3, 2.0)
@@ -19,7 +19,9 @@ TABLE = Rect(2, "table", 0.1, -0.3, 0.7, 0.3, 2.0)
 
 def make_engine(encoder, mode="semanticxr", **knobs) -> MappingEngine:
     defaults = {"min_mapping_bbox_area": 100, "min_observations": 2, "cleanup_interval": 1000}
-    return MappingEngine(encoder, Knobs(**{**defaults, **knobs}), mode=mode)
+    return MappingEngine(
+        encoder, Knobs(**{**defaults, **knobs}), mode=mode, backend=make_perception(mode=mode)
+    )
 
 
 def snapshot(engine: MappingEngine):

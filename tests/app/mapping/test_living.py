@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from app.config import Knobs
 from app.mapping import living
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 from app.mapping.object import MAX_STAYS, Stay, stays_from_bytes, stays_to_bytes
 
 WALL = Rect(9, "whiteboard", -3.0, -2.0, 3.0, 2.0, 3.0)
@@ -26,7 +26,9 @@ SECOND_MUG = Rect(7, "mug", 0.4, -0.2, 0.6, 0.0, 2.0)
 
 def make_engine(encoder, mode="semanticxr", **knobs) -> MappingEngine:
     defaults = {"min_mapping_bbox_area": 100, "min_observations": 2, "cleanup_interval": 1000}
-    return MappingEngine(encoder, Knobs(**{**defaults, **knobs}), mode=mode)
+    return MappingEngine(
+        encoder, Knobs(**{**defaults, **knobs}), mode=mode, backend=make_perception(mode=mode)
+    )
 
 
 class Walk:
@@ -172,7 +174,7 @@ def test_a_thing_hidden_behind_something_new_stays(encoder):
     (mug,) = mug_ids(engine)
     later = walk.walk([WALL, BOX], 12)
     assert mug in engine.objects and (mug, "removed") not in changes(later)
-    assert mug not in engine._suspects
+    assert mug not in engine.changes.suspects
 
 
 @settings(max_examples=8, deadline=None)
@@ -291,10 +293,10 @@ def test_a_sighting_clears_suspicion(encoder):
     walk.walk([WALL, MUG], 3)
     (mug,) = mug_ids(engine)
     walk.walk([WALL], 1)
-    assert mug in engine._suspects
+    assert mug in engine.changes.suspects
     frame = render_rects([WALL, MUG], seq=999)
     engine.sight(frame, engine.validate_frame(frame))
-    assert mug not in engine._suspects
+    assert mug not in engine.changes.suspects
 
 
 def test_a_sighting_of_a_like_thing_elsewhere_clears_nothing(encoder):
@@ -305,7 +307,7 @@ def test_a_sighting_of_a_like_thing_elsewhere_clears_nothing(encoder):
     walk.walk([WALL], 1)
     frame = render_rects([WALL, MUG_MOVED], seq=999)  # a mug, but not where this one was
     engine.sight(frame, engine.validate_frame(frame))
-    assert mug in engine._suspects
+    assert mug in engine.changes.suspects
 
 
 def test_negative_evidence_off_keeps_everything(encoder):

@@ -8,7 +8,7 @@ from analytic_world import Rect, RectSource
 from scipy import ndimage
 
 from app.config import Knobs
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 from app.protocol import parse_frame
 from client_sim.encoder import FrameEncoder
 
@@ -31,7 +31,9 @@ def bled(frame, instance_id: int, px: int):
 def walk(encoder, frame_encoder: FrameEncoder, n_frames: int = 4) -> MappingEngine:
     """Map `n_frames` frames of the cup in front of the wall, sent the way the device sends
     them (encoded, then parsed), with the cup's mask bled by 2 px."""
-    engine = MappingEngine(encoder, Knobs(min_observations=2, cleanup_interval=1000))
+    engine = MappingEngine(
+        encoder, Knobs(min_observations=2, cleanup_interval=1000), backend=make_perception()
+    )
     source = RectSource((WALL, CUP), n_frames=n_frames, step_m=0.02)
     for index in range(n_frames):
         message = frame_encoder.encode_source_frame(bled(source.frame(index), CUP.instance_id, 2))
@@ -58,7 +60,12 @@ def test_without_a_depth_patch_the_small_object_is_deferred(encoder):
 
 
 def test_the_baseline_ignores_depth_patches(encoder):
-    engine = MappingEngine(encoder, Knobs(min_observations=1), mode="baseline")
+    engine = MappingEngine(
+        encoder,
+        Knobs(min_observations=1),
+        mode="baseline",
+        backend=make_perception(mode="baseline"),
+    )
     source = RectSource((WALL, CUP), n_frames=1)
     message = FrameEncoder(5).encode_source_frame(source.frame(0)).message
     assert "depth_patches" in message
@@ -74,7 +81,11 @@ THIN_KNOBS = dict(min_mapping_bbox_area=150, min_detection_points=20)
 
 
 def thin_walk(encoder, frame_encoder: FrameEncoder) -> MappingEngine:
-    engine = MappingEngine(encoder, Knobs(min_observations=2, cleanup_interval=1000, **THIN_KNOBS))
+    engine = MappingEngine(
+        encoder,
+        Knobs(min_observations=2, cleanup_interval=1000, **THIN_KNOBS),
+        backend=make_perception(),
+    )
     source = RectSource((WALL, FRAME), n_frames=4, step_m=0.02)
     for index in range(4):
         message = frame_encoder.encode_source_frame(source.frame(index))

@@ -10,7 +10,7 @@ import pytest
 from analytic_world import Rect, render_rects
 
 from app.config import Knobs
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 from app.mapping.publish import update_message
 from client_sim.local_map import LocalMap
 from viewer.scene import SceneModel
@@ -34,7 +34,7 @@ def _wire(message: dict) -> dict:
 @pytest.mark.parametrize("mode", ["semanticxr", "baseline"])
 def test_engine_updates_give_the_local_map_and_the_viewer_the_confirmed_map(encoder, mode):
     knobs = Knobs(min_mapping_bbox_area=100, min_observations=2, max_object_points_client=50)
-    engine = MappingEngine(encoder, knobs, mode=mode)
+    engine = MappingEngine(encoder, knobs, mode=mode, backend=make_perception(mode=mode))
     local = LocalMap(dim=encoder.dim, max_points_per_object=knobs.max_object_points_client)
     scene = SceneModel(_NoSink())
     since = 0

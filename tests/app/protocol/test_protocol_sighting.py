@@ -12,7 +12,7 @@ from hypothesis.extra import numpy as hnp
 
 from app.codecs import DEPTH_CODECS, encode_uint16_image, pose_to_bytes
 from app.errors import InputError
-from app.mapping.engine import MappingEngine
+from app.mapping.engine import MappingEngine, make_perception
 from app.protocol import FrameBudget, LimitError, Uint16Image, pack_sighting, parse_sighting
 from client_sim.encoder import FrameEncoder
 
@@ -64,7 +64,7 @@ def test_a_sighting_carries_coarse_detections_and_depth_in_about_a_kilobyte():
 
 
 def test_the_engine_takes_a_sighting_at_coarse_resolution(encoder):
-    engine = MappingEngine(encoder)
+    engine = MappingEngine(encoder, backend=make_perception())
     sent = engine.validate_sighting(parse_sighting(encoded()))
     assert sorted(d.label for d in sent.detections) == ["chair", "mug"]
 
@@ -135,7 +135,7 @@ def test_the_engine_refuses_coarse_images_that_do_not_fit_the_rgb_size(encoder, 
     sighting = parse_sighting(encoded())
     mutate(sighting)
     with pytest.raises(InputError) as err:
-        MappingEngine(encoder).validate_sighting(sighting)
+        MappingEngine(encoder, backend=make_perception()).validate_sighting(sighting)
     assert err.value.field == field, str(err.value)
 
 
