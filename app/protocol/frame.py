@@ -26,8 +26,17 @@ from app.protocol.limits import (
 
 TYPE_FIELD = "type"
 """The field in which every stream message names its kind ("frame" or "sighting")."""
-DETECTIONS_PART = "detections"
-FRAME_PARTS = ("rgb", "depth", DETECTIONS_PART)
+POSE_FIELD = "pose"
+"""The camera-to-world pose of a frame or a sighting (16 float32, little-endian, row-major)."""
+INTRINSICS_FIELD = "intrinsics"
+"""[fx, fy, cx, cy] of the RGB image, in its pixels."""
+RGB_FIELD = "rgb"
+"""The RGB image part (JPEG); its size is the frame's RGB size."""
+DEPTH_FIELD = "depth"
+"""The depth part: a uint16 image, the RGB size divided by an integer ratio."""
+DETECTIONS_FIELD = "detections"
+"""The device's detections: an instance-id image and its instances."""
+FRAME_PARTS = (RGB_FIELD, DEPTH_FIELD, DETECTIONS_FIELD)
 """The binary parts a stream message may carry, each a map holding its bytes in `data`: the
 kinds of a session's `bytes_in`."""
 
@@ -86,16 +95,6 @@ class FrameInput:
 MAX_POSE_SKEW_S = 10.0
 """Largest |pose_skew_s| a frame may declare: an image seconds away from its pose is a bug."""
 
-POSE_FIELD = "pose"
-"""The camera-to-world pose of a frame or a sighting (16 float32, little-endian, row-major)."""
-INTRINSICS_FIELD = "intrinsics"
-"""[fx, fy, cx, cy] of the RGB image, in its pixels."""
-RGB_FIELD = "rgb"
-"""The RGB image part (JPEG); its size is the frame's RGB size."""
-DEPTH_FIELD = "depth"
-"""The depth part: a uint16 image, the RGB size divided by an integer ratio."""
-DETECTIONS_FIELD = "detections"
-"""The device's detections: an instance-id image and its instances."""
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 from app.keyframes import is_keyframe
 from app.perception import DEFAULT_BACKEND
-from app.protocol.frame import DETECTIONS_PART
+from app.protocol.frame import DETECTIONS_FIELD
 from app.server.metrics import Metrics
 from app.server.sessions.claims import Claims
 from app.server.sessions.residency import Residency
@@ -73,7 +73,7 @@ class Counters:
         than COUNTERS_SAVE_INTERVAL_S ago. A frame the device did not pick (`keyframe`
         False) is a sighting: counted in `frames` and apart in `record.sightings`."""
         now = session.count_frame(frame_bytes, sighting=keyframe is False)
-        if DETECTIONS_PART not in frame_bytes and session.engine.backend.name == DEFAULT_BACKEND:
+        if DETECTIONS_FIELD not in frame_bytes and session.engine.backend.name == DEFAULT_BACKEND:
             session.warn_once(NO_DETECTIONS_WARNING)
         for kind, n in frame_bytes.items():
             self.metrics.upstream_bytes.labels(kind=kind).inc(n)
