@@ -92,6 +92,9 @@ class Organisation(abc.ABC):
     association, the geometry kept per object and the denoising schedule."""
 
     mode: Mode
+    whole_map_downstream: bool
+    """True: every update carries the whole confirmed map at full resolution (the baseline);
+    False: the objects changed since the subscriber's seq, at client resolution."""
 
     @abc.abstractmethod
     def lift(
@@ -134,6 +137,7 @@ class SemanticXROrganisation(Organisation):
     full-resolution depth patch."""
 
     mode: Mode = "semanticxr"
+    whole_map_downstream: bool = False
 
     def lift(self, frame, detections, kept, knobs, stats):
         """semanticxr lifts a detection from the frame's full-resolution depth patch over
@@ -235,6 +239,7 @@ class BaselineOrganisation(Organisation):
     integrated as it comes."""
 
     mode: Mode = "baseline"
+    whole_map_downstream: bool = True
 
     def lift(self, frame, detections, kept, knobs, stats):
         """A full-image mask and lift per detection."""

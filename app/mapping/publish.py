@@ -71,11 +71,12 @@ def update_message(engine: MappingEngine, since: int | None) -> dict:
     """The update a subscriber whose last applied seq is `since` receives.
 
     semanticxr: the objects changed since `since`, coalesced, at client resolution.
-    baseline: the whole confirmed map at full resolution, every time (docs/architecture.md "Two system organisations").
+    baseline: the whole confirmed map at full resolution, every time (the organisation's
+    `whole_map_downstream`; docs/architecture.md "Two system organisations").
     With the v1 extension "device_pose": the newest mapped keyframe's pose, so viewers can
     show where the device is.
     """
-    if engine.mode == "baseline":
+    if engine.organisation.whole_map_downstream:
         message = _delta(engine.delta_since(None), engine.objects, None)
     else:
         max_points = engine.knobs.max_object_points_client
