@@ -35,7 +35,7 @@ def build_map(scene: str, frames: int, seed: int):
     from app.mapping.engine import MappingEngine
     from app.mapping.evaluation import majority_gt_class
     from app.semantics import get_text_encoder
-    from client_sim.world.gt import gt_point_cloud
+    from world.gt import gt_point_cloud
 
     cfg = EvalConfig(scene=scene, frames=frames, seed=seed, modes=("semanticxr",))
     ratio = cfg.knobs.depth_downsampling_ratio
@@ -97,7 +97,7 @@ def main() -> int:
     from app.semantics import get_text_encoder
     from app.server.runner import ServerThread
     from app.server.settings import ServerSettings
-    from client_sim.world.categories import CATEGORIES
+    from world.categories import CATEGORIES
 
     engine, category, observed = build_map(args.scene, args.frames, args.seed)
     folder = Path(tempfile.mkdtemp(prefix="semanticxr-speech-"))

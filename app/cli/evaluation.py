@@ -34,10 +34,10 @@ from app.protocol import FrameInput, parse_frame, parse_sighting
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, downsample_depth, session_encoder_options
 from client_sim.sources.synthetic import SyntheticFrame, SyntheticSource
-from client_sim.world.categories import BACKGROUND_CLASSES, CATEGORIES
-from client_sim.world.gt import gt_point_cloud
-from client_sim.world.noise import DetectionModel
-from client_sim.world.render import default_camera
+from world.categories import BACKGROUND_CLASSES, CATEGORIES
+from world.gt import gt_point_cloud
+from world.noise import DetectionModel
+from world.render import default_camera
 
 Progress = Callable[[str], None]
 
@@ -57,7 +57,7 @@ def _stderr(message: str) -> None:
 @dataclass
 class EvalConfig:
     scene: str = "apartment"
-    """Synthetic scene name (client_sim.world.scene.SCENE_NAMES)."""
+    """Synthetic scene name (world.scene.SCENE_NAMES)."""
     seed: int = 0
     """Scene, trajectory and noise seed."""
     frames: int = 400

@@ -1,10 +1,10 @@
 """`semanticxr eval --scenario relations`: questions about how things stand, asked of a map.
 
-For each seed, a relation room (`client_sim.world.relation_scenes`: duplicates of a category
+For each seed, a relation room (`world.relation_scenes`: duplicates of a category
 in distinct relations) is walked round and mapped in process as `semanticxr eval` does it
 (render, encode, decode, map; the frames between keyframes as sightings; semanticxr mode),
 the device's local map following the engine's update messages. Then every question of the
-generated set (`client_sim.world.relation_queries`: relational, "what is on ...", negatives
+generated set (`world.relation_queries`: relational, "what is on ...", negatives
 and the categories' plain paraphrases, each with its ground truth from the scene's geometry)
 is asked three ways:
 
@@ -66,16 +66,16 @@ from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.local_map import LocalMap
 from client_sim.sources.synthetic import SyntheticSource
-from client_sim.world.categories import CATEGORIES
-from client_sim.world.gt import gt_point_cloud
-from client_sim.world.relation_queries import (
+from world.categories import CATEGORIES
+from world.gt import gt_point_cloud
+from world.relation_queries import (
     Question,
     named,
     plain_questions,
     relational_questions,
 )
-from client_sim.world.relation_scenes import make_relation_scene, relation_walk
-from client_sim.world.render import default_camera
+from world.relation_scenes import make_relation_scene, relation_walk
+from world.render import default_camera
 
 Progress = Callable[[str], None]
 

@@ -18,7 +18,7 @@ from app.cli.evaluation import (
     run_eval,
 )
 from app.config import Knobs
-from client_sim.world.rooms import make_scene
+from world.rooms import make_scene
 
 FRAMES = 60
 

@@ -17,7 +17,7 @@ from app.mapping import geometry as geo
 from app.mapping.engine import MappingEngine
 from client_sim.encoder import downsample_depth
 from client_sim.sources.synthetic import SyntheticSource
-from client_sim.world.render import default_camera
+from world.render import default_camera
 
 SMALL = default_camera(160, 120)
 

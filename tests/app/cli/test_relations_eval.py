@@ -10,8 +10,8 @@ import pytest
 from app import semantics
 from app.cli import main
 from app.cli.relations_eval import _ask, _perfect_view
-from client_sim.world.gt import gt_point_cloud
-from client_sim.world.relation_scenes import make_relation_scene, relation_walk
+from world.gt import gt_point_cloud
+from world.relation_scenes import make_relation_scene, relation_walk
 
 
 def test_a_perfect_map_of_a_relation_room_tells_the_duplicates_apart(encoder):

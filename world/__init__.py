@@ -2,11 +2,11 @@
 detection noise model and scripted revisits (changes between two walks). Ground truth for
 evaluating the mapping engine."""
 
-from client_sim.world.categories import BACKGROUND_CLASSES, CATEGORIES, Category
-from client_sim.world.gt import GroundTruthCloud, gt_point_cloud
-from client_sim.world.noise import NOISE_PROFILES, DetectionModel, NoisyDetections
-from client_sim.world.render import Camera, Renderer, View, default_camera
-from client_sim.world.revisit import (
+from world.categories import BACKGROUND_CLASSES, CATEGORIES, Category
+from world.gt import GroundTruthCloud, gt_point_cloud
+from world.noise import NOISE_PROFILES, DetectionModel, NoisyDetections
+from world.render import Camera, Renderer, View, default_camera
+from world.revisit import (
     CHANGE_KINDS,
     GroundTruthChange,
     RevisitScenario,
@@ -14,9 +14,9 @@ from client_sim.world.revisit import (
     make_revisit,
     measure_visibility,
 )
-from client_sim.world.rooms import make_scene
-from client_sim.world.scene import SCENE_NAMES, Doorway, Room, Scene, SceneObject
-from client_sim.world.trajectory import walk_trajectory
+from world.rooms import make_scene
+from world.scene import SCENE_NAMES, Doorway, Room, Scene, SceneObject
+from world.trajectory import walk_trajectory
 
 __all__ = [
     "BACKGROUND_CLASSES",

@@ -13,8 +13,8 @@ import math
 
 import numpy as np
 
-from client_sim.world.placement import Placed, SceneBuilder
-from client_sim.world.scene import (
+from world.placement import Placed, SceneBuilder
+from world.scene import (
     DOOR_HEIGHT_M,
     DOOR_WIDTH_M,
     SCENE_NAMES,

@@ -14,7 +14,7 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from client_sim.world.scene import Scene
+from world.scene import Scene
 
 CONTACT_M = 0.015
 

@@ -11,7 +11,7 @@ which group, the room's size, the sizes and colours, and the optional extras are
 one generator seeded by `seed`, so a room is deterministic per seed and seeds vary the layout.
 
 Nothing here records relations: the ground truth of every question
-(`client_sim.world.relation_queries`) comes from the scene's geometry and from the
+(`world.relation_queries`) comes from the scene's geometry and from the
 placement engine's `support_id` (what each thing was stood on), as for any other scene.
 """
 
@@ -21,13 +21,13 @@ import math
 
 import numpy as np
 
-from client_sim.world.placement import REST_GAP_M, Placed, SceneBuilder, Support
-from client_sim.world.scene import Room, Scene
+from world.placement import REST_GAP_M, Placed, SceneBuilder, Support
+from world.scene import Room, Scene
 
 RELATION_SCENE = "relations"
 """`Scene.name` of the relation rooms."""
 _ROOM_TYPE = "living_room"  # floor and wall palettes, the ornaments on the bookcase
-_CHAIR_SEAT_M = 0.46  # the seat height client_sim.world.furniture draws chairs with
+_CHAIR_SEAT_M = 0.46  # the seat height world.furniture draws chairs with
 _SEAT_BACK_M = 0.05  # the part of a seat's depth the chair's back stands on
 _UNDER_TABLE_INSET_M = 0.15  # keeps a bag under a table clear of its legs
 

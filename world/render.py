@@ -15,7 +15,7 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from client_sim.world.scene import Scene
+from world.scene import Scene
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,8 @@ import collections
 import numpy as np
 import pytest
 
-from client_sim.world import make_scene
-from client_sim.world.relation_queries import (
+from world import make_scene
+from world.relation_queries import (
     PAIRWISE_KINDS,
     Question,
     between_holds,
@@ -19,7 +19,7 @@ from client_sim.world.relation_queries import (
     relational_questions,
     things_of,
 )
-from client_sim.world.relation_scenes import make_relation_scene, relation_walk
+from world.relation_scenes import make_relation_scene, relation_walk
 
 SEEDS = (0, 1, 2)
 

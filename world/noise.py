@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from client_sim.world.categories import CATEGORIES
-from client_sim.world.render import View
-from client_sim.world.scene import Scene
+from world.categories import CATEGORIES
+from world.render import View
+from world.scene import Scene
 
 NOISE_PROFILES: tuple[str, ...] = ("none", "standard")
 

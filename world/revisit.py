@@ -27,14 +27,14 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from client_sim.world.categories import CATEGORIES
-from client_sim.world.furniture import build_furniture
-from client_sim.world.meshes import Parts, rot_z
-from client_sim.world.placement import REST_GAP_M
-from client_sim.world.render import Camera, default_camera
-from client_sim.world.rooms import make_scene
-from client_sim.world.scene import WALL_THICKNESS_M, Scene, SceneObject
-from client_sim.world.trajectory import walk_trajectory
+from world.categories import CATEGORIES
+from world.furniture import build_furniture
+from world.meshes import Parts, rot_z
+from world.placement import REST_GAP_M
+from world.render import Camera, default_camera
+from world.rooms import make_scene
+from world.scene import WALL_THICKNESS_M, Scene, SceneObject
+from world.trajectory import walk_trajectory
 
 CHANGE_KINDS: tuple[str, ...] = ("moved", "removed", "added")
 REVISIT_FPS = 5.0

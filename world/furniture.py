@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from client_sim.world.meshes import Parts, rot_x, rot_y, rot_z, shade
+from world.meshes import Parts, rot_x, rot_y, rot_z, shade
 
 
 @dataclass(frozen=True)

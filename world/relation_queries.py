@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from client_sim.world.categories import CATEGORIES
-from client_sim.world.scene import Scene
+from world.categories import CATEGORIES
+from world.scene import Scene
 
 NAMES: dict[str, tuple[str, ...]] = {
     "mug": ("mug", "cup", "coffee mug", "coffee cup"),

@@ -18,7 +18,7 @@ import pytest
 from scipy import ndimage
 
 from client_sim.sources.synthetic import SyntheticSource
-from client_sim.world import (
+from world import (
     BACKGROUND_CLASSES,
     CATEGORIES,
     NOISE_PROFILES,
@@ -33,7 +33,7 @@ from client_sim.world import (
     make_scene,
     walk_trajectory,
 )
-from client_sim.world.categories import PLACEMENTS, ROOM_TYPES
+from world.categories import PLACEMENTS, ROOM_TYPES
 
 SMALL_CAMERA = default_camera(160, 120)
 

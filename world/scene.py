@@ -2,7 +2,7 @@
 
 The world is Z-up, metres, floor at z = 0. A scene is a list of `SceneObject`s (furniture,
 wall items, small objects and the floor, wall and ceiling surfaces), each one triangle mesh
-in world coordinates. `client_sim.world.rooms.make_scene` builds one of `SCENE_NAMES`.
+in world coordinates. `world.rooms.make_scene` builds one of `SCENE_NAMES`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
-from client_sim.world.categories import BACKGROUND_CLASSES
+from world.categories import BACKGROUND_CLASSES
 
 SCENE_NAMES: tuple[str, ...] = ("living_room", "kitchen", "office", "bedroom", "apartment")
 """The scenes `make_scene` can build: one room of each type, or the four-room apartment."""

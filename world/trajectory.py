@@ -19,7 +19,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from client_sim.world.scene import WALL_THICKNESS_M, Scene
+from world.scene import WALL_THICKNESS_M, Scene
 
 EYE_HEIGHT_M = 1.55
 CLEARANCE_M = 0.3

@@ -15,7 +15,7 @@ import open3d as o3d
 import open3d.core as o3c
 import pytest
 
-from client_sim.world import (
+from world import (
     BACKGROUND_CLASSES,
     CATEGORIES,
     CHANGE_KINDS,
@@ -28,8 +28,8 @@ from client_sim.world import (
     measure_visibility,
     walk_trajectory,
 )
-from client_sim.world.placement import REST_GAP_M
-from client_sim.world.revisit import (
+from world.placement import REST_GAP_M
+from world.revisit import (
     HIDDEN_FRACTION,
     MIN_HIDDEN_FRAMES,
     MIN_MOVE_M,

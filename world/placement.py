@@ -5,7 +5,7 @@ rejection sampling against the axis-aligned boxes of everything placed so far, s
 never interpenetrate. Furniture goes against walls, beside or in front of other furniture or
 free on the floor (yaw a multiple of 90 degrees); small objects stand on the support
 rectangles (table tops, shelf levels, counters) their parent declared, 1 mm above them, at
-any yaw. The room recipes (`client_sim.world.rooms`) say what goes where.
+any yaw. The room recipes (`world.rooms`) say what goes where.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from client_sim.world.categories import CATEGORIES
-from client_sim.world.furniture import WHITE, build_furniture
-from client_sim.world.meshes import Parts, quad, rot_z
-from client_sim.world.scene import DOOR_HEIGHT_M, WALL_THICKNESS_M, Doorway, Room, SceneObject
+from world.categories import CATEGORIES
+from world.furniture import WHITE, build_furniture
+from world.meshes import Parts, quad, rot_z
+from world.scene import DOOR_HEIGHT_M, WALL_THICKNESS_M, Doorway, Room, SceneObject
 
 # Clear floor kept in front of each doorway so the rooms stay connected for walking.
 DOOR_CLEARANCE_M = 1.0
