@@ -3,10 +3,7 @@ detection noise model and scripted revisits (changes between two walks). Ground 
 evaluating the mapping engine."""
 
 from world.categories import BACKGROUND_CLASSES, CATEGORIES, Category
-from world.gt import GroundTruthCloud, gt_point_cloud
-from world.noise import NOISE_PROFILES, DetectionModel, NoisyDetections
-from world.render import Camera, Renderer, View, default_camera
-from world.revisit import (
+from world.changes import (
     CHANGE_KINDS,
     GroundTruthChange,
     RevisitScenario,
@@ -14,6 +11,9 @@ from world.revisit import (
     make_revisit,
     measure_visibility,
 )
+from world.gt import GroundTruthCloud, gt_point_cloud
+from world.noise import NOISE_PROFILES, DetectionModel, NoisyDetections
+from world.render import Camera, Renderer, View, default_camera
 from world.rooms import make_scene
 from world.scene import SCENE_NAMES, Doorway, Room, Scene, SceneObject
 from world.trajectory import walk_trajectory

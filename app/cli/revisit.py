@@ -1,7 +1,7 @@
 """`semanticxr eval --scenario revisit`: does the map follow a changed world?
 
 For each seed, the synthetic apartment is walked, changed by a script (things moved, taken
-away, added, others hidden behind something new: `world.revisit`) and walked
+away, added, others hidden behind something new: `world.changes`) and walked
 again along the same path ten minutes later, at 5 fps (`t` advances 0.2 s a frame). Every
 organisation maps the same encoded keyframes (and the frames between them as sightings,
 as the server counts them), with negative evidence on and, for the mapping cost, off.
@@ -49,9 +49,9 @@ from app.mapping.object import MapObject
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.sources.revisit import RevisitSource
+from world.changes import DEFAULT_GAP_S, DEFAULT_WALK_FRAMES, RevisitScenario
 from world.gt import gt_point_cloud
 from world.render import default_camera
-from world.revisit import DEFAULT_GAP_S, DEFAULT_WALK_FRAMES, RevisitScenario
 
 Progress = Callable[[str], None]
 

@@ -28,13 +28,13 @@ from world import (
     measure_visibility,
     walk_trajectory,
 )
-from world.placement import REST_GAP_M
-from world.revisit import (
+from world.changes import (
     HIDDEN_FRACTION,
     MIN_HIDDEN_FRAMES,
     MIN_MOVE_M,
     MIN_SEEN_FRAMES,
 )
+from world.placement import REST_GAP_M
 
 WALK = 150
 SMALL_CAMERA = default_camera(160, 120)
