@@ -31,10 +31,10 @@ VOICES = (("en-us", 150), ("en-us+f3", 175), ("en-gb", 130), ("en-us+m3", 190))
 
 def build_map(scene: str, frames: int, seed: int):
     """The semanticxr engine after the eval walk, and each object's true category."""
-    from app.cli.evaluation import EvalConfig, _encode_keyframes, map_keyframes
     from app.mapping.engine import MappingEngine
-    from app.mapping.evaluation import majority_gt_class
     from app.semantics import get_text_encoder
+    from evaluation.semantic_scores import majority_gt_class
+    from evaluation.walk import EvalConfig, _encode_keyframes, map_keyframes
     from world.gt import gt_point_cloud
 
     cfg = EvalConfig(scene=scene, frames=frames, seed=seed, modes=("semanticxr",))

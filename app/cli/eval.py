@@ -116,8 +116,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.cli.evaluation import EvalConfig, load_queries, run_eval
     from app.semantics import get_text_encoder
+    from evaluation.walk import EvalConfig, load_queries, run_eval
 
     if args.scenario == "revisit":
         return run_revisit_scenario(args)
@@ -158,8 +158,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_revisit_scenario(args: argparse.Namespace) -> int:
-    from app.cli.revisit import RevisitConfig, format_revisit_table, run_revisit
     from app.semantics import get_text_encoder
+    from evaluation.revisit import RevisitConfig, format_revisit_table, run_revisit
 
     cfg = RevisitConfig(
         scene=args.scene,
@@ -185,8 +185,8 @@ def run_revisit_scenario(args: argparse.Namespace) -> int:
 
 
 def run_relations_scenario(args: argparse.Namespace) -> int:
-    from app.cli.relations_eval import RelationsConfig, format_relations_table, run_relations
     from app.semantics import get_text_encoder
+    from evaluation.relations import RelationsConfig, format_relations_table, run_relations
 
     seeds = args.seeds or DEFAULT_SEEDS["relations"]
     cfg = RelationsConfig(
@@ -236,7 +236,7 @@ def format_eval_table(result: dict) -> str:
 
 
 def format_label_ceiling(ceiling: dict) -> str:
-    """One line for the report's `label_ceiling` (`app.cli.evaluation.label_ceiling`)."""
+    """One line for the report's `label_ceiling` (`evaluation.walk.label_ceiling`)."""
     lost = ", ".join(f"{f['expected']} -> {f['got']}" for f in ceiling["query_failures"])
     return (
         f"label-text ceiling: {ceiling['query_top1_observed']:.1f}% of the observed queries "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from app.mapping.change_scores import ConcludedChange, TrueChange, score_changes, wilson_lower
+from evaluation.change_scores import ConcludedChange, TrueChange, score_changes, wilson_lower
 
 
 def test_right_object_and_kind_count_once_added_apart():

@@ -10,14 +10,14 @@ import sys
 import pytest
 
 from app.cli.eval import format_eval_table
-from app.cli.evaluation import (
+from app.config import Knobs
+from evaluation.walk import (
     IN_VIEW_MIN_FRAMES,
     EvalConfig,
     label_ceiling,
     load_queries,
     run_eval,
 )
-from app.config import Knobs
 from world.rooms import make_scene
 
 FRAMES = 60

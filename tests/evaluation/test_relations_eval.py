@@ -9,7 +9,7 @@ import pytest
 
 from app import semantics
 from app.cli import main
-from app.cli.relations_eval import _ask, _perfect_view
+from evaluation.relations import _ask, _perfect_view
 from world.gt import gt_point_cloud
 from world.relation_scenes import make_relation_scene, relation_walk
 

@@ -49,7 +49,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from app.cli.evaluation import _Sighting
 from app.config import Knobs
 from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
@@ -66,6 +65,7 @@ from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.local_map import LocalMap
 from client_sim.sources.synthetic import SyntheticSource
+from evaluation.walk import _Sighting
 from world.categories import CATEGORIES
 from world.gt import gt_point_cloud
 from world.relation_queries import (

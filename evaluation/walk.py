@@ -27,13 +27,13 @@ import numpy as np
 from app.config import MODES, Knobs, Mode
 from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
-from app.mapping.evaluation import assign_classes_by_text, majority_gt_class, semantic_scores
 from app.mapping.object import Change, MapObject
 from app.mapping.publish import update_message
 from app.protocol import FrameInput, parse_frame, parse_sighting
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, downsample_depth, session_encoder_options
 from client_sim.sources.synthetic import SyntheticFrame, SyntheticSource
+from evaluation.semantic_scores import assign_classes_by_text, majority_gt_class, semantic_scores
 from world.categories import BACKGROUND_CLASSES, CATEGORIES
 from world.gt import gt_point_cloud
 from world.noise import DetectionModel

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from app.mapping.evaluation import (
+from evaluation.semantic_scores import (
     SemanticScores,
     assign_classes_by_text,
     majority_gt_class,

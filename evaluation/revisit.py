@@ -6,7 +6,7 @@ again along the same path ten minutes later, at 5 fps (`t` advances 0.2 s a fram
 organisation maps the same encoded keyframes (and the frames between them as sightings,
 as the server counts them), with negative evidence on and, for the mapping cost, off.
 
-Scoring (issue 24, "Measured"; pooled over seeds, `app.mapping.change_scores`):
+Scoring (issue 24, "Measured"; pooled over seeds, `evaluation.change_scores`):
 
 - Each map object's identity is the ground-truth instance most of its points lie on: objects
   present after the first walk against the first scene (a moved or removed object keeps its
@@ -40,15 +40,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from app.cli.evaluation import _labels_of, _Sighting, map_keyframes
 from app.config import MODES, Knobs
 from app.keyframes import is_keyframe
-from app.mapping.change_scores import ConcludedChange, TrueChange, score_changes
 from app.mapping.engine import MappingEngine
 from app.mapping.object import MapObject
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.sources.revisit import RevisitSource
+from evaluation.change_scores import ConcludedChange, TrueChange, score_changes
+from evaluation.walk import _labels_of, _Sighting, map_keyframes
 from world.changes import DEFAULT_GAP_S, DEFAULT_WALK_FRAMES, RevisitScenario
 from world.gt import gt_point_cloud
 from world.render import default_camera

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from app.cli.revisit import format_revisit_table
+from evaluation.revisit import format_revisit_table
 
 
 def test_the_table_has_a_row_per_mode_and_the_walks_share_of_the_time_to_update():

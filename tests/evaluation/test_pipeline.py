@@ -11,12 +11,12 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from app.cli.evaluation import EvalConfig, run_eval
 from app.config import Knobs
 from app.mapping import geometry as geo
 from app.mapping.engine import MappingEngine
 from client_sim.encoder import downsample_depth
 from client_sim.sources.synthetic import SyntheticSource
+from evaluation.walk import EvalConfig, run_eval
 from world.render import default_camera
 
 SMALL = default_camera(160, 120)
