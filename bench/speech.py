@@ -33,8 +33,9 @@ def build_map(scene: str, frames: int, seed: int):
     """The semanticxr engine after the eval walk, and each object's true category."""
     from app.mapping.engine import MappingEngine
     from app.semantics import get_text_encoder
+    from evaluation.pipeline import map_keyframes
     from evaluation.semantic_scores import majority_gt_class
-    from evaluation.walk import EvalConfig, _encode_keyframes, map_keyframes
+    from evaluation.walk import EvalConfig, _encode_keyframes
     from world.gt import gt_point_cloud
 
     cfg = EvalConfig(scene=scene, frames=frames, seed=seed, modes=("semanticxr",))

@@ -40,7 +40,6 @@ stale pair (`settle`), so the time is an upper bound of what a keyframe costs th
 
 from __future__ import annotations
 
-import sys
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -65,7 +64,7 @@ from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.local_map import LocalMap
 from client_sim.sources.synthetic import SyntheticSource
-from evaluation.walk import _Sighting
+from evaluation.pipeline import Progress, Sighting, stderr_progress
 from world.categories import CATEGORIES
 from world.gt import gt_point_cloud
 from world.relation_queries import (
@@ -77,8 +76,6 @@ from world.relation_queries import (
 from world.relation_scenes import make_relation_scene, relation_walk
 from world.render import default_camera
 
-Progress = Callable[[str], None]
-
 ANSWER_K = 5
 """Hits per answer (the REST query's default k); `match` of a plain answer is over them."""
 IDENTITY_RADIUS_M = 0.05
@@ -86,10 +83,6 @@ IDENTITY_RADIUS_M = 0.05
 GRAMMAR_KIND = {"closest_to": "closest"}
 """A question kind the grammar names otherwise (a superlative from an anchor)."""
 SUPERLATIVE_KINDS = frozenset({"closest", "farthest", "biggest", "smallest", "highest", "lowest"})
-
-
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 @dataclass
@@ -144,7 +137,9 @@ class _Mapped:
         return up_vector(self.up_inference.settled or DEFAULT_UP)
 
 
-def run_relations(cfg: RelationsConfig, encoder: TextEncoder, progress: Progress = _stderr) -> dict:
+def run_relations(
+    cfg: RelationsConfig, encoder: TextEncoder, progress: Progress = stderr_progress
+) -> dict:
     """The `eval --scenario relations` document (see DESIGN.md "Machine-readable outputs")."""
     started = time.perf_counter()
     records: list[dict] = []
@@ -236,7 +231,7 @@ def _map_walk(
     for index in range(cfg.frames):
         frame = source.frame(index)
         if not is_keyframe(index, knobs.keyframe_interval):
-            engine.sight(*_Sighting.of(frame, {ratio: device}).decode(engine, ratio))
+            engine.sight(*Sighting.of(frame, {ratio: device}).decode(engine, ratio))
             continue
         message = device.encode_source_frame(frame).message
         stats = engine.integrate(parse_frame(message, engine.backend.needs_rgb))

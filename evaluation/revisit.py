@@ -32,9 +32,7 @@ Scoring (issue 24, "Measured"; pooled over seeds, `evaluation.change_scores`):
 
 from __future__ import annotations
 
-import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,12 +46,10 @@ from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.sources.revisit import RevisitSource
 from evaluation.change_scores import ConcludedChange, TrueChange, score_changes
-from evaluation.walk import _labels_of, _Sighting, map_keyframes
+from evaluation.pipeline import Progress, Sighting, labels_of, map_keyframes, stderr_progress
 from world.changes import DEFAULT_GAP_S, DEFAULT_WALK_FRAMES, RevisitScenario
 from world.gt import gt_point_cloud
 from world.render import default_camera
-
-Progress = Callable[[str], None]
 
 SEEN_PX = 400
 """A keyframe shows a thing (or its place) when it covers this many pixels at 640 x 480."""
@@ -83,17 +79,13 @@ class RevisitConfig:
     """Hand the frames between keyframes to `sight`, as the server does."""
 
 
-def _stderr(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
 @dataclass
 class _Walks:
     """One seed's encoded walks and what the ground truth needs from the renders."""
 
     scenario: RevisitScenario
     messages: list[dict]
-    sightings: dict[int, list[_Sighting]]
+    sightings: dict[int, list[Sighting]]
     keyframe_t: list[float]
     walk1_keyframes: int
     old_place_shown_t: dict[int, list[float]] = field(default_factory=dict)
@@ -130,7 +122,7 @@ def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
         walk = scenario.walk_of(index)
         if not keyframe:
             after = len(walks.messages) - 1
-            walks.sightings.setdefault(after, []).append(_Sighting.of(frame, {ratio: encoder}))
+            walks.sightings.setdefault(after, []).append(Sighting.of(frame, {ratio: encoder}))
             continue
         walks.messages.append(encoder.encode_source_frame(frame).message)
         walks.keyframe_t.append(frame.t)
@@ -211,7 +203,9 @@ def _top1(
     return max(hits, key=lambda h: h[0])[1] if hits else None
 
 
-def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _stderr) -> dict:
+def run_revisit(
+    cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = stderr_progress
+) -> dict:
     """The `eval --scenario revisit` document: per organisation, the changes' figures."""
     started = time.perf_counter()
     concluded: dict[str, list[ConcludedChange]] = {m: [] for m in cfg.modes}
@@ -233,7 +227,7 @@ def run_revisit(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = _
         scenario = walks.scenario
         # label embeddings are cached per process (a server has them all): warm the cache
         # outside the timed loop, as `run_eval` does
-        encoder.encode(_labels_of(walks.messages))
+        encoder.encode(labels_of(walks.messages))
         key = seed * 1_000_000  # instances of different seeds never match each other
         before_gt, after_gt = gt_point_cloud(scenario.before), gt_point_cloud(scenario.after)
         before_tree, after_tree = cKDTree(before_gt.points), cKDTree(after_gt.points)
