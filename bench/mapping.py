@@ -75,10 +75,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
-    from app.cli.eval import format_label_ceiling
     from app.config import Knobs
     from app.semantics import get_text_encoder
-    from evaluation.walk import IN_VIEW_MIN_FRAMES, EvalConfig, load_queries, run_eval
+    from evaluation.walk import (
+        IN_VIEW_MIN_FRAMES,
+        EvalConfig,
+        format_label_ceiling,
+        load_queries,
+        run_eval,
+    )
 
     try:
         queries = load_queries(args.queries) if args.queries else None

@@ -65,6 +65,7 @@ from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.local_map import LocalMap
 from client_sim.sources.synthetic import SyntheticSource
 from evaluation.pipeline import Progress, Sighting, stderr_progress
+from evaluation.report import Report
 from world.categories import CATEGORIES
 from world.gt import gt_point_cloud
 from world.relation_queries import (
@@ -851,3 +852,8 @@ def format_relations_table(result: dict) -> str:
         if not diff["lq_up_to_ties"]:
             lines.append(f"LQ != SQ: {diff['question']!r}: {diff['lq_detail']}")
     return "\n".join(lines)
+
+
+def run(cfg: RelationsConfig, encoder: TextEncoder, progress: Progress = stderr_progress) -> Report:
+    """The relations scenario (`run_relations`) as a `Report`: its document and table."""
+    return Report("relations", run_relations(cfg, encoder, progress), format_relations_table)

@@ -47,6 +47,7 @@ from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.sources.revisit import RevisitSource
 from evaluation.change_scores import ConcludedChange, TrueChange, score_changes
 from evaluation.pipeline import Progress, Sighting, labels_of, map_keyframes, stderr_progress
+from evaluation.report import Report
 from world.changes import DEFAULT_GAP_S, DEFAULT_WALK_FRAMES, RevisitScenario
 from world.gt import gt_point_cloud
 from world.render import default_camera
@@ -408,3 +409,8 @@ def format_revisit_table(result: dict) -> str:
         "under occlusion, 0 stale answers, last seen p50 <= 0.3 m, cost <= +15 %"
     )
     return "\n".join(lines)
+
+
+def run(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = stderr_progress) -> Report:
+    """The revisit scenario (`run_revisit`) as a `Report`: its document and table."""
+    return Report("revisit", run_revisit(cfg, encoder, progress), format_revisit_table)

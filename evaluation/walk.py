@@ -35,6 +35,7 @@ from evaluation.pipeline import (
     map_keyframes,
     stderr_progress,
 )
+from evaluation.report import Report
 from evaluation.semantic_scores import assign_classes_by_text, majority_gt_class, semantic_scores
 from world.categories import BACKGROUND_CLASSES, CATEGORIES
 from world.gt import gt_point_cloud
@@ -389,3 +390,52 @@ def run_eval(
         )
     result["wall_s"] = time.perf_counter() - started
     return result
+
+
+def run(
+    cfg: EvalConfig,
+    encoder: TextEncoder,
+    progress: Progress = stderr_progress,
+    keep_latencies: bool = False,
+    variants: dict[str, tuple[Mode, Knobs]] | None = None,
+) -> Report:
+    """The walk scenario (`run_eval`) as a `Report`: its document and table."""
+    return Report(
+        "walk", run_eval(cfg, encoder, progress, keep_latencies, variants), format_eval_table
+    )
+
+
+def format_eval_table(result: dict) -> str:
+    lines = [
+        f"scene {result['scene']}: {result['keyframes']} keyframes of {result['frames']} frames, "
+        f"noise {result['noise']}",
+        f"{'mode':<11} {'mAcc':>6} {'F-mIoU':>7} {'objects':>8} {'p50 ms':>7} {'p95 ms':>7} "
+        f"{'mean ms':>8} {'query@1':>8} {'observed':>9}",
+    ]
+    for mode, m in result["modes"].items():
+        lat = m["latency_ms"]
+        lines.append(
+            f"{mode:<11} {m['mAcc']:6.1f} {m['F_mIoU']:7.1f} {m['objects']:8d} {lat['p50']:7.1f} "
+            f"{lat['p95']:7.1f} {lat['mean']:8.1f} {m['query_top1']:7.1f}% "
+            f"{m['query_top1_observed']:8.1f}%"
+        )
+    unobserved = result.get("unobserved_categories", [])
+    lines.append(
+        "query@1 over every category of the scene; observed: over those in view "
+        f"(not in view: {', '.join(unobserved) or 'none'})"
+    )
+    if "label_ceiling" in result:
+        lines.append(format_label_ceiling(result["label_ceiling"]))
+    if "speedup_p50" in result:
+        lines.append(f"speed-up (baseline p50 / semanticxr p50): {result['speedup_p50']:.2f}x")
+    return "\n".join(lines)
+
+
+def format_label_ceiling(ceiling: dict) -> str:
+    """One line for the report's `label_ceiling` (`label_ceiling`)."""
+    lost = ", ".join(f"{f['expected']} -> {f['got']}" for f in ceiling["query_failures"])
+    return (
+        f"label-text ceiling: {ceiling['query_top1_observed']:.1f}% of the observed queries "
+        "for a perfect map (one object per category in view, labelled with its name)"
+        + (f"; lost between labels: {lost}" if lost else "")
+    )

@@ -9,11 +9,11 @@ import sys
 
 import pytest
 
-from app.cli.eval import format_eval_table
 from app.config import Knobs
 from evaluation.walk import (
     IN_VIEW_MIN_FRAMES,
     EvalConfig,
+    format_eval_table,
     label_ceiling,
     load_queries,
     run_eval,
