@@ -1,9 +1,9 @@
-"""How well a living map followed a changing world (issue 24's revisit metrics); pure.
+"""How well a living map followed a changing world (the revisit scenario's metrics); pure.
 
 A concluded change counts when its object and its kind are right: the map's object is
 matched to a ground-truth instance by the caller (nearest ground-truth points, majority), and
 each ground-truth change is matched at most once. `added` is scored apart from `moved` and
-`removed` (DESIGN.md "Measured honestly"); Wilson 95 % lower bounds go beside the rates.
+`removed` (docs/evaluation.md "Measured honestly"); Wilson 95 % lower bounds go beside the rates.
 """
 
 from __future__ import annotations

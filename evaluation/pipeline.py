@@ -151,7 +151,7 @@ def map_keyframes(
     ratios: dict[str, int] | None = None,
 ) -> dict[str, MappedRun]:
     """Feed each engine its wire messages through decode + mapping + the downstream update
-    (DESIGN.md "Mapping latency"). The engines take turns keyframe by keyframe, so a change
+    (docs/evaluation.md "Evaluation definitions": mapping latency). The engines take turns keyframe by keyframe, so a change
     in machine load during the run affects every organisation alike.
 
     sightings: the non-keyframes after each keyframe (by its position), handed to each

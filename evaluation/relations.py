@@ -141,7 +141,7 @@ class _Mapped:
 def run_relations(
     cfg: RelationsConfig, encoder: TextEncoder, progress: Progress = stderr_progress
 ) -> dict:
-    """The `eval --scenario relations` document (see DESIGN.md "Machine-readable outputs")."""
+    """The `eval --scenario relations` document (see docs/evaluation.md "Machine-readable outputs")."""
     started = time.perf_counter()
     records: list[dict] = []
     per_seed = []
@@ -447,7 +447,7 @@ def _score(
 
 
 LQ_DEGREE_TOLERANCE = 0.02
-"""LQ = SQ: degrees may differ by this much (DESIGN.md "Relations: settled")."""
+"""LQ = SQ: degrees may differ by this much (docs/evaluation.md "Relations")."""
 
 
 def _lq_equals_sq(

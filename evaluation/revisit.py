@@ -6,7 +6,7 @@ again along the same path ten minutes later, at 5 fps (`t` advances 0.2 s a fram
 organisation maps the same encoded keyframes (and the frames between them as sightings,
 as the server counts them), with negative evidence on and, for the mapping cost, off.
 
-Scoring (issue 24, "Measured"; pooled over seeds, `evaluation.change_scores`):
+Scoring (docs/evaluation.md "Measured honestly"; pooled over seeds, `evaluation.change_scores`):
 
 - Each map object's identity is the ground-truth instance most of its points lie on: objects
   present after the first walk against the first scene (a moved or removed object keeps its
@@ -374,7 +374,7 @@ def run_revisit(
 
 
 def format_revisit_table(result: dict) -> str:
-    """The revisit figures as a small table (targets from DESIGN.md beside them)."""
+    """The revisit figures as a small table (targets from docs/evaluation.md beside them)."""
     lines = [
         f"revisit of {result['scene']}: seeds {result['seeds']}, {result['scripted_changes']} "
         f"scripted changes, walks of {result['walk_frames']} frames {result['gap_s']:g} s apart",

@@ -1,4 +1,4 @@
-"""Semantic quality of a map (DESIGN.md "Evaluation definitions"); pure numpy/scipy.
+"""Semantic quality of a map (docs/evaluation.md "Evaluation definitions"); pure numpy/scipy.
 
 The ConceptFusion/ConceptGraphs protocol: each map object takes the class whose text query
 scores highest (`assign_classes_by_text`), every map point takes its object's class, and

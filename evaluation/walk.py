@@ -1,8 +1,10 @@
-"""`semanticxr eval`: the full pipeline in process, scored against the synthetic ground truth.
+"""The walk scenario (`semanticxr eval`, `--scenario walk`): the full pipeline in process,
+scored against the synthetic ground truth.
 
 world -> device encoder (JPEG, depth ÷ratio, detections) -> server decode -> mapping engine
--> map, once per system organisation on identical input, then semantic quality (DESIGN.md
-"Evaluation definitions"), per-keyframe mapping latency and paraphrase-query accuracy.
+-> map, once per system organisation on identical input, then semantic quality
+(docs/evaluation.md "Evaluation definitions"), per-keyframe mapping latency and
+paraphrase-query accuracy.
 
 "In view": a category is in view on a frame of the walk when the noise-free detector
 (noise profile "none": every visible non-background object with at least its minimum pixel
@@ -71,8 +73,8 @@ class EvalConfig:
     sightings: bool = True
     """Also hand the engines every non-keyframe's detections as sightings towards
     confirmation (`MappingEngine.sight`), as the server does with a device that sends every
-    frame whole or sends sightings between its keyframes (DESIGN.md "Keyframes"). False:
-    keyframes only."""
+    frame whole or sends sightings between its keyframes (docs/architecture.md "Rules the
+    code keeps": keyframes). False: keyframes only."""
     upstream: str = "frames"
     """What the device sends between keyframes (with `sightings`): "frames", every frame
     whole (any v1 client); "sightings", the sightings extension's coarse `sighting`
@@ -306,7 +308,8 @@ def run_eval(
     keep_latencies: bool = False,
     variants: dict[str, tuple[Mode, Knobs]] | None = None,
 ) -> dict:
-    """Run the pipeline for each mode in `cfg.modes`; the DESIGN.md `eval --json` document.
+    """Run the pipeline for each mode in `cfg.modes`; the `eval --json` document
+    (docs/evaluation.md "Machine-readable outputs").
 
     variants: extra engines by name, (mode, knobs) each (say, another point cap, or the
     baseline at another depth ratio: keyframes are encoded at each ratio the engines use),

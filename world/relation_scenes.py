@@ -1,7 +1,7 @@
 """Rooms for questions about how things stand: duplicates of a category in distinct relations.
 
 `make_relation_scene(seed)` furnishes one room so that copies of a category can only be told
-apart by what they stand in relation to (issue 27, "Measured"): mugs on a desk, on a level of
+apart by what they stand in relation to (docs/evaluation.md "Relations"): mugs on a desk, on a level of
 a bookcase and on a dining table (and perhaps a coffee table); a chair at the desk, one by the
 sofa and two against a wall with a cardboard box between them; a backpack on one of those
 chairs and another under the dining table; a table lamp on the side table by the sofa (another

@@ -1,4 +1,4 @@
-"""What `semanticxr eval` reports for issue 13: query top-1 over the categories in view, the
+"""What `semanticxr eval` reports: query top-1 over the categories in view, the
 categories never in view, the failing queries, latency percentiles, and `--queries FILE`."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Semantic quality (DESIGN.md "Evaluation definitions") on point sets scored by hand."""
+"""Semantic quality (docs/evaluation.md "Evaluation definitions") on point sets scored by hand."""
 
 from __future__ import annotations
 
