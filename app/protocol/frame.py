@@ -59,6 +59,17 @@ class FrameInput:
 MAX_POSE_SKEW_S = 10.0
 """Largest |pose_skew_s| a frame may declare: an image seconds away from its pose is a bug."""
 
+POSE_FIELD = "pose"
+"""The camera-to-world pose of a frame or a sighting (16 float32, little-endian, row-major)."""
+INTRINSICS_FIELD = "intrinsics"
+"""[fx, fy, cx, cy] of the RGB image, in its pixels."""
+RGB_FIELD = "rgb"
+"""The RGB image part (JPEG); its size is the frame's RGB size."""
+DEPTH_FIELD = "depth"
+"""The depth part: a uint16 image, the RGB size divided by an integer ratio."""
+DETECTIONS_FIELD = "detections"
+"""The device's detections: an instance-id image and its instances."""
+
 
 @dataclass(frozen=True)
 class DepthPatch:
@@ -172,13 +183,13 @@ def pack_frame(
         "type": "frame",
         "seq": int(seq),
         "t": float(t),
-        "pose": pose,
-        "intrinsics": [float(value) for value in intrinsics],
-        "rgb": {"codec": "jpeg", "data": rgb_jpeg},
-        "depth": pack_depth_part(depth, depth_scale_m),
+        POSE_FIELD: pose,
+        INTRINSICS_FIELD: [float(value) for value in intrinsics],
+        RGB_FIELD: {"codec": "jpeg", "data": rgb_jpeg},
+        DEPTH_FIELD: pack_depth_part(depth, depth_scale_m),
     }
     if detections is not None:
-        message["detections"] = pack_detections_part(detections, instances)
+        message[DETECTIONS_FIELD] = pack_detections_part(detections, instances)
     if depth_patches is not None and depth_patches.boxes:
         message["depth_patches"] = {
             "codec": depth_patches.codec,
@@ -254,28 +265,28 @@ def parse_frame(
         raise InputError("type", f"must be 'frame', got {message.get('type')!r}")
     seq, t, pose, intrinsics = parse_stamp_and_camera(message)
 
-    rgb_msg = _require(message, "rgb", dict)
+    rgb_msg = _require(message, RGB_FIELD, dict)
     if rgb_msg.get("codec") != "jpeg":
         raise InputError("rgb.codec", f"must be 'jpeg', got {rgb_msg.get('codec')!r}")
     rgb_data = _require(rgb_msg, "data", bytes, "rgb.")
-    declared = codecs.jpeg_size(rgb_data, field="rgb")
-    budget.check_pixels("rgb", *declared)
+    declared = codecs.jpeg_size(rgb_data, field=RGB_FIELD)
+    budget.check_pixels(RGB_FIELD, *declared)
     rgb = None
     if not mapped:
         width, height = declared
     elif rgb_pixels:
-        rgb = codecs.decode_jpeg(rgb_data, field="rgb")
+        rgb = codecs.decode_jpeg(rgb_data, field=RGB_FIELD)
         height, width = rgb.shape[:2]
     else:
-        width, height = codecs.validate_jpeg(rgb_data, field="rgb")
+        width, height = codecs.validate_jpeg(rgb_data, field=RGB_FIELD)
 
     depth_m = parse_depth(message, budget)
 
     instance_ids, instances = None, []
-    det_msg = message.get("detections")
+    det_msg = message.get(DETECTIONS_FIELD)
     if det_msg is not None:
         instance_ids, instances = parse_detections(det_msg, budget, rgb_size=(width, height))
-    scale = float(message["depth"]["scale"])  # validated by parse_depth
+    scale = float(message[DEPTH_FIELD]["scale"])  # validated by parse_depth
     patches = _parse_depth_patches(
         message.get("depth_patches"), width, height, scale, budget, decode=mapped
     )
@@ -321,32 +332,32 @@ def parse_stamp_and_camera(
     if not math.isfinite(t):
         raise InputError("t", "must be finite")
 
-    pose = codecs.validate_rigid_pose(codecs.pose_from_bytes(_require(message, "pose", bytes)))
+    pose = codecs.validate_rigid_pose(codecs.pose_from_bytes(_require(message, POSE_FIELD, bytes)))
 
-    intrinsics = _require(message, "intrinsics", list)
+    intrinsics = _require(message, INTRINSICS_FIELD, list)
     if len(intrinsics) != 4 or not all(
         isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
         for v in intrinsics
     ):
-        raise InputError("intrinsics", "must be 4 finite numbers [fx, fy, cx, cy]")
+        raise InputError(INTRINSICS_FIELD, "must be 4 finite numbers [fx, fy, cx, cy]")
     fx, fy, cx, cy = (float(v) for v in intrinsics)
     if not (0 < fx < MAX_INTRINSIC_PX and 0 < fy < MAX_INTRINSIC_PX):
-        raise InputError("intrinsics", "fx and fy must be positive")
+        raise InputError(INTRINSICS_FIELD, "fx and fy must be positive")
     return seq, t, pose, (fx, fy, cx, cy)
 
 
 def parse_depth(message: dict, budget: FrameBudget) -> np.ndarray:
     """The message's "depth" part -> float32 [h, w] metres (0 = no depth); its declared size
     is checked against `budget` before it is decoded."""
-    depth_msg = _require(message, "depth", dict)
+    depth_msg = _require(message, DEPTH_FIELD, dict)
     dw, dh = _image_size(depth_msg, "depth.")
-    budget.check_pixels("depth", dw, dh)
+    budget.check_pixels(DEPTH_FIELD, dw, dh)
     scale = float(_require(depth_msg, "scale", (int, float), "depth."))
     if not (math.isfinite(scale) and 0 < scale <= 1):
         raise InputError("depth.scale", f"must be metres per unit in (0, 1], got {scale!r}")
     codec = _require(depth_msg, "codec", str, "depth.")
     raw_depth = codecs.decode_uint16_image(
-        _require(depth_msg, "data", bytes, "depth."), codec, dw, dh, field="depth"
+        _require(depth_msg, "data", bytes, "depth."), codec, dw, dh, field=DEPTH_FIELD
     )
     return raw_depth.astype(np.float32) * np.float32(scale)
 
@@ -359,14 +370,14 @@ def parse_detections(
     `rgb_size` (W, H) where given, and it and the instance count are checked against
     `budget`."""
     if not isinstance(det_msg, dict):
-        raise InputError("detections", "must be a map")
+        raise InputError(DETECTIONS_FIELD, "must be a map")
     iw, ih = _image_size(det_msg, "detections.")
     if rgb_size is not None and (iw, ih) != tuple(rgb_size):
         raise InputError(
-            "detections",
+            DETECTIONS_FIELD,
             f"instance image is {iw}x{ih}, RGB is {rgb_size[0]}x{rgb_size[1]}; they must match",
         )
-    budget.check_pixels("detections", iw, ih)
+    budget.check_pixels(DETECTIONS_FIELD, iw, ih)
     instances = _require(det_msg, "instances", list, "detections.")
     budget.check_instances("detections.instances", len(instances))
     instance_ids = codecs.decode_uint16_image(
@@ -374,7 +385,7 @@ def parse_detections(
         _require(det_msg, "codec", str, "detections."),
         iw,
         ih,
-        field="detections",
+        field=DETECTIONS_FIELD,
     )
     return instance_ids, instances
 
