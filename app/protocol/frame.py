@@ -143,6 +143,14 @@ def pack_depth_part(depth: Uint16Image, depth_scale_m: float) -> dict:
     }
 
 
+DEPTH_PATCHES_FIELD = "depth_patches"
+"""Full-resolution depth of some boxes of the detections (optional)."""
+INSTANCES_FIELD = "instances"
+"""The instances of a detections part: [{"id", "label", "score"}] for the ids in its image."""
+LABEL_FIELD = "label"
+"""An instance's label (its detector's category text)."""
+
+
 def pack_detections_part(detections: Uint16Image, instances: Sequence[dict]) -> dict:
     """The "detections" part of a stream message: an instance-id image and its instances
     [{"id", "label", "score"}]."""
