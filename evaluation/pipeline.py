@@ -17,6 +17,8 @@ from app.mapping.engine import MappingEngine
 from app.mapping.object import Change, MapObject
 from app.mapping.publish import update_message
 from app.protocol import FrameInput, parse_frame, parse_sighting
+from app.protocol.delta import SEQ_FIELD
+from app.protocol.frame import DETECTIONS_FIELD, INSTANCES_FIELD, LABEL_FIELD
 from client_sim.encoder import FrameEncoder, downsample_depth
 from client_sim.sources.synthetic import SyntheticFrame
 
@@ -99,9 +101,9 @@ class SightingMessage:
 def labels_of(messages: list[dict]) -> list[str]:
     """The distinct detection labels in encoded frames, in first-seen order."""
     labels = (
-        inst["label"]
+        inst[LABEL_FIELD]
         for message in messages
-        for inst in message.get("detections", {}).get("instances", [])
+        for inst in message.get(DETECTIONS_FIELD, {}).get(INSTANCES_FIELD, [])
     )
     return list(dict.fromkeys(labels))
 
@@ -176,7 +178,7 @@ def map_keyframes(
             if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
                 update = update_message(engine, published[name])
                 run.update_bytes.append(len(msgpack.packb(update)))
-                published[name] = update["seq"]
+                published[name] = update[SEQ_FIELD]
             t3 = time.perf_counter()
             run.latencies_ms.append((t3 - t0) * 1e3)
             run.add_stage("decode", (t1 - t0) * 1e3)

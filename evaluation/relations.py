@@ -60,6 +60,7 @@ from app.mapping.relational import MapThing, RelationalHit, answer, is_match
 from app.mapping.relations import Z_UP, ObjectGeometry, RelationIndex
 from app.mapping.relevance import CONFIDENT, rate_hits
 from app.protocol import parse_frame
+from app.protocol.delta import SEQ_FIELD
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.local_map import LocalMap
@@ -254,7 +255,7 @@ def _publish(engine: MappingEngine, local_map: LocalMap, since: int) -> int:
     """Hand the device the engine's update since `since`; the new seq."""
     update = update_message(engine, since)
     local_map.apply_delta(update)
-    return update["seq"]
+    return update[SEQ_FIELD]
 
 
 def _update_index(mapped: _Mapped, versions: dict[int, int], max_points: int) -> None:

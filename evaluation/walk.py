@@ -26,6 +26,13 @@ import numpy as np
 from app.config import MODES, Knobs, Mode
 from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
+from app.protocol.frame import (
+    DEPTH_FIELD,
+    DEPTH_PATCHES_FIELD,
+    DETECTIONS_FIELD,
+    LABEL_FIELD,
+    RGB_FIELD,
+)
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.sources.synthetic import SyntheticSource
@@ -128,7 +135,7 @@ def _percentiles(values: list[float]) -> dict[str, float]:
 def _in_view(detector: DetectionModel, view, frame_index: int) -> set[str]:
     """The categories the noise-free detector reports on one rendered view."""
     found = detector.detect(view, frame_index)
-    return {inst["label"] for inst in found.instances}
+    return {inst[LABEL_FIELD] for inst in found.instances}
 
 
 UPSTREAMS: tuple[str, ...] = ("frames", "sightings")
@@ -154,7 +161,9 @@ def _encode_keyframes(
     options = session_encoder_options(cfg.knobs, cfg.encoder_options)
     encoders = {ratio: FrameEncoder(ratio, **options) for ratio in ratios}
     messages: dict[int, list] = {ratio: [] for ratio in ratios}
-    upstream = {"rgb": 0, "depth": 0, "detections": 0, "depth_patches": 0, "total": 0}
+    upstream = dict.fromkeys(
+        (RGB_FIELD, DEPTH_FIELD, DETECTIONS_FIELD, DEPTH_PATCHES_FIELD, "total"), 0
+    )  # payload bytes by message part, and the whole messages
     interval = cfg.knobs.keyframe_interval
     keyframes = [index for index in range(cfg.frames) if is_keyframe(index, interval)]
     n_keyframes = len(keyframes)
