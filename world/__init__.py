@@ -1,6 +1,10 @@
 """The procedural synthetic world: scenes, ray-cast renderer, camera walks, ground truth, the
-detection noise model and scripted revisits (changes between two walks). Ground truth for
-evaluating the mapping engine."""
+detection noise model and scripted revisits (changes between two walks, `changes`). Ground
+truth for evaluating the mapping engine.
+
+Its own layer: the device emulator's sources and the viewer render it and the evaluation
+scores against it; it imports nothing of client_sim or viewer (docs/architecture.md
+"Layers")."""
 
 from world.categories import BACKGROUND_CLASSES, CATEGORIES, Category
 from world.changes import (
