@@ -418,6 +418,7 @@ def run(
 
 
 def format_eval_table(result: dict) -> str:
+    """The stdout table of `semanticxr eval` (the walk): one row per organisation."""
     lines = [
         f"scene {result['scene']}: {result['keyframes']} keyframes of {result['frames']} frames, "
         f"noise {result['noise']}",
@@ -444,7 +445,7 @@ def format_eval_table(result: dict) -> str:
 
 
 def format_label_ceiling(ceiling: dict) -> str:
-    """One line for the report's `label_ceiling` (`label_ceiling`)."""
+    """One line for the document's `label_ceiling` (as `label_ceiling` computes it)."""
     lost = ", ".join(f"{f['expected']} -> {f['got']}" for f in ceiling["query_failures"])
     return (
         f"label-text ceiling: {ceiling['query_top1_observed']:.1f}% of the observed queries "
