@@ -7,11 +7,11 @@ scores against it; it imports nothing of client_sim or viewer (docs/architecture
 "Layers")."""
 
 from world.categories import BACKGROUND_CLASSES, CATEGORIES, Category
+from world.change_visibility import SeenFrames
 from world.changes import (
     CHANGE_KINDS,
     GroundTruthChange,
     RevisitScenario,
-    SeenFrames,
     make_revisit,
     measure_visibility,
 )

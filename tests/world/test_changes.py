@@ -28,12 +28,8 @@ from world import (
     measure_visibility,
     walk_trajectory,
 )
-from world.changes import (
-    HIDDEN_FRACTION,
-    MIN_HIDDEN_FRAMES,
-    MIN_MOVE_M,
-    MIN_SEEN_FRAMES,
-)
+from world.change_planner import MIN_MOVE_M
+from world.change_visibility import HIDDEN_FRACTION, MIN_HIDDEN_FRAMES, MIN_SEEN_FRAMES
 from world.placement import REST_GAP_M
 
 WALK = 150
