@@ -20,12 +20,18 @@ lint: setup
 	.venv/bin/ruff check . && .venv/bin/ruff format --check .
 	.venv/bin/lint-imports --no-cache
 
+# Every bench but bench.scale, which needs a PostgreSQL server and Ray (its --store is a
+# postgresql:// URL; see README "Development"). A bench that misses a target exits non-zero:
+# the others still run, and the ones that missed or failed are listed at the end.
+BENCHES := mapping server device local_map xr_page load perception relations \
+	relations_device relevance speech
+
 bench: setup
-	$(PY) -m bench.mapping --out out
-	$(PY) -m bench.server --out out
-	$(PY) -m bench.device --out out
-	$(PY) -m bench.local_map --out out
-	$(PY) -m bench.xr_page --out out
+	@failed=""; for name in $(BENCHES); do \
+		echo "== bench.$$name"; \
+		$(PY) -m bench.$$name --out out || failed="$$failed $$name"; \
+	done; \
+	if [ -n "$$failed" ]; then echo "missed a target or failed:$$failed"; exit 1; fi
 
 clean:
 	rm -rf .venv out .pytest_cache .hypothesis

@@ -253,9 +253,9 @@ def real_frames(path: str, count: int) -> list[SourceFrame] | None:
 
 
 def semanticxr_f_miou(scene: str, frames: int, ratio: int, **encoder_options) -> float:
-    """F-mIoU of the semanticxr organisation (app.cli.evaluation.run_eval) with the
+    """F-mIoU of the semanticxr organisation (evaluation.walk.run_eval) with the
     device encoder at `ratio` and `encoder_options` (unset ones: FrameEncoder defaults)."""
-    import app.cli.evaluation as evaluation
+    import evaluation.walk as evaluation
     from app.config import Knobs
     from app.semantics import get_text_encoder
 

@@ -120,7 +120,7 @@ def encode_walk(
     standard detection noise), whole and, with `sightings`, as sightings too."""
     from client_sim.encoder import FrameEncoder
     from client_sim.sources.synthetic import SyntheticSource
-    from client_sim.world.render import default_camera
+    from world.render import default_camera
 
     source = SyntheticSource(
         scene, n_frames=n_frames, camera=default_camera(*size_px), noise="standard", fps=fps

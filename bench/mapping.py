@@ -5,7 +5,7 @@
 Targets 1-4 of issue 13, at 640x480 RGB, depth ÷5, noise `standard`, both organisations
 mapped side by side in one run (they take turns keyframe by keyframe, so machine load
 drifts affect all alike):
-  1. query top-1 over the categories in view (app.cli.evaluation: the noise-free detector
+  1. query top-1 over the categories in view (evaluation.walk: the noise-free detector
      reports them in at least 8 frames) >= 85 %, and never below the baseline's;
   2. F-mIoU of semanticxr within 1 point of the baseline's (or above);
   3. mean keyframe latency >= 3x lower than the baseline's, and semanticxr p95 <= 3x p50;
@@ -75,10 +75,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
-    from app.cli.eval import format_label_ceiling
-    from app.cli.evaluation import IN_VIEW_MIN_FRAMES, EvalConfig, load_queries, run_eval
     from app.config import Knobs
     from app.semantics import get_text_encoder
+    from evaluation.walk import (
+        IN_VIEW_MIN_FRAMES,
+        EvalConfig,
+        format_label_ceiling,
+        load_queries,
+        run_eval,
+    )
 
     try:
         queries = load_queries(args.queries) if args.queries else None

@@ -20,7 +20,7 @@ import numpy as np
 from app.answering.relevance import CONFIDENT, MATCH_MAX_GAP_Z, MATCH_MIN_Z, rater_for, relevance_of
 from app.semantics import get_text_encoder
 from bench.common import machine, write_outputs
-from client_sim.world.categories import CATEGORIES, is_background
+from world.categories import CATEGORIES, is_background
 
 MUST_MATCH = (
     "something to sit on",

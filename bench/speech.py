@@ -31,11 +31,12 @@ VOICES = (("en-us", 150), ("en-us+f3", 175), ("en-gb", 130), ("en-us+m3", 190))
 
 def build_map(scene: str, frames: int, seed: int):
     """The semanticxr engine after the eval walk, and each object's true category."""
-    from app.cli.evaluation import EvalConfig, _encode_keyframes, map_keyframes
     from app.mapping.engine import MappingEngine, make_perception
-    from app.mapping.evaluation import majority_gt_class
     from app.semantics import get_text_encoder
-    from client_sim.world.gt import gt_point_cloud
+    from evaluation.pipeline import map_keyframes
+    from evaluation.semantic_scores import majority_gt_class
+    from evaluation.walk import EvalConfig, _encode_keyframes
+    from world.gt import gt_point_cloud
 
     cfg = EvalConfig(scene=scene, frames=frames, seed=seed, modes=("semanticxr",))
     ratio = cfg.knobs.depth_downsampling_ratio
@@ -99,7 +100,7 @@ def main() -> int:
     from app.semantics import get_text_encoder
     from app.server.runner import ServerThread
     from app.server.settings import ServerSettings
-    from client_sim.world.categories import CATEGORIES
+    from world.categories import CATEGORIES
 
     engine, category, observed = build_map(args.scene, args.frames, args.seed)
     folder = Path(tempfile.mkdtemp(prefix="semanticxr-speech-"))

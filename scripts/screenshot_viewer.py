@@ -51,7 +51,7 @@ def stream_scene(url: str, scene: str, frames: int) -> tuple[str, str, int]:
     from app.config import Knobs, updated_knobs
     from client_sim.sources.synthetic import SyntheticSource
     from client_sim.streaming import DeviceClient
-    from client_sim.world.render import default_camera
+    from world.render import default_camera
 
     async def play() -> tuple[str, str, int]:
         sid, token, answer = await create_session(url, knobs=SESSION_KNOBS)

@@ -1,5 +1,6 @@
 """The built wheel serves the pages whole: a server run from the wheel's files (not the
-checkout) answers /xr and every module the pages import, as JavaScript, under the same CSP."""
+checkout) answers /xr and every module the pages import, as JavaScript, under the same CSP;
+and it holds the top-level packages beside app/ (the synthetic world, the evaluation)."""
 
 from __future__ import annotations
 
@@ -45,6 +46,22 @@ def test_a_server_installed_from_the_wheel_serves_the_real_device_page_whole(tmp
         text=True,
     ).stdout.strip()
     assert Path(where) == site / "static"
+    # The top-level packages beside app/: the synthetic world and the evaluation.
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for module in ("world/__init__.py", "world/render.py", "evaluation/__init__.py"):
+        assert module in names, module
+    assert "evaluation/walk.py" in names and "evaluation/relations.py" in names
+    found = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import evaluation.revisit as e, world; print(e.__file__, world.__file__)",
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.split()
+    assert [Path(f) for f in found] == [site / "evaluation/revisit.py", site / "world/__init__.py"]
 
     server = ServerProcess(tmp_path / "data").start()
     try:

@@ -13,7 +13,7 @@ from app.protocol import SessionStats, SessionSummary
 
 def scene_name(text: str) -> str:
     """argparse type: one of the synthetic scenes."""
-    from client_sim.world import SCENE_NAMES  # here: the world loads open3d
+    from world import SCENE_NAMES  # here: the world loads open3d
 
     if text not in SCENE_NAMES:
         raise argparse.ArgumentTypeError(

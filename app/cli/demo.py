@@ -26,7 +26,7 @@ from app.cli.common import frames_words, scene_name
 from app.flags import positive_int
 
 if TYPE_CHECKING:
-    from client_sim.world.revisit import GroundTruthChange
+    from world.changes import GroundTruthChange
 
 DEFAULT_QUERIES = (
     "something to sit on",
@@ -481,7 +481,7 @@ def _walk_source(args: argparse.Namespace):
     frame rate renders them identically)."""
     from client_sim.sources.revisit import RevisitSource
     from client_sim.sources.synthetic import SyntheticSource
-    from client_sim.world.revisit import REVISIT_FPS
+    from world.changes import REVISIT_FPS
 
     if args.no_revisit:
         return SyntheticSource(args.scene, n_frames=args.frames, fps=REVISIT_FPS), None

@@ -1,4 +1,4 @@
-"""`semanticxr eval`: map a synthetic scene in process and score it (driver: evaluation.py)."""
+"""`semanticxr eval`: map a synthetic scene in process and score it (the scenarios: evaluation/)."""
 
 from __future__ import annotations
 
@@ -116,8 +116,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.cli.evaluation import EvalConfig, load_queries, run_eval
     from app.semantics import get_text_encoder
+    from evaluation import walk
 
     if args.scenario == "revisit":
         return run_revisit_scenario(args)
@@ -127,11 +127,11 @@ def run(args: argparse.Namespace) -> int:
     queries = None
     if args.queries:
         try:
-            queries = load_queries(args.queries)
+            queries = walk.load_queries(args.queries)
         except ValueError as exc:
             print(f"semanticxr eval: error: --queries {exc}", file=sys.stderr)
             return 2
-    cfg = EvalConfig(
+    cfg = walk.EvalConfig(
         scene=args.scene,
         seed=args.seed,
         frames=args.frames or DEFAULT_FRAMES["walk"],
@@ -150,18 +150,18 @@ def run(args: argparse.Namespace) -> int:
         f"noise {cfg.noise}, modes {', '.join(cfg.modes)}",
         file=sys.stderr,
     )
-    result = run_eval(cfg, get_text_encoder())
-    print(format_eval_table(result))
+    report = walk.run(cfg, get_text_encoder())
+    print(report.table())
     if args.json:
-        write_json(args.json, result)
+        write_json(args.json, report.document)
     return 0
 
 
 def run_revisit_scenario(args: argparse.Namespace) -> int:
-    from app.cli.revisit import RevisitConfig, format_revisit_table, run_revisit
     from app.semantics import get_text_encoder
+    from evaluation import revisit
 
-    cfg = RevisitConfig(
+    cfg = revisit.RevisitConfig(
         scene=args.scene,
         seeds=tuple(range(args.seed, args.seed + (args.seeds or DEFAULT_SEEDS["revisit"]))),
         walk_frames=args.walk_frames,
@@ -177,19 +177,19 @@ def run_revisit_scenario(args: argparse.Namespace) -> int:
         f"{cfg.walk_frames} frames at 5 fps {cfg.gap_s:g} s apart, modes {', '.join(cfg.modes)}",
         file=sys.stderr,
     )
-    result = run_revisit(cfg, get_text_encoder())
+    report = revisit.run(cfg, get_text_encoder())
     if args.json:  # first: the hour of mapping is kept whatever printing does
-        write_json(args.json, result)
-    print(format_revisit_table(result))
+        write_json(args.json, report.document)
+    print(report.table())
     return 0
 
 
 def run_relations_scenario(args: argparse.Namespace) -> int:
-    from app.cli.relations_eval import RelationsConfig, format_relations_table, run_relations
     from app.semantics import get_text_encoder
+    from evaluation import relations
 
     seeds = args.seeds or DEFAULT_SEEDS["relations"]
-    cfg = RelationsConfig(
+    cfg = relations.RelationsConfig(
         seeds=tuple(range(args.seed, args.seed + seeds)),
         frames=args.frames or DEFAULT_FRAMES["relations"],
         width=args.width,
@@ -202,44 +202,8 @@ def run_relations_scenario(args: argparse.Namespace) -> int:
         f"{cfg.width}x{cfg.height}, noise {cfg.noise}",
         file=sys.stderr,
     )
-    result = run_relations(cfg, get_text_encoder())
+    report = relations.run(cfg, get_text_encoder())
     if args.json:
-        write_json(args.json, result)
-    print(format_relations_table(result))
+        write_json(args.json, report.document)
+    print(report.table())
     return 0
-
-
-def format_eval_table(result: dict) -> str:
-    lines = [
-        f"scene {result['scene']}: {result['keyframes']} keyframes of {result['frames']} frames, "
-        f"noise {result['noise']}",
-        f"{'mode':<11} {'mAcc':>6} {'F-mIoU':>7} {'objects':>8} {'p50 ms':>7} {'p95 ms':>7} "
-        f"{'mean ms':>8} {'query@1':>8} {'observed':>9}",
-    ]
-    for mode, m in result["modes"].items():
-        lat = m["latency_ms"]
-        lines.append(
-            f"{mode:<11} {m['mAcc']:6.1f} {m['F_mIoU']:7.1f} {m['objects']:8d} {lat['p50']:7.1f} "
-            f"{lat['p95']:7.1f} {lat['mean']:8.1f} {m['query_top1']:7.1f}% "
-            f"{m['query_top1_observed']:8.1f}%"
-        )
-    unobserved = result.get("unobserved_categories", [])
-    lines.append(
-        "query@1 over every category of the scene; observed: over those in view "
-        f"(not in view: {', '.join(unobserved) or 'none'})"
-    )
-    if "label_ceiling" in result:
-        lines.append(format_label_ceiling(result["label_ceiling"]))
-    if "speedup_p50" in result:
-        lines.append(f"speed-up (baseline p50 / semanticxr p50): {result['speedup_p50']:.2f}x")
-    return "\n".join(lines)
-
-
-def format_label_ceiling(ceiling: dict) -> str:
-    """One line for the report's `label_ceiling` (`app.cli.evaluation.label_ceiling`)."""
-    lost = ", ".join(f"{f['expected']} -> {f['got']}" for f in ceiling["query_failures"])
-    return (
-        f"label-text ceiling: {ceiling['query_top1_observed']:.1f}% of the observed queries "
-        "for a perfect map (one object per category in view, labelled with its name)"
-        + (f"; lost between labels: {lost}" if lost else "")
-    )

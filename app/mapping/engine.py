@@ -24,7 +24,6 @@ from app.mapping.object import Change, MapObject
 from app.mapping.organisation import Observation, Organisation, organisation_for
 from app.mapping.sightings import Sightings
 from app.mapping.stats import IntegrationStats
-from app.mapping.validation import MAX_WORLD_M  # noqa: F401 (imported from here by the server)
 from app.perception import DEFAULT_BACKEND, BackendOptions, make_backend
 from app.perception.base import (
     Detection,
@@ -81,12 +80,12 @@ class MappingEngine:
         encoder: TextEncoder,
         knobs: Knobs | None = None,
         mode: Mode = "semanticxr",
-        backend: PerceptionBackend | None = None,
+        *,
+        backend: PerceptionBackend,
         max_objects: int | None = None,
     ):
         """backend: the perception backend, as organisation `mode` uses it (the caller builds
-        it, `make_perception`). None builds the default one: a compatibility path for the
-        callers that do not pass one yet, to be removed.
+        it, `make_perception`).
 
         max_objects: most objects (candidates and confirmed) the map holds; at the cap a
         keyframe's observations that match an object still map, new ones are not created
@@ -97,7 +96,7 @@ class MappingEngine:
         self.encoder = encoder
         self.knobs = knobs or Knobs()
         self.mode = mode
-        self.backend = backend if backend is not None else make_perception(DEFAULT_BACKEND, mode)
+        self.backend = backend
         """The perception backend that detects a keyframe's objects (`perceive`)."""
         self.objects: dict[int, MapObject] = {}
         self.log = DeltaLog()

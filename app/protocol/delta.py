@@ -41,6 +41,8 @@ from app.protocol.limits import (
 
 _INT64_MAX = 2**63 - 1
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
+SEQ_FIELD = "seq"
+"""An update's seq: the delta log position it brings a subscriber to (`?since=` takes it)."""
 UPSERT_KEYS = ("id", "version", "label", "embedding", "points", "bbox", "n_obs")
 """The keys of every `upserts[]` entry."""
 CHANGE_KINDS = ("added", "moved", "removed")

@@ -95,6 +95,16 @@ class FrameInput:
 MAX_POSE_SKEW_S = 10.0
 """Largest |pose_skew_s| a frame may declare: an image seconds away from its pose is a bug."""
 
+POSE_FIELD = "pose"
+"""The camera-to-world pose of a frame or a sighting (16 float32, little-endian, row-major)."""
+INTRINSICS_FIELD = "intrinsics"
+"""[fx, fy, cx, cy] of the RGB image, in its pixels."""
+RGB_FIELD = "rgb"
+"""The RGB image part (JPEG); its size is the frame's RGB size."""
+DEPTH_FIELD = "depth"
+"""The depth part: a uint16 image, the RGB size divided by an integer ratio."""
+DETECTIONS_FIELD = "detections"
+"""The device's detections: an instance-id image and its instances."""
 
 
 @dataclass(frozen=True)
@@ -167,6 +177,14 @@ def pack_depth_part(depth: Uint16Image, depth_scale_m: float) -> dict:
         "scale": float(depth_scale_m),
         "data": depth.data,
     }
+
+
+DEPTH_PATCHES_FIELD = "depth_patches"
+"""Full-resolution depth of some boxes of the detections (optional)."""
+INSTANCES_FIELD = "instances"
+"""The instances of a detections part: [{"id", "label", "score"}] for the ids in its image."""
+LABEL_FIELD = "label"
+"""An instance's label (its detector's category text)."""
 
 
 def pack_detections_part(detections: Uint16Image, instances: Sequence[dict]) -> dict:

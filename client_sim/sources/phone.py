@@ -42,7 +42,7 @@ from client_sim.sources.base import (
 
 DEVICE_MAX_SIDE_PX = 640
 """Default longer side of a phone capture's frames: the emulated device's camera
-(`client_sim.world.render.default_camera`, 640x480)."""
+(`world.render.default_camera`, 640x480)."""
 MIN_CONFIDENCE = 1
 """Depth pixels with ARKit confidence below this (0 low, 1 medium, 2 high) are dropped."""
 

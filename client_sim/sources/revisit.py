@@ -1,20 +1,20 @@
 """The revisit frame source: a walk through a synthetic scene, then the same walk again after
-scripted changes (`client_sim.world.revisit`), on one device clock."""
+scripted changes (`world.changes`), on one device clock."""
 
 from __future__ import annotations
 
 from client_sim.sources.base import FrameSource
 from client_sim.sources.synthetic import SyntheticFrame, render_frame
-from client_sim.world.noise import DetectionModel
-from client_sim.world.render import Camera, Renderer, default_camera
-from client_sim.world.revisit import (
+from world.changes import (
     DEFAULT_GAP_S,
     DEFAULT_WALK_FRAMES,
     REVISIT_FPS,
     RevisitScenario,
     make_revisit,
 )
-from client_sim.world.scene import Scene
+from world.noise import DetectionModel
+from world.render import Camera, Renderer, default_camera
+from world.scene import Scene
 
 
 class RevisitSource(FrameSource):

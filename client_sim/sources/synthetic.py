@@ -8,11 +8,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from client_sim.sources.base import FrameSource, SourceFrame
-from client_sim.world.noise import DetectionModel, NoisyDetections
-from client_sim.world.render import Camera, Renderer, View, default_camera
-from client_sim.world.rooms import make_scene
-from client_sim.world.scene import Scene
-from client_sim.world.trajectory import walk_trajectory
+from world.noise import DetectionModel, NoisyDetections
+from world.render import Camera, Renderer, View, default_camera
+from world.rooms import make_scene
+from world.scene import Scene
+from world.trajectory import walk_trajectory
 
 
 @dataclass

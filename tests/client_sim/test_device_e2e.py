@@ -415,7 +415,7 @@ def test_the_local_map_never_exceeds_a_tiny_memory_budget(live_server):
 
 def test_a_device_walking_the_synthetic_living_room_mirrors_the_server(live_server, encoder):
     synthetic = pytest.importorskip("client_sim.sources.synthetic")
-    from client_sim.world.render import default_camera
+    from world.render import default_camera
 
     source = synthetic.SyntheticSource("living_room", n_frames=60, camera=default_camera(320, 240))
     if not isinstance(source, FrameSource):

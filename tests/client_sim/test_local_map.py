@@ -26,7 +26,7 @@ from app.mapping.publish import delta_message
 from app.protocol import ChangeEntry, UpsertEntry, pack_delta
 from client_sim.local_map import BYTES_PER_MB, DeltaError, LocalMap
 from client_sim.querying import QueryAnswer, QueryRouter
-from client_sim.world.categories import CATEGORIES
+from world.categories import CATEGORIES
 
 DIM = 32  # small embeddings keep the tests fast; the map is dimension-agnostic
 FEW = settings(max_examples=40, deadline=None)

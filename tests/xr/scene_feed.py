@@ -1,7 +1,7 @@
 """A slow walk through a small synthetic room, rendered per frame in WebXR's conventions for the
 fake runtime (fake_webxr.js), and the truth a test checks the runtime or a page against.
 
-The world (client_sim.world) is Z-up; WebXR is Y-up. The runtime's tracking frame -- the
+The world (world/) is Z-up; WebXR is Y-up. The runtime's tracking frame -- the
 native origin of 'local-floor' until a reset -- is the world turned by the one fixed rotation
 `relation_scene.TO_Y_UP` ((x, y, z) -> (x, z, -y)): same origin (on the floor, y = 0 there),
 metres, right-handed. 'local' is that frame moved to the first viewer position.
@@ -39,7 +39,7 @@ from xr_device import (
     RuntimeOptions,
 )
 
-from client_sim.world import Renderer, Scene, make_scene, walk_trajectory
+from world import Renderer, Scene, make_scene, walk_trajectory
 
 TRACKING_FROM_WORLD = np.eye(4)
 TRACKING_FROM_WORLD[:3, :3] = TO_Y_UP

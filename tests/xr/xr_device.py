@@ -12,7 +12,7 @@ conventions the runtime, the scene feed and a test must agree on. Pure: no I/O, 
 Conventions (each cited from its spec in fake_webxr.js):
 - Reference spaces: metres, +X right, +Y up, -Z forward, right-handed. A pose is a 4x4
   object-to-space matrix; a view or camera looks down its own -Z with +Y up.
-- Intrinsics (`Pinhole`) are OpenCV's, as client_sim.world.render uses them: pixel (u, v) has
+- Intrinsics (`Pinhole`) are OpenCV's, as world.render uses them: pixel (u, v) has
   its centre at integer coordinates, u to the right, v down, row 0 the top of the image.
 - Normalized view coordinates (depth-sensing spec): origin at the view's top-left corner,
   x right, y down, [0, 1] across the view; pixel (u, v) sits at ((u + 0.5) / width,
@@ -27,7 +27,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from client_sim.world.render import Camera
+from world.render import Camera
 
 CV_FROM_XR_AXES = np.diag([1.0, -1.0, -1.0, 1.0])
 """A camera's OpenCV axes (x right, y down, z forward) from its WebXR axes (y up, -z forward);

@@ -17,11 +17,11 @@ from app.answering.things import RelationalHit
 from app.answering.things import is_match as is_relational_match
 from app.config import KnobError, knobs_to_dict
 from app.errors import InputError
-from app.mapping.engine import MAX_WORLD_M
 from app.mapping.export import export_change, export_json_chunks, exported_stay, ply_bytes
 from app.mapping.object import Change, MapObject
 from app.mapping.places import describe_places
 from app.mapping.publish import client_points
+from app.mapping.validation import MAX_WORLD_M
 from app.perception import UnknownBackendError
 from app.protocol.rest import MapExport
 from app.server.auth import (

@@ -14,9 +14,9 @@ import numpy as np
 from app.config import Knobs, knobs_to_dict, updated_knobs
 from app.errors import InputError
 from app.mapping.deltas import DeltaLog
-from app.mapping.engine import MAX_WORLD_M
 from app.mapping.export import imported_object, imported_stay
 from app.mapping.object import Change, MapObject
+from app.mapping.validation import MAX_WORLD_M
 from app.perception import UnknownBackendError
 from app.protocol.rest import UP_AXES, MapExport
 from app.server.metrics import Metrics

@@ -114,7 +114,7 @@ def test_a_walk_too_short_for_the_script_to_move_anything_skips_the_step_and_say
 
 def test_without_the_revisit_the_walk_is_the_revisits_first_walk_unscripted(capsys):
     from app.cli.demo import _walk_source
-    from client_sim.world.revisit import REVISIT_FPS
+    from world.changes import REVISIT_FPS
 
     source, shown = _walk_source(argparse.Namespace(scene="apartment", frames=10, no_revisit=True))
     assert len(source) == 10 and shown is None and source.fps == REVISIT_FPS

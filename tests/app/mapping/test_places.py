@@ -152,8 +152,8 @@ def test_up_settles_after_enough_agreeing_keyframes(up):
 
 
 def test_our_synthetic_walk_settles_z_up():
-    from client_sim.world.rooms import make_scene
-    from client_sim.world.trajectory import walk_trajectory
+    from world.rooms import make_scene
+    from world.trajectory import walk_trajectory
 
     inference = UpInference()
     said = settle(inference, walk_trajectory(make_scene("apartment", 0), 40, seed=1))

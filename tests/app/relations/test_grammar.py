@@ -19,7 +19,7 @@ from app.relations.grammar import (
     parse,
     tokenize,
 )
-from client_sim.world.categories import CATEGORIES
+from world.categories import CATEGORIES
 
 # (query, target, [(kind, anchors)], superlative: None | kind | (kind, anchors), viewer)
 PHRASINGS = [

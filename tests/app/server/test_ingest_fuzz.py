@@ -22,7 +22,7 @@ from analytic_world import Rect, RectSource
 from devices import TIMEOUT_S, frame_message
 
 from app.config import Knobs
-from app.mapping.engine import MAX_WORLD_M
+from app.mapping.validation import MAX_WORLD_M
 from app.protocol import SIGHTINGS_SUBPROTOCOL
 from client_sim.encoder import FrameEncoder
 

@@ -20,8 +20,8 @@ from app.mapping.places import UP_STABLE_KEYFRAMES
 from app.protocol.rest import QueryResult
 from app.server.settings import STORE_FILE
 from client_sim.encoder import FrameEncoder
-from client_sim.world.rooms import make_scene
-from client_sim.world.trajectory import walk_trajectory
+from world.rooms import make_scene
+from world.trajectory import walk_trajectory
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from client_sim.sources.phone import scale_intrinsics
 from client_sim.sources.synthetic import SyntheticSource
-from client_sim.world.render import Camera, default_camera
+from world.render import Camera, default_camera
 
 CAPTURE_SIZE_PX = (480, 360)
 DEPTH_SIZE_PX = (64, 48)

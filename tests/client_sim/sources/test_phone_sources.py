@@ -339,7 +339,7 @@ def test_make_source_for_a_phone_capture_does_not_import_the_synthetic_world(cap
         "from client_sim.sources import make_source\n"
         f"make_source({'record3d:' + str(captures['record3d'])!r}).frame(0)\n"
         f"make_source({'stray:' + str(captures['stray'])!r}).frame(0)\n"
-        "assert 'client_sim.world.scene' not in sys.modules\n"
+        "assert 'world.scene' not in sys.modules\n"
         "assert 'open3d' not in sys.modules\n"
     )
     subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, check=True, timeout=60)

@@ -9,7 +9,7 @@ import pytest
 from client_sim.sources import SOURCE_KINDS, FrameSource, make_source
 from client_sim.sources.revisit import RevisitSource
 from client_sim.sources.synthetic import SyntheticFrame
-from client_sim.world import RevisitScenario, default_camera, make_revisit
+from world import RevisitScenario, default_camera, make_revisit
 
 WALK = 150
 SMALL_CAMERA = default_camera(160, 120)

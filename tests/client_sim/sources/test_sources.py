@@ -585,6 +585,6 @@ def test_make_source_for_a_dataset_does_not_import_the_synthetic_world(tmp_path)
         "from client_sim.sources import make_source\n"
         f"make_source({spec!r}).frame(0)\n"
         "assert 'client_sim.sources.synthetic' not in sys.modules\n"
-        "assert 'client_sim.world.scene' not in sys.modules\n"
+        "assert 'world.scene' not in sys.modules\n"
     )
     subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, check=True, timeout=60)

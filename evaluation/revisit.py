@@ -1,0 +1,422 @@
+"""`semanticxr eval --scenario revisit`: does the map follow a changed world?
+
+For each seed, the synthetic apartment is walked, changed by a script (things moved, taken
+away, added, others hidden behind something new: `world.changes`) and walked
+again along the same path ten minutes later, at 5 fps (`t` advances 0.2 s a frame). Every
+organisation maps the same encoded keyframes (and the frames between them as sightings,
+as the server counts them), with negative evidence on and, for the mapping cost, off.
+
+Scoring (docs/evaluation.md "Measured honestly"; pooled over seeds, `evaluation.change_scores`):
+
+- Each map object's identity is the ground-truth instance most of its points lie on: objects
+  present after the first walk against the first scene (a moved or removed object keeps its
+  id, so its change is judged by what it was), new ones against the second scene.
+- A change counts when object and kind are right; `added` is scored apart.
+- Time to update: from the first keyframe of the second walk that showed the evidence
+  (the old place without the thing, the new place with it) to the change's `t`. Beside it,
+  the walk's bound (how long after that the walk had shown enough for the rules to conclude:
+  a removal needs `removal_min_evidence` keyframes showing the empty place) and the map's
+  delay beyond that bound.
+- False removals under occlusion: removed or moved changes of a hidden object.
+- Stale answers: after the second walk, a query for a moved or removed thing's category
+  whose top-1 is the map's object for that thing still at its old place (within
+  STALE_RADIUS_M of it, and nearer it than the new place); apart, those about things whose
+  old place the walk showed at least `removal_min_evidence` times (the rest it showed too
+  few times for the map to conclude anything).
+- Last-seen errors: "where did I last see X" for each removed thing whose category has no
+  other instance left (else the question is ambiguous), ranked over present and removed
+  objects (`include=removed`): the top-1's distance to where X was and its `last_seen_t`
+  against the last first-walk keyframe that showed X.
+- Mapping cost: mean keyframe latency with negative evidence against without, same walk.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from app.config import MODES, Knobs
+from app.keyframes import is_keyframe
+from app.mapping.engine import MappingEngine, make_perception
+from app.mapping.object import MapObject
+from app.semantics import TextEncoder
+from client_sim.encoder import FrameEncoder, session_encoder_options
+from client_sim.sources.revisit import RevisitSource
+from evaluation.change_scores import ConcludedChange, TrueChange, score_changes
+from evaluation.pipeline import Progress, Sighting, labels_of, map_keyframes, stderr_progress
+from evaluation.report import Report
+from world.changes import DEFAULT_GAP_S, DEFAULT_WALK_FRAMES, RevisitScenario
+from world.gt import gt_point_cloud
+from world.render import default_camera
+
+SEEN_PX = 400
+"""A keyframe shows a thing (or its place) when it covers this many pixels at 640 x 480."""
+PLACE_VISIBLE_FRACTION = 0.7
+"""A keyframe shows an old place when this fraction of the pixels the first walk saw the
+thing at now show something at or behind where it was, within the range negative evidence
+reads (`absence_min_depth_m`..`absence_max_depth_m`: farther, depth is too coarse)."""
+IDENTITY_RADIUS_M = 0.05
+"""Map points farther than this from every ground-truth point vote for no instance."""
+STALE_RADIUS_M = 0.5
+NO_EVIDENCE = "_no_evidence"
+"""Suffix of the engines mapped with negative evidence off (for the mapping cost)."""
+
+
+@dataclass
+class RevisitConfig:
+    scene: str = "apartment"
+    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
+    walk_frames: int = DEFAULT_WALK_FRAMES
+    gap_s: float = DEFAULT_GAP_S
+    width: int = 640
+    height: int = 480
+    noise: str = "standard"
+    modes: tuple[str, ...] = tuple(MODES)
+    knobs: Knobs = field(default_factory=Knobs)
+    sightings: bool = True
+    """Hand the frames between keyframes to `sight`, as the server does."""
+
+
+@dataclass
+class _Walks:
+    """One seed's encoded walks and what the ground truth needs from the renders."""
+
+    scenario: RevisitScenario
+    messages: list[dict]
+    sightings: dict[int, list[Sighting]]
+    keyframe_t: list[float]
+    walk1_keyframes: int
+    old_place_shown_t: dict[int, list[float]] = field(default_factory=dict)
+    """Instance -> t of every walk-2 keyframe showing its old place without it."""
+    new_place_seen_t: dict[int, float] = field(default_factory=dict)
+    """Instance -> t of the first walk-2 keyframe showing it (at its new place)."""
+    last_seen_walk1_t: dict[int, float] = field(default_factory=dict)
+    """Instance -> t of the last walk-1 keyframe showing it."""
+
+
+def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
+    source = RevisitSource(
+        cfg.scene,
+        seed=seed,
+        walk_frames=cfg.walk_frames,
+        gap_s=cfg.gap_s,
+        camera=default_camera(cfg.width, cfg.height),
+        noise=cfg.noise,
+    )
+    scenario = source.scenario
+    ratio = cfg.knobs.depth_downsampling_ratio
+    encoder = FrameEncoder(ratio, **session_encoder_options(cfg.knobs))
+    interval = cfg.knobs.keyframe_interval
+    seen_px = SEEN_PX * cfg.width * cfg.height / (640 * 480)
+    watched = {c.instance_id for c in scenario.changes} | set(scenario.occluded_ids)
+    walks = _Walks(scenario, [], {}, [], 0)
+    first_walk_pixels: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
+    """Walk-1 frame index -> instance -> (its pixels, its depth there)."""
+    for index in range(len(scenario)):
+        keyframe = is_keyframe(index, interval)
+        if not keyframe and not cfg.sightings:
+            continue
+        frame = source.frame(index)
+        walk = scenario.walk_of(index)
+        if not keyframe:
+            after = len(walks.messages) - 1
+            walks.sightings.setdefault(after, []).append(Sighting.of(frame, {ratio: encoder}))
+            continue
+        walks.messages.append(encoder.encode_source_frame(frame).message)
+        walks.keyframe_t.append(frame.t)
+        ids = frame.view.instance_ids.ravel()
+        depth = frame.view.depth_m.ravel()
+        counts = np.bincount(ids, minlength=1)
+        if walk == 1:
+            walks.walk1_keyframes += 1
+            pixels = {}
+            for instance in watched:
+                if instance < len(counts) and counts[instance] >= seen_px:
+                    where = np.flatnonzero(ids == instance)
+                    pixels[instance] = (where, depth[where])
+                    walks.last_seen_walk1_t[instance] = frame.t
+            first_walk_pixels[index] = pixels
+        else:
+            same_pose = index - scenario.walk1_frames
+            for instance in watched:
+                if instance < len(counts) and counts[instance] >= seen_px:
+                    walks.new_place_seen_t.setdefault(instance, frame.t)
+                held = first_walk_pixels.get(same_pose, {}).get(instance)
+                if held is not None:
+                    where, before = held
+                    now = depth[where]
+                    behind = (now >= before - 0.05) & (ids[where] != instance)
+                    in_range = (
+                        cfg.knobs.absence_min_depth_m
+                        <= float(np.median(before))
+                        <= cfg.knobs.absence_max_depth_m
+                    )
+                    if in_range and behind.mean() >= PLACE_VISIBLE_FRACTION:
+                        walks.old_place_shown_t.setdefault(instance, []).append(frame.t)
+        if len(walks.messages) % 50 == 0:
+            progress(f"[revisit] seed {seed}: rendered and encoded {len(walks.messages)} keyframes")
+    return walks
+
+
+def _true_change(walks: _Walks, change, key: int, min_evidence: int) -> TrueChange:
+    """A scripted change with the times its evidence was shown. A removal's bound is the
+    `min_evidence`-th keyframe showing the empty place (keyframes are 1 s apart, so the span
+    rule holds by then); a move or an addition can be concluded once both places were shown
+    (a suspect old place and a new candidate confirmed from sightings)."""
+    old = walks.old_place_shown_t.get(change.instance_id, [])
+    new = walks.new_place_seen_t.get(change.instance_id)
+    if change.kind == "removed":
+        t_evidence = old[0] if old else None
+        t_bound = old[min_evidence - 1] if len(old) >= min_evidence else None
+        if t_evidence is not None and t_bound is None:
+            t_bound = old[-1]  # shown fewer times than the rule asks: its last showing
+    elif change.kind == "added":
+        t_evidence = t_bound = new
+    else:
+        t_evidence = t_bound = None if not old or new is None else max(old[0], new)
+    return TrueChange(key + change.instance_id, change.kind, t_evidence, t_bound)
+
+
+def _identities(objects: list[MapObject], tree: cKDTree, instance_of_point: np.ndarray):
+    """Object id -> the ground-truth instance most of its points lie on (0: none)."""
+    out: dict[int, int] = {}
+    for obj in objects:
+        if not len(obj.points):
+            out[obj.id] = 0
+            continue
+        dist, nearest = tree.query(obj.points, distance_upper_bound=IDENTITY_RADIUS_M)
+        hit = dist < np.inf
+        votes = instance_of_point[nearest[hit]]
+        out[obj.id] = int(np.bincount(votes).argmax()) if len(votes) else 0
+    return out
+
+
+def _top1(
+    engine: MappingEngine, encoder: TextEncoder, text: str, removed: list[MapObject]
+) -> MapObject | None:
+    """The best object for `text` among the present map and `removed` ones."""
+    query = encoder.encode_query(text)
+    hits = [(h.score, h.object) for h in engine.query_embedding(query, 1)]
+    hits += [(float(o.embedding @ query), o) for o in removed]
+    return max(hits, key=lambda h: h[0])[1] if hits else None
+
+
+def run_revisit(
+    cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = stderr_progress
+) -> dict:
+    """The `eval --scenario revisit` document: per organisation, the changes' figures."""
+    started = time.perf_counter()
+    concluded: dict[str, list[ConcludedChange]] = {m: [] for m in cfg.modes}
+    truth: list[TrueChange] = []
+    latencies: dict[str, list[float]] = {}
+    occluded_removals = dict.fromkeys(cfg.modes, 0)
+    stale = dict.fromkeys(cfg.modes, 0)
+    stale_shown_enough = dict.fromkeys(cfg.modes, 0)
+    """Stale answers about things whose old place the walk showed often enough to conclude."""
+    stale_cases: dict[str, list[dict]] = {m: [] for m in cfg.modes}
+    stale_asked = 0
+    last_seen_m: dict[str, list[float]] = {m: [] for m in cfg.modes}
+    last_seen_s: dict[str, list[float]] = {m: [] for m in cfg.modes}
+    per_seed = []
+    off_knobs = Knobs(**{**cfg.knobs.__dict__, "negative_evidence": False})
+    on_knobs = Knobs(**{**cfg.knobs.__dict__, "negative_evidence": True})
+    for seed in cfg.seeds:
+        walks = _encode_walks(cfg, seed, progress)
+        scenario = walks.scenario
+        # label embeddings are cached per process (a server has them all): warm the cache
+        # outside the timed loop, as `run_eval` does
+        encoder.encode(labels_of(walks.messages))
+        key = seed * 1_000_000  # instances of different seeds never match each other
+        before_gt, after_gt = gt_point_cloud(scenario.before), gt_point_cloud(scenario.after)
+        before_tree, after_tree = cKDTree(before_gt.points), cKDTree(after_gt.points)
+        engines = {
+            m: MappingEngine(encoder, on_knobs, m, backend=make_perception(mode=m))
+            for m in cfg.modes
+        }
+        engines |= {
+            m + NO_EVIDENCE: MappingEngine(encoder, off_knobs, m, backend=make_perception(mode=m))
+            for m in cfg.modes
+        }
+        k1 = walks.walk1_keyframes
+        ratios = dict.fromkeys(engines, cfg.knobs.depth_downsampling_ratio)
+        first = map_keyframes(
+            {name: walks.messages[:k1] for name in engines},
+            engines,
+            progress,
+            {i: s for i, s in walks.sightings.items() if i < k1},
+            ratios,
+        )
+        walk1_identity = {
+            name: _identities(
+                engine.confirmed_objects(), before_tree, before_gt.instance_ids.astype(np.int64)
+            )
+            for name, engine in engines.items()
+        }
+        second = map_keyframes(
+            {name: walks.messages[k1:] for name in engines},
+            engines,
+            progress,
+            {i - k1: s for i, s in walks.sightings.items() if i >= k1},
+            ratios,
+        )
+        for name in engines:
+            latencies.setdefault(name, []).extend(
+                first[name].latencies_ms + second[name].latencies_ms
+            )
+        for change in scenario.changes:
+            truth.append(_true_change(walks, change, key, cfg.knobs.removal_min_evidence))
+        seed_report: dict = {"seed": seed, "changes": len(scenario.changes), "modes": {}}
+        removed_truth = [c for c in scenario.changes if c.kind == "removed"]
+        remaining = set(scenario.after.categories_present)
+        stale_asked += sum(c.kind in ("moved", "removed") for c in scenario.changes)
+        for mode in cfg.modes:
+            engine = engines[mode]
+            second[mode].changes[:0] = first[mode].changes
+            second[mode].retracted_added |= first[mode].retracted_added
+            second[mode].retracted_removed |= first[mode].retracted_removed
+            run = second[mode].standing_changes()
+            retired = first[mode].retired + second[mode].retired
+            present = engine.confirmed_objects()
+            after_identity = _identities(
+                present + retired, after_tree, after_gt.instance_ids.astype(np.int64)
+            )
+            before_identity = walk1_identity[mode]
+            for change in run:
+                if change.kind == "added":
+                    instance = after_identity.get(change.id, 0)
+                else:
+                    instance = before_identity.get(change.id, 0)
+                concluded[mode].append(
+                    ConcludedChange(key + instance if instance else None, change.kind, change.t)
+                )
+                if change.kind != "added" and instance in scenario.occluded_ids:
+                    occluded_removals[mode] += 1
+            by_id = {o.id: o for o in present}
+            for change in scenario.changes:
+                if change.kind not in ("moved", "removed"):
+                    continue
+                top = _top1(engine, encoder, change.category, [])
+                if top is None or top.id not in by_id:
+                    continue
+                to_old = float(np.linalg.norm(top.centroid - np.asarray(change.from_xyz)))
+                to_new = (
+                    np.inf
+                    if change.to_xyz is None
+                    else float(np.linalg.norm(top.centroid - np.asarray(change.to_xyz)))
+                )
+                near_old = to_old <= STALE_RADIUS_M and to_old < to_new
+                # stale: the map's object for the changed thing, still at the old place
+                if near_old and before_identity.get(top.id) == change.instance_id:
+                    shown = len(walks.old_place_shown_t.get(change.instance_id, []))
+                    stale[mode] += 1
+                    stale_shown_enough[mode] += shown >= cfg.knobs.removal_min_evidence
+                    stale_cases[mode].append(
+                        {
+                            "seed": seed,
+                            "asked": change.category,
+                            "kind": change.kind,
+                            "top1": {"id": top.id, "label": top.label},
+                            "top1_was_instance": before_identity.get(top.id),
+                            "old_place_shown_keyframes": shown,
+                        }
+                    )
+            for change in removed_truth:
+                if change.category in remaining:
+                    continue  # another one is still there: "the last place" is ambiguous
+                top = _top1(engine, encoder, f"where did I last see the {change.category}", retired)
+                if top is None:
+                    continue
+                last_seen_m[mode].append(
+                    float(np.linalg.norm(top.centroid - np.asarray(change.from_xyz)))
+                )
+                truth_t = walks.last_seen_walk1_t.get(change.instance_id)
+                if truth_t is not None and top.last_seen_t is not None:
+                    last_seen_s[mode].append(abs(top.last_seen_t - truth_t))
+            seed_report["modes"][mode] = {
+                kind: sum(c.kind == kind for c in run) for kind in ("added", "moved", "removed")
+            }
+        per_seed.append(seed_report)
+        progress(
+            f"[revisit] seed {seed}: {len(scenario.changes)} scripted changes; concluded "
+            + "; ".join(f"{m} {seed_report['modes'][m]}" for m in cfg.modes)
+        )
+
+    result: dict = {
+        "scenario": "revisit",
+        "scene": cfg.scene,
+        "seeds": list(cfg.seeds),
+        "walk_frames": cfg.walk_frames,
+        "gap_s": cfg.gap_s,
+        "fps": 5.0,
+        "keyframe_interval": cfg.knobs.keyframe_interval,
+        "noise": cfg.noise,
+        "scripted_changes": len(truth),
+        "per_seed": per_seed,
+        "modes": {},
+    }
+    for mode in cfg.modes:
+        scores = score_changes(concluded[mode], truth)
+        with_ms = float(np.mean(latencies[mode]))
+        without_ms = float(np.mean(latencies[mode + NO_EVIDENCE]))
+        scores["false_removals_occluded"] = occluded_removals[mode]
+        scores["stale_answers"] = stale[mode]
+        scores["stale_answers_shown_enough"] = stale_shown_enough[mode]
+        scores["stale_questions"] = stale_asked
+        scores["stale_cases"] = stale_cases[mode]
+        scores["last_seen_error_m"] = {
+            "p50": float(np.median(last_seen_m[mode])) if last_seen_m[mode] else None
+        }
+        scores["last_seen_error_s"] = {
+            "p50": float(np.median(last_seen_s[mode])) if last_seen_s[mode] else None
+        }
+        scores["mapping_cost_pct"] = 100.0 * (with_ms / without_ms - 1.0)
+        scores["latency_ms"] = {"with_evidence_mean": with_ms, "without_evidence_mean": without_ms}
+        result["modes"][mode] = {"changes": scores}
+    result["seconds"] = time.perf_counter() - started
+    return result
+
+
+def format_revisit_table(result: dict) -> str:
+    """The revisit figures as a small table (targets from docs/evaluation.md beside them)."""
+    lines = [
+        f"revisit of {result['scene']}: seeds {result['seeds']}, {result['scripted_changes']} "
+        f"scripted changes, walks of {result['walk_frames']} frames {result['gap_s']:g} s apart",
+        f"{'mode':<11} {'prec':>5} {'(low)':>6} {'recall':>6} {'(low)':>6} {'t2u p95 s':>9} "
+        f"{'walk':>5} {'beyond':>6} "
+        f"{'occl':>4} {'stale':>5} {'seen m':>6} {'seen s':>6} {'cost %':>6} "
+        f"{'added p/r':>10}",
+    ]
+    for mode, m in result["modes"].items():
+        c = m["changes"]
+
+        def fmt(value, spec=".2f"):
+            return "-" if value is None else format(value, spec)
+
+        lines.append(
+            f"{mode:<11} {c['precision']:5.2f} {fmt(c['precision_wilson_low']):>6} "
+            f"{c['recall']:6.2f} {fmt(c['recall_wilson_low']):>6} "
+            f"{fmt(c['time_to_update_s']['p95'], '.1f'):>9} "
+            f"{fmt(c['walk_bound_s']['p95'], '.1f'):>5} "
+            f"{fmt(c['beyond_walk_bound_s']['p95'], '.1f'):>6} {c['false_removals_occluded']:4d} "
+            f"{c['stale_answers']:2d}/{c['stale_answers_shown_enough']:<2d} "
+            f"{fmt(c['last_seen_error_m']['p50']):>6} "
+            f"{fmt(c['last_seen_error_s']['p50'], '.1f'):>6} {c['mapping_cost_pct']:6.1f} "
+            f"{c['added']['precision']:4.2f}/{c['added']['recall']:4.2f}"
+        )
+    lines.append(
+        "(t2u, walk, beyond: p95 of the time to update, of the walk's share of it, of the map's "
+        "delay beyond the walk's bound; stale: all / about things the walk showed enough)"
+    )
+    lines.append(
+        "targets: precision >= 0.95, recall >= 0.9, time to update p95 <= 3 s, 0 false removals "
+        "under occlusion, 0 stale answers, last seen p50 <= 0.3 m, cost <= +15 %"
+    )
+    return "\n".join(lines)
+
+
+def run(cfg: RevisitConfig, encoder: TextEncoder, progress: Progress = stderr_progress) -> Report:
+    """The revisit scenario (`run_revisit`) as a `Report`: its document and table."""
+    return Report("revisit", run_revisit(cfg, encoder, progress), format_revisit_table)
