@@ -1,10 +1,10 @@
-"""Device-side figures (issues 4, 13): upstream bandwidth by path, depth ratio and encoding,
+"""Device-side figures: upstream bandwidth by path, depth ratio and encoding,
 device CPU.
 
     python -m bench.device [--frames 150] [--no-quality] [--real DIR] [--out out/]
 
-- Upstream Mbps at 5 fps, 640x480, depth ÷5, encoder defaults, on both paths (issue 13,
-  target 6: <= 0.5 Mbps with the extension): a plain v1 device sending every frame whole,
+- Upstream Mbps at 5 fps, 640x480, depth ÷5, encoder defaults, on both paths (target:
+  <= 0.5 Mbps with the extension, docs/evaluation.md "Targets"): a plain v1 device sending every frame whole,
   and the sightings extension (app/protocol/sighting.py), keyframes whole (the shared
   selector, app.keyframes) and a coarse sighting of each frame between them.
 - Upstream Mbps at 5 fps, 640x480, for depth downsampling ratios 1-5 with the encoder's
@@ -176,7 +176,8 @@ def upstream_grid(frames: list[SourceFrame], ratio: int = 5) -> list[dict]:
 
 
 def upstream_levers(frames: list[SourceFrame], ratio: int = 5) -> list[dict]:
-    """The defaults, then one setting changed at a time, then the settings before issue 4."""
+    """The defaults, then one setting changed at a time, then the settings before the upstream
+    defaults were chosen."""
     from client_sim.encoder import FrameEncoder
 
     variations = {
@@ -185,7 +186,7 @@ def upstream_levers(frames: list[SourceFrame], ratio: int = 5) -> list[dict]:
         "zstd level 3 (the codec module's level)": {"zstd_level": 3},
         "detections as png": {"detections_codec": "png"},
         "depth as zstd": {"depth_codec": "zstd"},
-        "before issue 4 (q85, zstd-3 1 mm depth, zstd-3 detections)": {
+        "before the upstream defaults (q85, zstd-3 1 mm depth, zstd-3 detections)": {
             "jpeg_quality": 85,
             "jpeg_optimize": False,
             "depth_codec": "zstd",

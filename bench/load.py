@@ -1,4 +1,4 @@
-"""Load bench (issue 25): many devices, each its own session, against one server process; or
+"""Load bench: many devices, each its own session, against one server process; or
 the servers of two checkouts side by side.
 
     python -m bench.load [--devices 8,32] [--seconds 30] [--fps 5] [--out out/]
@@ -644,7 +644,7 @@ def print_table(runs: list[dict], header: str) -> None:
 
 
 def targets(runs: list[dict], *, saturate: bool, sightings: bool) -> list[dict]:
-    """The issue's one-process targets, per server, from the paced runs at 8 and 32 devices."""
+    """The one-process targets (docs/evaluation.md "Targets", many devices), per server, from the paced runs at 8 and 32 devices."""
     if saturate:
         print("targets: for paced runs only (these devices were unpaced)")
         return []

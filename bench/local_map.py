@@ -3,17 +3,16 @@
     python -m bench.local_map [--out out/] [--sizes 80,1000,5000,10000,25000,50000]
 
 One `LocalMap` is grown by v1 deltas of 1,000 objects (200 float16 points and a random unit
-384-d embedding each, in 1 m boxes scattered over a 100 m square): the device defaults of
-DESIGN "Local map (13, target 5)". The map stores them in 8 bits (int8 embeddings, uint8
+384-d embedding each, in 1 m boxes scattered over a 100 m square): the device defaults the
+local-map target is measured at (docs/evaluation.md "Targets"). The map stores them in 8 bits (int8 embeddings, uint8
 point offsets in each object's box). At each size it measures memory_bytes, the similarity
 part of a local query (`query_embedding`, k=5), and a local query end to end (MiniLM
 `encode_query` + `query_embedding`); text encoding alone is measured once. The baseline's
 device map is a full-resolution full copy: 2,000 float32 points and a float32 embedding per
 object, computed rather than allocated.
 
-Targets (2 CPU cores, SI megabytes): issue 13 target 5, 50k objects within 64 MB and LQ p50
-<= 20 ms at 50k (p50/p95 at 10k and 50k reported); DESIGN.md "Targets", LQ p50 <= 25 ms at
-10k. The similarity part should stay near 10 ms or less at 50k, since text encoding takes
+Targets (2 CPU cores, SI megabytes; docs/evaluation.md "Targets"): 50k objects within 64 MB
+and LQ p50 <= 20 ms at 50k, LQ p50 <= 25 ms at 10k (p50/p95 at 10k and 50k reported). The similarity part should stay near 10 ms or less at 50k, since text encoding takes
 most of the LQ budget. The machine may be shared: p50 and min are both recorded.
 """
 

@@ -1,8 +1,8 @@
-"""Mapping speed and quality: semanticxr vs baseline on the same keyframes (issue 13 targets).
+"""Mapping speed and quality: semanticxr vs baseline on the same keyframes.
 
     python -m bench.mapping [--scene apartment] [--frames 400|1200] [--queries FILE] [--out out/]
 
-Targets 1-4 of issue 13, at 640x480 RGB, depth ÷5, noise `standard`, both organisations
+The mapping and query targets (docs/evaluation.md "Targets"), at 640x480 RGB, depth ÷5, noise `standard`, both organisations
 mapped side by side in one run (they take turns keyframe by keyframe, so machine load
 drifts affect all alike):
   1. query top-1 over the categories in view (evaluation.walk: the noise-free detector
@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
         "--frames",
         type=int,
         default=400,
-        help="input frames of the walk (400 and 1200 are the issue-13 walks)",
+        help="input frames of the walk (the targets are set on 400- and 1,200-frame walks)",
     )
     parser.add_argument(
         "--noise", default="standard", help="detection noise profile (none or standard)"
@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
         dest="sightings",
         action="store_false",
         help="map the keyframes only: do not count the non-keyframes' detections as "
-        "sightings towards confirmation (issue 13 target 4, MappingEngine.sight, which the "
+        "sightings towards confirmation (a glance is enough: MappingEngine.sight, which the "
         "server does)",
     )
     parser.add_argument(
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         default="frames",
         choices=("frames", "sightings"),
         help="what the device sends between keyframes: every frame whole (any v1 client), or "
-        "the sightings extension's coarse sightings (issue 13, target 6)",
+        "the sightings extension's coarse sightings (the upstream target)",
     )
     parser.add_argument(
         "--queries",

@@ -1,4 +1,4 @@
-"""Relation index: update time per keyframe at 100, 500 and 2,000 objects (issue 27).
+"""Relation index: update time per keyframe at 100, 500 and 2,000 objects.
 
     python -m bench.relations [--out out/] [--sizes 100,500,2000] [--keyframes 300]
 
@@ -22,7 +22,7 @@ by 5 mm and moved by up to 1 cm). Timed per keyframe:
 The index is built and settled once first (both reported). The machine may be shared: p50
 and p95 are both recorded.
 
-Target (issue 27, a benchmark, not a test): index update <= 1 ms p50 per keyframe at 500
+Target (a benchmark, not a test): index update <= 1 ms p50 per keyframe at 500
 objects; checked for the update and, as the stricter reading, for update + settle.
 """
 

@@ -1,4 +1,4 @@
-"""Relational local queries on the device: relational LQ vs plain LQ at 10k objects (issue 27).
+"""Relational local queries on the device: relational LQ vs plain LQ at 10k objects.
 
     python -m bench.relations_device [--out out/] [--objects 10000] [--reps 30]
 
@@ -18,7 +18,7 @@ offline and with the same encoder:
   kept within `relation_cache_mb`) and cold (the phrases embedded anew and no body kept:
   every question starts from nothing).
 
-Target (issue 27, a benchmark, not a test): relational LQ <= 2x a plain LQ at 10k objects.
+Target (a benchmark, not a test): relational LQ <= 2x a plain LQ at 10k objects.
 The machine may be shared: p50 and p95 are both recorded.
 """
 

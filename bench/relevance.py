@@ -129,8 +129,8 @@ def _match_rate(
 
 def _curve(right: list, unrelated: list, asked_absent: int) -> list[dict]:
     """Right top-1 answers rated a match against top-1 answers to absent things rated a
-    match, over the match limits (DESIGN: show the curve where the encoder cannot reach
-    both targets at once). The top-1 answer alone: `false_match_rate` above counts a match
+    match, over the match limits (shown where the encoder cannot reach both targets at
+    once). The top-1 answer alone: `false_match_rate` above counts a match
     by any of the top 5."""
     return [
         {

@@ -1,4 +1,4 @@
-"""Scale bench (issue 25): the same paced devices through a gateway in front of 1, 2 and 4 map
+"""Scale bench: the same paced devices through a gateway in front of 1, 2 and 4 map
 shards on a local Ray, over PostgreSQL; and the shard hop on its own.
 
     python -m bench.scale --store postgresql://USER:PASSWORD@HOST/DB [--shards 1,2,4]

@@ -5,17 +5,17 @@
     python -m bench.server --paced-only [--devices 8,16,32] [--paced-seconds 20]
 
 The server runs as `app.server.runner.ServerProcess` (`python -m app.cli serve`); every call
-goes through the API client (app.client). Measures (issue 3): ingest-to-ack latency per keyframe and per plain frame; frames per
+goes through the API client (app.client). Measures: ingest-to-ack latency per keyframe and per plain frame; frames per
 second sustained by 1 and 4 concurrent device streams (640x480, depth ÷5); bytes per
 downstream update in `semanticxr` vs `baseline` mode on the standard synthetic scene.
 
-Stored sessions (issue 16): a store holding N sessions of a few objects each (written
+Stored sessions: a store holding N sessions of a few objects each (written
 through the store directly, as a server would have committed them: creating 1,000 maps
 through the API would mean streaming 1,000 walks), then the server's start-up time (process
 start to /healthz 200, polled every 0.1 s), its resident memory after start, and the first
 use of one session (its map loaded from the store). Start-up must not grow with N.
 
-Paced devices (issue 13): N emulated devices, each in its own session on its own socket,
+Paced devices: N emulated devices, each in its own session on its own socket,
 each sending the walk at 5 fps on a fixed clock (frame k at its start + k × 200 ms, starts
 offset at random within the first 200 ms), never waiting for acks but with at most 8 frames
 in flight (a frame due beyond that is skipped and counted as a stall). Reports ingest-to-ack

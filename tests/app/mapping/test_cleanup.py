@@ -1,4 +1,4 @@
-"""The incremental clean-up (issue 13, target 3): only objects changed since their last
+"""The incremental clean-up (the mapping speed-up target): only objects changed since their last
 clean-up are denoised and compared for a merge, and semanticxr spreads that work over the
 keyframes instead of paying for every changed object on one."""
 

@@ -1,4 +1,4 @@
-"""Confirmation (issue 13, target 4: a glance is enough): detections a v1 client sends with
+"""Confirmation (a glance is enough: docs/evaluation.md "Targets"): detections a v1 client sends with
 every frame count as sightings between keyframes, so an object in view for about 1.5 s of a
 sweep is confirmed, while a detection living for a few frames only is never published."""
 

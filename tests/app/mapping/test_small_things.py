@@ -1,5 +1,5 @@
 """The depth co-design keeps small things: a detection too small to map at the downsampled
-depth is mapped from the full-resolution depth patch the device sends with it (issue 13)."""
+depth is mapped from the full-resolution depth patch the device sends with it."""
 
 from __future__ import annotations
 
