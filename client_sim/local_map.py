@@ -59,13 +59,20 @@ import numpy as np
 import torch
 
 from app.answering.ask import ask, relational_reading
-from app.answering.things import MapThings, RelationalHit, row_dots
+from app.answering.things import MapThings, RelationalHit
 from app.mapping.held import POINT_LEVELS, dequantise_points, quantise_points
 from app.protocol import DEFAULT_EMBEDDING_DIM, DeltaError, parse_delta
 from app.relations.bodies import Z_UP, Body, snap_to_axis
 from app.relations.grammar import Reading
 from app.relations.on_demand import OnDemandRelations
 from app.semantics import TextEncoder
+from client_sim.local_scan import (
+    approximate_scores,
+    bfloat16_bits,
+    exact_scores,
+    quantise_embeddings,
+    row_cosines,
+)
 
 log = logging.getLogger(__name__)
 
@@ -82,19 +89,6 @@ _INDEX_BYTES_PER_OBJECT = 12
 
 _BYTES_HEADER = sys.getsizeof(b"")
 """Bytes of an empty `bytes` object: the header every object's point bytes carry."""
-
-_KERNEL_MIN_DIM_MULTIPLE = 16
-"""`torch._weight_int8pack_mm` reads 16 columns at a time: other widths give garbage."""
-
-_KERNEL_ERROR = 3 * 2.0**-9
-"""Bound on |kernel score - exact float32 score| for unit rows and a unit query: the query,
-the scales and the result are each rounded to bfloat16 (8 significant bits)."""
-
-_FALLBACK_ERROR = 1e-5
-"""Bound on float32 rounding differences between a chunked and a per-candidate score."""
-
-_FALLBACK_CHUNK_ROWS = 4096
-"""Rows converted to float32 at a time when the int8 kernel cannot be used (~6 MB at 384-d)."""
 
 _GROWTH = 16
 """Capacity grows by 1/_GROWTH (6.25%) at least: amortised O(1) inserts with little slack."""
@@ -169,35 +163,6 @@ def _cap_points(points: np.ndarray, max_points: int, oid: int, version: int) -> 
     rng = np.random.default_rng((oid, version, max_points))
     keep = np.sort(rng.choice(len(points), size=max_points, replace=False))
     return points[keep]
-
-
-def quantise_embeddings(embeddings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(int8 [m, d], float32 [m] scales) of float [m, d] rows: `int8 * scale` is the row's
-    direction as an exact unit vector (zero rows: zero and scale 0).
-
-    Each row is divided by its largest magnitude and rounded to [-127, 127], so every row
-    uses the whole 8-bit range whatever its spread.
-    """
-    as32 = np.asarray(embeddings, np.float32)
-    peak = np.abs(as32).max(axis=1, keepdims=True) if as32.size else np.zeros((len(as32), 1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        levels = np.where(peak > 0, as32 / peak, 0.0) * 127
-    quantised = np.clip(np.rint(levels), -127, 127).astype(np.int8)
-    norms = np.linalg.norm(quantised.astype(np.float32), axis=1)
-    scales = np.where(norms > 0, 1 / np.maximum(norms, 1e-12), 0).astype(np.float32)
-    return quantised, scales
-
-
-def _bfloat16_bits(values: np.ndarray) -> np.ndarray:
-    """uint16 bits of float32 `values` rounded to bfloat16 (nearest even, as torch does)."""
-    rounded = torch.from_numpy(np.ascontiguousarray(values, np.float32)).to(torch.bfloat16)
-    return rounded.view(torch.int16).numpy().view(np.uint16)
-
-
-def _float32_of_bfloat16(values: torch.Tensor) -> np.ndarray:
-    """float32 numpy of a bfloat16 tensor, exactly (a bfloat16 is a float32's top half)."""
-    bits = values.view(torch.int16).numpy().view(np.uint16)
-    return (bits.astype(np.uint32) << 16).view(np.float32)
 
 
 def _seconds_or_none(value: float) -> float | None:
@@ -527,7 +492,7 @@ class LocalMap:
         columns["version"][target] = delta.versions[take]
         columns["embedding"][target] = delta.embeddings[take]
         columns["scale"][target] = delta.scales[take]
-        columns["scale_bf16"][target] = _bfloat16_bits(delta.scales[take])
+        columns["scale_bf16"][target] = bfloat16_bits(delta.scales[take])
         columns["points_lo"][target] = delta.points_lo[take]
         columns["points_step"][target] = delta.points_step[take]
         columns["bbox"][target] = delta.bboxes[take]
@@ -773,12 +738,20 @@ class LocalMap:
         if k < 1 or n == 0:
             return []
         query = query / max(float(np.linalg.norm(query)), 1e-12)
-        scores, error = self._approximate_scores(query)
+        columns = self._rows
+        scores, error = approximate_scores(
+            columns["embedding"],
+            columns["scale"],
+            self._embeddings_t,
+            self._scales_bf16_t,
+            n,
+            query,
+        )
         # Every row of the exact top k scores within 2 * error of the approximate k-th best,
         # so re-scoring those rows exactly gives the exact ranking (ties broken by id).
         kth = float(np.partition(scores, n - min(n, k))[n - min(n, k)])
         candidates = np.flatnonzero(scores >= kth - 2 * error)
-        exact = self._exact_scores(candidates, query)
+        exact = exact_scores(columns["embedding"], columns["scale"], candidates, query)
         best = np.lexsort((self._rows["id"][candidates], -exact))[:k]
         hits = []
         for i in best.tolist():
@@ -843,16 +816,11 @@ class LocalMap:
             ids=columns["id"][rows],
             labels=labels,
             label_of=label_of[rows],
-            cosines=lambda positions, query: self._row_cosines(rows[positions], query),
+            cosines=lambda positions, query: row_cosines(
+                columns["embedding"], columns["scale"], rows[positions], query
+            ),
         )
         return ask(reading, things, relations, encoder, position, k)
-
-    def _row_cosines(self, rows: np.ndarray, query: np.ndarray) -> np.ndarray:
-        """float32 [m]: cosines of `rows` with the unit `query`, each row on its own
-        (app.answering.things.row_dots: copies with one embedding tie exactly)."""
-        columns = self._rows
-        embeddings = columns["embedding"][rows].astype(np.float32)
-        return row_dots(embeddings, np.asarray(query, np.float32)) * columns["scale"][rows]
 
     def _labels_by_row(self) -> tuple[list[str], np.ndarray, np.ndarray]:
         """(the distinct labels held, each row's label int [n] as an index into them, the
@@ -915,25 +883,3 @@ class LocalMap:
             return
         for oid in ids:
             self._forget_body(int(oid))
-
-    def _exact_scores(self, rows: np.ndarray, query: np.ndarray) -> np.ndarray:
-        """float32 cosines of `rows` (int [m]) with the unit float32 `query`."""
-        columns = self._rows
-        return (columns["embedding"][rows].astype(np.float32) @ query) * columns["scale"][rows]
-
-    def _approximate_scores(self, query: np.ndarray) -> tuple[np.ndarray, float]:
-        """(float32 [n] scores of every held row against the unit `query`, bound on their
-        error against `_exact_scores`)."""
-        n = self._n
-        if self.dim % _KERNEL_MIN_DIM_MULTIPLE == 0 and hasattr(torch, "_weight_int8pack_mm"):
-            # torch only for the kernel: its small element-wise ops wake the thread pool,
-            # which costs milliseconds on a busy device; the rest is numpy.
-            scales = self._scales_bf16_t[:n]
-            query_bf16 = torch.from_numpy(query).to(torch.bfloat16)[None]
-            scores = torch._weight_int8pack_mm(query_bf16, self._embeddings_t[:n], scales)
-            return _float32_of_bfloat16(scores[0]), _KERNEL_ERROR
-        scores = np.empty(n, np.float32)
-        for start in range(0, n, _FALLBACK_CHUNK_ROWS):
-            rows = np.arange(start, min(n, start + _FALLBACK_CHUNK_ROWS))
-            scores[rows] = self._exact_scores(rows, query)
-        return scores, _FALLBACK_ERROR

@@ -25,6 +25,7 @@ from app.mapping.object import MapObject
 from app.mapping.publish import delta_message
 from app.protocol import ChangeEntry, UpsertEntry, pack_delta
 from client_sim.local_map import BYTES_PER_MB, DeltaError, LocalMap
+from client_sim.local_scan import exact_scores
 from client_sim.querying import QueryAnswer, QueryRouter
 from world.categories import CATEGORIES
 
@@ -520,7 +521,8 @@ def test_a_query_ranks_exactly_by_the_stored_cosines_with_ties_broken_by_id():
     hits = m.query_embedding(query, k=12)
 
     rows = np.array([m._row(oid) for oid in range(300)])
-    exact = m._exact_scores(rows, (query / np.linalg.norm(query)).astype(np.float32))
+    unit = (query / np.linalg.norm(query)).astype(np.float32)
+    exact = exact_scores(m._rows["embedding"], m._rows["scale"], rows, unit)
     expected = sorted(range(300), key=lambda oid: (-exact[oid], oid))[:12]
     assert [hit.id for hit in hits] == expected == [7, *range(100, 111)]
 
