@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -53,18 +52,18 @@ import numpy as np
 
 from app.answering.ask import ask, relational_reading
 from app.answering.things import MapThings, RelationalHit
-from app.mapping.held import POINT_LEVELS, dequantise_points, quantise_points
+from app.mapping.held import POINT_LEVELS, dequantise_points
 from app.protocol import DEFAULT_EMBEDDING_DIM, DeltaError, parse_delta
 from app.relations.bodies import Z_UP, Body, snap_to_axis
 from app.relations.grammar import Reading
 from app.relations.on_demand import OnDemandRelations
 from app.semantics import TextEncoder
+from client_sim.local_delta import ParsedDelta, cap_points, held_centroid, read_upserts
 from client_sim.local_rows import INDEX_BYTES_PER_OBJECT, LocalRows, entry_bytes
 from client_sim.local_scan import (
     approximate_scores,
     bfloat16_bits,
     exact_scores,
-    quantise_embeddings,
     row_cosines,
 )
 
@@ -108,58 +107,13 @@ class LocalHit:
     (None: the server did not send it, e.g. an older server)."""
 
 
-@dataclass
-class _ParsedDelta:
-    """A delta that passed validation, as columns of m upserts (nothing applied yet)."""
-
-    seq: int
-    full: bool
-    ids: np.ndarray  # int64 [m]
-    versions: np.ndarray  # int64 [m]
-    labels: list[str]  # [m]
-    embeddings: np.ndarray  # int8 [m, dim]
-    scales: np.ndarray  # float32 [m]: embeddings * scales are unit rows (or zero)
-    points: list[bytes]  # uint8 [<= max_points, 3] each, offsets in their point box
-    points_lo: np.ndarray  # float32 [m, 3], the point box's low corner
-    points_step: np.ndarray  # float32 [m, 3], metres per uint8 step
-    bboxes: np.ndarray  # float32 [m, 6]
-    centroids: np.ndarray  # float32 [m, 3], mean of the received points
-    held_centroids: np.ndarray  # float32 [m, 3], mean of the held (stored) points
-    n_obs: np.ndarray  # int64 [m]
-    last_seen_t: np.ndarray  # float64 [m], device-clock seconds, NaN where not sent
-    removed: list[int]
-
-
 def _is_finite_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _cap_points(points: np.ndarray, max_points: int, oid: int, version: int) -> np.ndarray:
-    """At most `max_points` rows of float16 [N, 3], as a new array owning its memory.
-
-    The subset is random but seeded by (id, version, cap), so every device that receives the
-    same update holds the same points; row order is kept.
-    """
-    if len(points) <= max_points:
-        return points.copy()  # decoded arrays are views; a copy drops the extra header
-    rng = np.random.default_rng((oid, version, max_points))
-    keep = np.sort(rng.choice(len(points), size=max_points, replace=False))
-    return points[keep]
 
 
 def _seconds_or_none(value: float) -> float | None:
     """A stored time as answers give it: None where the server sent none (NaN)."""
     return None if math.isnan(value) else float(value)
-
-
-def _held_centroid(
-    data: bytes, lo: np.ndarray, step: np.ndarray, fallback: np.ndarray
-) -> np.ndarray:
-    """float64 [3]: the mean of an object's held points (what its relation body's centroid
-    is), `fallback` when it has none."""
-    if not data:
-        return np.asarray(fallback, np.float64)
-    return dequantise_points(data, lo, step).mean(axis=0, dtype=np.float64)
 
 
 def _body_bytes(body: Body) -> int:
@@ -376,63 +330,16 @@ class LocalMap:
         self._store.trim()  # memory follows the object count
         self._enforce_budget()
 
-    def _parse(self, message: Any) -> _ParsedDelta:
+    def _parse(self, message: Any) -> ParsedDelta:
         """The delta as columns, or DeltaError naming the first wrong field; no side effects."""
         delta = parse_delta(message, self.dim)
         if not delta.full and delta.seq < self.seq:
             raise DeltaError(
                 "seq", f"{delta.seq} is older than the applied seq {self.seq} (out of order)"
             )
-        m = len(delta.upserts)
-        ids = np.empty(m, np.int64)
-        versions = np.empty(m, np.int64)
-        n_obs = np.empty(m, np.int64)
-        last_seen_t = np.full(m, np.nan, np.float64)
-        labels: list[str] = []
-        embeddings = np.empty((m, self.dim), np.float16)
-        bboxes = np.empty((m, 6), np.float32)
-        centroids = np.empty((m, 3), np.float32)
-        held_centroids = np.empty((m, 3), np.float32)
-        points_list: list[bytes] = []
-        points_lo = np.empty((m, 3), np.float32)
-        points_step = np.empty((m, 3), np.float32)
-        for i, upsert in enumerate(delta.upserts):
-            ids[i], versions[i], n_obs[i] = upsert.id, upsert.version, upsert.n_obs
-            if upsert.last_seen_t is not None:  # an older server sends none: NaN stays
-                last_seen_t[i] = upsert.last_seen_t
-            labels.append(sys.intern(upsert.label))  # thousands of objects share a few labels
-            bboxes[i] = upsert.bbox
-            embeddings[i] = upsert.embedding
-            points = upsert.points
-            if len(points):
-                centroids[i] = points.astype(np.float32).mean(axis=0)
-            else:
-                centroids[i] = (bboxes[i, :3] + bboxes[i, 3:]) / 2
-            capped = _cap_points(points, self._max_points, upsert.id, upsert.version)
-            data, points_lo[i], points_step[i] = quantise_points(capped)
-            held_centroids[i] = _held_centroid(data, points_lo[i], points_step[i], centroids[i])
-            points_list.append(data)
-        quantised, scales = quantise_embeddings(embeddings)
-        return _ParsedDelta(
-            seq=delta.seq,
-            full=delta.full,
-            ids=ids,
-            versions=versions,
-            labels=labels,
-            embeddings=quantised,
-            scales=scales,
-            points=points_list,
-            points_lo=points_lo,
-            points_step=points_step,
-            bboxes=bboxes,
-            centroids=centroids,
-            held_centroids=held_centroids,
-            n_obs=n_obs,
-            last_seen_t=last_seen_t,
-            removed=delta.removed,
-        )
+        return read_upserts(delta, self.dim, self._max_points)
 
-    def _upsert(self, delta: _ParsedDelta) -> None:
+    def _upsert(self, delta: ParsedDelta) -> None:
         """Write the fresh upserts of a validated delta (ids unique, as parse_delta checks):
         existing rows in place, new at the end."""
         held_versions = self._store.columns["version"]
@@ -516,7 +423,7 @@ class LocalMap:
         for row, data in enumerate(self._store.points):
             if len(data) > 3 * self._max_points:
                 offsets = np.frombuffer(data, np.uint8).reshape(-1, 3)
-                capped = _cap_points(
+                capped = cap_points(
                     offsets, self._max_points, int(ids[row]), int(versions[row])
                 ).tobytes()
                 self._store.set_points(row, capped)
@@ -525,7 +432,7 @@ class LocalMap:
                     self._store.columns["points_lo"][row],
                     self._store.columns["points_step"][row],
                 )
-                self._store.columns["held_centroid"][row] = _held_centroid(
+                self._store.columns["held_centroid"][row] = held_centroid(
                     capped, lo, step, self._store.columns["held_centroid"][row]
                 )
                 self._forget_relations([int(ids[row])])
