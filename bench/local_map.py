@@ -84,7 +84,7 @@ def baseline_bytes(objects: int) -> int:
     embedding and the same per-object metadata as the local map."""
     from client_sim.local_map import PYTHON_BYTES_PER_OBJECT, LocalMap
 
-    columns = LocalMap(dim=DIM)._rows
+    columns = LocalMap(dim=DIM)._store.columns
     metadata_row_bytes = sum(  # the columns besides the 8-bit storage's own
         columns[name].itemsize * int(np.prod(columns[name].shape[1:]))
         for name in ("id", "version", "bbox", "centroid", "n_obs", "last_seen_t", "updated")

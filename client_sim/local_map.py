@@ -7,15 +7,10 @@ Storage (one row per object, rows dense in [0, n) thanks to swap-remove), 8-bit 
 bulk is (docs/evaluation.md "Targets": 50k objects of 200 points and 384-d embeddings within
 64 MB):
 
-- embeddings: ONE contiguous int8 matrix [capacity, dim] plus a float32 scale per row. A row
-  is the received unit vector divided by its largest magnitude and rounded to [-127, 127];
-  its scale is 1 / the int8 row's norm, so `int8 row * scale` is exactly a unit vector and a
-  score is a cosine. Versus the float32 vector, a score moves by at most
-  scale * sum|q| / 2 (~0.002 typical at 384-d). Similarity is torch's weight-only int8 kernel
-  (`_weight_int8pack_mm`: a bfloat16 query against the int8 rows and their scales, read in
-  place), then the candidates within its error bound are re-scored exactly in float32. For
-  dimensions the kernel does not take (not a multiple of 16) the rows are scored in float32
-  chunks instead.
+- embeddings: ONE contiguous int8 matrix [capacity, dim] plus a float32 scale per row, so
+  `int8 row * scale` is exactly a unit vector and a score is a cosine; scored by torch's
+  weight-only int8 kernel, then the candidates within its error bound re-scored exactly in
+  float32 (client_sim.local_scan).
 - points: one `bytes` of uint8 [<= max_points_per_object, 3] per object (3 bytes a point):
   each axis quantised in 255 steps of the object's point box (lo, step: float32 columns;
   app.mapping.held, which the server imports too: it measures relations on these points), so
@@ -26,9 +21,8 @@ bulk is (docs/evaluation.md "Targets": 50k objects of 200 points and 384-d embed
   same rows (last_seen_t float64 device-clock seconds, NaN when the server did not send it:
   docs/protocol.md "The living map"; removed objects and their history are not kept on the
   device);
-  labels (interned) and point bytes in python lists; id -> row by a sorted index (ids
-  int64 and rows int32, 12 bytes an object, rebuilt when rows come or go) rather than a dict
-  (~100 bytes an object in python ints and table slots).
+  labels (interned) and point bytes in python lists; id -> row by a sorted index (12 bytes
+  an object). The columns, lists and index are client_sim.local_rows.LocalRows.
 
 Eviction (whenever `memory_bytes()` exceeds the budget): objects are ranked into groups,
 evicted group by group: first ordinary objects, then those within `distance_threshold_m` of
@@ -49,23 +43,29 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
 
 from app.answering.ask import ask, relational_reading
-from app.answering.things import MapThings, RelationalHit, row_dots
-from app.mapping.held import POINT_LEVELS, dequantise_points, quantise_points
+from app.answering.things import MapThings, RelationalHit
+from app.mapping.held import POINT_LEVELS, dequantise_points
 from app.protocol import DEFAULT_EMBEDDING_DIM, DeltaError, parse_delta
 from app.relations.bodies import Z_UP, Body, snap_to_axis
 from app.relations.grammar import Reading
 from app.relations.on_demand import OnDemandRelations
 from app.semantics import TextEncoder
+from client_sim.local_delta import ParsedDelta, cap_points, held_centroid, read_upserts
+from client_sim.local_rows import INDEX_BYTES_PER_OBJECT, LocalRows, entry_bytes
+from client_sim.local_scan import (
+    approximate_scores,
+    bfloat16_bits,
+    exact_scores,
+    row_cosines,
+)
 
 log = logging.getLogger(__name__)
 
@@ -76,31 +76,6 @@ PYTHON_BYTES_PER_OBJECT = 24
 """Estimate of the python-side bytes of one object besides its point bytes (which are counted
 exactly, header included): two list slots (16) with the lists' over-allocation and a share
 of the interned label. Checked against tracemalloc in the tests and the bench."""
-
-_INDEX_BYTES_PER_OBJECT = 12
-"""The id -> row index: an int64 id and an int32 row per object."""
-
-_BYTES_HEADER = sys.getsizeof(b"")
-"""Bytes of an empty `bytes` object: the header every object's point bytes carry."""
-
-_KERNEL_MIN_DIM_MULTIPLE = 16
-"""`torch._weight_int8pack_mm` reads 16 columns at a time: other widths give garbage."""
-
-_KERNEL_ERROR = 3 * 2.0**-9
-"""Bound on |kernel score - exact float32 score| for unit rows and a unit query: the query,
-the scales and the result are each rounded to bfloat16 (8 significant bits)."""
-
-_FALLBACK_ERROR = 1e-5
-"""Bound on float32 rounding differences between a chunked and a per-candidate score."""
-
-_FALLBACK_CHUNK_ROWS = 4096
-"""Rows converted to float32 at a time when the int8 kernel cannot be used (~6 MB at 384-d)."""
-
-_GROWTH = 16
-"""Capacity grows by 1/_GROWTH (6.25%) at least: amortised O(1) inserts with little slack."""
-
-_SWAP_REMOVE_MAX = 32
-"""Removing more rows than this at once compacts the arrays in one pass instead."""
 
 RELATION_CACHE_MB = 4.0
 """Default bound on the relation bodies a local map keeps between questions (SI MB; ~1,200
@@ -132,72 +107,8 @@ class LocalHit:
     (None: the server did not send it, e.g. an older server)."""
 
 
-@dataclass
-class _ParsedDelta:
-    """A delta that passed validation, as columns of m upserts (nothing applied yet)."""
-
-    seq: int
-    full: bool
-    ids: np.ndarray  # int64 [m]
-    versions: np.ndarray  # int64 [m]
-    labels: list[str]  # [m]
-    embeddings: np.ndarray  # int8 [m, dim]
-    scales: np.ndarray  # float32 [m]: embeddings * scales are unit rows (or zero)
-    points: list[bytes]  # uint8 [<= max_points, 3] each, offsets in their point box
-    points_lo: np.ndarray  # float32 [m, 3], the point box's low corner
-    points_step: np.ndarray  # float32 [m, 3], metres per uint8 step
-    bboxes: np.ndarray  # float32 [m, 6]
-    centroids: np.ndarray  # float32 [m, 3], mean of the received points
-    held_centroids: np.ndarray  # float32 [m, 3], mean of the held (stored) points
-    n_obs: np.ndarray  # int64 [m]
-    last_seen_t: np.ndarray  # float64 [m], device-clock seconds, NaN where not sent
-    removed: list[int]
-
-
 def _is_finite_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _cap_points(points: np.ndarray, max_points: int, oid: int, version: int) -> np.ndarray:
-    """At most `max_points` rows of float16 [N, 3], as a new array owning its memory.
-
-    The subset is random but seeded by (id, version, cap), so every device that receives the
-    same update holds the same points; row order is kept.
-    """
-    if len(points) <= max_points:
-        return points.copy()  # decoded arrays are views; a copy drops the extra header
-    rng = np.random.default_rng((oid, version, max_points))
-    keep = np.sort(rng.choice(len(points), size=max_points, replace=False))
-    return points[keep]
-
-
-def quantise_embeddings(embeddings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(int8 [m, d], float32 [m] scales) of float [m, d] rows: `int8 * scale` is the row's
-    direction as an exact unit vector (zero rows: zero and scale 0).
-
-    Each row is divided by its largest magnitude and rounded to [-127, 127], so every row
-    uses the whole 8-bit range whatever its spread.
-    """
-    as32 = np.asarray(embeddings, np.float32)
-    peak = np.abs(as32).max(axis=1, keepdims=True) if as32.size else np.zeros((len(as32), 1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        levels = np.where(peak > 0, as32 / peak, 0.0) * 127
-    quantised = np.clip(np.rint(levels), -127, 127).astype(np.int8)
-    norms = np.linalg.norm(quantised.astype(np.float32), axis=1)
-    scales = np.where(norms > 0, 1 / np.maximum(norms, 1e-12), 0).astype(np.float32)
-    return quantised, scales
-
-
-def _bfloat16_bits(values: np.ndarray) -> np.ndarray:
-    """uint16 bits of float32 `values` rounded to bfloat16 (nearest even, as torch does)."""
-    rounded = torch.from_numpy(np.ascontiguousarray(values, np.float32)).to(torch.bfloat16)
-    return rounded.view(torch.int16).numpy().view(np.uint16)
-
-
-def _float32_of_bfloat16(values: torch.Tensor) -> np.ndarray:
-    """float32 numpy of a bfloat16 tensor, exactly (a bfloat16 is a float32's top half)."""
-    bits = values.view(torch.int16).numpy().view(np.uint16)
-    return (bits.astype(np.uint32) << 16).view(np.float32)
 
 
 def _seconds_or_none(value: float) -> float | None:
@@ -205,24 +116,9 @@ def _seconds_or_none(value: float) -> float | None:
     return None if math.isnan(value) else float(value)
 
 
-def _held_centroid(
-    data: bytes, lo: np.ndarray, step: np.ndarray, fallback: np.ndarray
-) -> np.ndarray:
-    """float64 [3]: the mean of an object's held points (what its relation body's centroid
-    is), `fallback` when it has none."""
-    if not data:
-        return np.asarray(fallback, np.float64)
-    return dequantise_points(data, lo, step).mean(axis=0, dtype=np.float64)
-
-
 def _body_bytes(body: Body) -> int:
     """Bytes a cached relation body holds (its points exactly, the rest estimated)."""
     return body.local.nbytes + _BODY_OVERHEAD_BYTES
-
-
-def _entry_bytes(data: bytes) -> int:
-    """Bytes of one object's point bytes as the allocator holds them (header included)."""
-    return _BYTES_HEADER + len(data)
 
 
 class LocalMap:
@@ -263,16 +159,7 @@ class LocalMap:
         self._user_position: np.ndarray | None = None  # float64 [3], metres
         self._clock = 0  # bumped per applied upsert: "least recently updated" without wall time
 
-        self._n = 0
-        self._rows: dict[str, np.ndarray] = {}
-        self._embeddings_t = torch.empty(0)  # zero-copy torch view of self._rows["embedding"]
-        self._scales_bf16_t = torch.empty(0)  # and of self._rows["scale_bf16"]
-        self._reallocate(0)
-        self._labels: list[str] = []
-        self._points: list[bytes] = []  # uint8 [N, 3] offsets, see quantise_points
-        self._points_nbytes = 0  # sum of _entry_bytes over _points
-        self._index_ids = np.empty(0, np.int64)  # held ids, ascending
-        self._index_rows = np.empty(0, np.int32)  # their rows
+        self._store = LocalRows(dim)  # the columns, point bytes, labels and id index
         # What relational questions keep between them (`relational_query`), in
         # `memory_bytes()`, dropped for objects that change, go or are evicted:
         if not (_is_finite_number(relation_cache_mb) and relation_cache_mb >= 0):
@@ -296,32 +183,32 @@ class LocalMap:
     # --- inspection -----------------------------------------------------------------------
 
     def __len__(self) -> int:
-        return self._n
+        return self._store.n
 
     def __contains__(self, oid: object) -> bool:
-        return isinstance(oid, int | np.integer) and self._row(int(oid)) is not None
+        return isinstance(oid, int | np.integer) and self._store.row(int(oid)) is not None
 
     def ids(self) -> list[int]:
         """Ids of the held objects, ascending."""
-        return self._index_ids.tolist()
+        return self._store.index_ids.tolist()
 
     def get(self, oid: int) -> dict:
         """One held object: id, version, label, bbox [6], centroid [3] (metres), points
         float32 [N, 3] (dequantised: within points_step / 2 per axis of the received ones),
         points_step [3] (metres per stored step), n_obs, last_seen_t (seconds, None if the
         server did not send it). KeyError if not held."""
-        row = self._row(oid)
+        row = self._store.row(oid)
         if row is None:
             raise KeyError(oid)
-        rows = self._rows
+        rows = self._store.columns
         return {
             "id": int(rows["id"][row]),
             "version": int(rows["version"][row]),
-            "label": self._labels[row],
+            "label": self._store.labels[row],
             "bbox": [float(v) for v in rows["bbox"][row]],
             "centroid": [float(v) for v in rows["centroid"][row]],
             "points": dequantise_points(
-                self._points[row], rows["points_lo"][row], rows["points_step"][row]
+                self._store.points[row], rows["points_lo"][row], rows["points_step"][row]
             ),
             "points_step": [float(v) for v in rows["points_step"][row]],
             "n_obs": int(rows["n_obs"][row]),
@@ -334,10 +221,12 @@ class LocalMap:
 
     def snapshot(self) -> dict[int, tuple[int, str]]:
         """id -> (version, label) of every held object (to compare with the server)."""
-        versions = self._rows["version"]
+        versions = self._store.columns["version"]
         return {
-            oid: (int(versions[row]), self._labels[row])
-            for oid, row in zip(self._index_ids.tolist(), self._index_rows.tolist(), strict=True)
+            oid: (int(versions[row]), self._store.labels[row])
+            for oid, row in zip(
+                self._store.index_ids.tolist(), self._store.index_rows.tolist(), strict=True
+            )
         }
 
     def memory_bytes(self) -> int:
@@ -348,9 +237,7 @@ class LocalMap:
         return self._map_bytes() + self._relation_bytes()
 
     def _map_bytes(self) -> int:
-        columns = sum(column.nbytes for column in self._rows.values())
-        index = self._index_ids.nbytes + self._index_rows.nbytes
-        return columns + index + self._points_nbytes + self._n * PYTHON_BYTES_PER_OBJECT
+        return self._store.nbytes() + self._store.n * PYTHON_BYTES_PER_OBJECT
 
     def _relation_bytes(self) -> int:
         return self._bodies_nbytes
@@ -440,77 +327,29 @@ class LocalMap:
             self._remove_ids(delta.removed)
         self._upsert(delta)
         self.seq = delta.seq
-        if self._rows["id"].shape[0] > 2 * self._n + 16:  # memory follows the object count
-            self._reallocate(self._n + self._n // _GROWTH)
+        self._store.trim()  # memory follows the object count
         self._enforce_budget()
 
-    def _parse(self, message: Any) -> _ParsedDelta:
+    def _parse(self, message: Any) -> ParsedDelta:
         """The delta as columns, or DeltaError naming the first wrong field; no side effects."""
         delta = parse_delta(message, self.dim)
         if not delta.full and delta.seq < self.seq:
             raise DeltaError(
                 "seq", f"{delta.seq} is older than the applied seq {self.seq} (out of order)"
             )
-        m = len(delta.upserts)
-        ids = np.empty(m, np.int64)
-        versions = np.empty(m, np.int64)
-        n_obs = np.empty(m, np.int64)
-        last_seen_t = np.full(m, np.nan, np.float64)
-        labels: list[str] = []
-        embeddings = np.empty((m, self.dim), np.float16)
-        bboxes = np.empty((m, 6), np.float32)
-        centroids = np.empty((m, 3), np.float32)
-        held_centroids = np.empty((m, 3), np.float32)
-        points_list: list[bytes] = []
-        points_lo = np.empty((m, 3), np.float32)
-        points_step = np.empty((m, 3), np.float32)
-        for i, upsert in enumerate(delta.upserts):
-            ids[i], versions[i], n_obs[i] = upsert.id, upsert.version, upsert.n_obs
-            if upsert.last_seen_t is not None:  # an older server sends none: NaN stays
-                last_seen_t[i] = upsert.last_seen_t
-            labels.append(sys.intern(upsert.label))  # thousands of objects share a few labels
-            bboxes[i] = upsert.bbox
-            embeddings[i] = upsert.embedding
-            points = upsert.points
-            if len(points):
-                centroids[i] = points.astype(np.float32).mean(axis=0)
-            else:
-                centroids[i] = (bboxes[i, :3] + bboxes[i, 3:]) / 2
-            capped = _cap_points(points, self._max_points, upsert.id, upsert.version)
-            data, points_lo[i], points_step[i] = quantise_points(capped)
-            held_centroids[i] = _held_centroid(data, points_lo[i], points_step[i], centroids[i])
-            points_list.append(data)
-        quantised, scales = quantise_embeddings(embeddings)
-        return _ParsedDelta(
-            seq=delta.seq,
-            full=delta.full,
-            ids=ids,
-            versions=versions,
-            labels=labels,
-            embeddings=quantised,
-            scales=scales,
-            points=points_list,
-            points_lo=points_lo,
-            points_step=points_step,
-            bboxes=bboxes,
-            centroids=centroids,
-            held_centroids=held_centroids,
-            n_obs=n_obs,
-            last_seen_t=last_seen_t,
-            removed=delta.removed,
-        )
+        return read_upserts(delta, self.dim, self._max_points)
 
-    def _upsert(self, delta: _ParsedDelta) -> None:
+    def _upsert(self, delta: ParsedDelta) -> None:
         """Write the fresh upserts of a validated delta (ids unique, as parse_delta checks):
         existing rows in place, new at the end."""
-        held_versions = self._rows["version"]
+        held_versions = self._store.columns["version"]
         rows = np.empty(len(delta.ids), np.int64)
         fresh = np.ones(len(delta.ids), bool)
-        held_rows = self._rows_of(delta.ids)
+        held_rows = self._store.rows_of(delta.ids)
         n_new = 0
         for i, row in enumerate(held_rows.tolist()):
             if row < 0:
-                rows[i] = self._n + n_new
+                rows[i] = self._store.n + n_new
                 n_new += 1
             elif delta.versions[i] < held_versions[row]:
                 fresh[i] = False
@@ -518,16 +357,16 @@ class LocalMap:
                 rows[i] = row
         if not fresh.all():
             log.debug("ignored %d stale upserts (older than the held version)", (~fresh).sum())
-        self._ensure_capacity(self._n + n_new)
+        self._store.ensure_capacity(self._store.n + n_new)
 
         take = np.flatnonzero(fresh)
         target = rows[take]
-        columns = self._rows
+        columns = self._store.columns
         columns["id"][target] = delta.ids[take]
         columns["version"][target] = delta.versions[take]
         columns["embedding"][target] = delta.embeddings[take]
         columns["scale"][target] = delta.scales[take]
-        columns["scale_bf16"][target] = _bfloat16_bits(delta.scales[take])
+        columns["scale_bf16"][target] = bfloat16_bits(delta.scales[take])
         columns["points_lo"][target] = delta.points_lo[take]
         columns["points_step"][target] = delta.points_step[take]
         columns["bbox"][target] = delta.bboxes[take]
@@ -541,19 +380,10 @@ class LocalMap:
         self._clock += len(take)
         self._forget_relations(delta.ids[take].tolist())
         for i, row in zip(take.tolist(), target.tolist(), strict=True):
-            points = delta.points[i]
-            if row < self._n:
-                self._points_nbytes -= _entry_bytes(self._points[row])
-                self._points[row] = points
-                self._labels[row] = delta.labels[i]
-            else:  # new rows were numbered in order, so they append in order
-                self._points.append(points)
-                self._labels.append(delta.labels[i])
-            self._points_nbytes += _entry_bytes(points)
-        self._n += n_new
-        if n_new:
-            self._rebuild_index()
-        if len(self._code_labels) > 2 * self._n + 1024:
+            # new rows were numbered in order, so they append in order
+            self._store.put(row, delta.labels[i], delta.points[i])
+        self._store.add_rows(n_new)
+        if len(self._code_labels) > 2 * self._store.n + 1024:
             self._recode_labels()
 
     def _label_code(self, label: str) -> int:
@@ -566,159 +396,53 @@ class LocalMap:
     def _recode_labels(self) -> None:
         """Codes for the held labels only (labels of objects gone no longer kept)."""
         self._label_codes, self._code_labels = {}, []
-        self._rows["label_code"][: self._n] = [self._label_code(label) for label in self._labels]
+        self._store.columns["label_code"][: self._store.n] = [
+            self._label_code(label) for label in self._store.labels
+        ]
 
     def _clear(self) -> None:
         self._forget_relations()
         self._label_codes, self._code_labels = {}, []
-        self._n = 0
-        self._labels = []
-        self._points = []
-        self._points_nbytes = 0
-        self._rebuild_index()
+        self._store.clear()
 
     def _remove_ids(self, ids: Sequence[int]) -> None:
         """Drop the held ones of `ids` (unknown ids may have been evicted: not an error)."""
         self._forget_relations(list(ids))
-        held = self._rows_of(np.fromiter(set(ids), np.int64))
+        held = self._store.rows_of(np.fromiter(set(ids), np.int64))
         rows = set(held[held >= 0].tolist())
         if len(rows) < len(set(ids)):
             log.debug(
                 "%d removed ids were not held (evicted or never seen)", len(set(ids)) - len(rows)
             )
-        if len(rows) > _SWAP_REMOVE_MAX:
-            keep = np.ones(self._n, bool)
-            keep[list(rows)] = False
-            self._keep_rows(np.flatnonzero(keep), self._rows["id"].shape[0])
-            return
-        for row in sorted(rows, reverse=True):  # descending: a moved last row is never pending
-            self._swap_remove(row)
-        if rows:
-            self._rebuild_index()
-
-    def _swap_remove(self, row: int) -> None:
-        """Remove one row in O(1) by moving the last row into its place (the caller rebuilds
-        the index)."""
-        last = self._n - 1
-        self._points_nbytes -= _entry_bytes(self._points[row])
-        if row != last:
-            for column in self._rows.values():
-                column[row] = column[last]
-            self._labels[row] = self._labels[last]
-            self._points[row] = self._points[last]
-        self._labels.pop()
-        self._points.pop()
-        self._n = last
+        self._store.remove_rows(rows)
 
     def _recap_points(self) -> None:
         """Subsample held objects over a lowered point cap (same rule as on arrival). The
         kept offsets stay as they are in their box: no second rounding."""
-        ids, versions = self._rows["id"], self._rows["version"]
-        for row, data in enumerate(self._points):
+        ids, versions = self._store.columns["id"], self._store.columns["version"]
+        for row, data in enumerate(self._store.points):
             if len(data) > 3 * self._max_points:
                 offsets = np.frombuffer(data, np.uint8).reshape(-1, 3)
-                capped = _cap_points(
+                capped = cap_points(
                     offsets, self._max_points, int(ids[row]), int(versions[row])
                 ).tobytes()
-                self._points_nbytes += _entry_bytes(capped) - _entry_bytes(data)
-                self._points[row] = capped
-                self._rows["n_points"][row] = len(capped) // 3
-                lo, step = self._rows["points_lo"][row], self._rows["points_step"][row]
-                self._rows["held_centroid"][row] = _held_centroid(
-                    capped, lo, step, self._rows["held_centroid"][row]
+                self._store.set_points(row, capped)
+                self._store.columns["n_points"][row] = len(capped) // 3
+                lo, step = (
+                    self._store.columns["points_lo"][row],
+                    self._store.columns["points_step"][row],
+                )
+                self._store.columns["held_centroid"][row] = held_centroid(
+                    capped, lo, step, self._store.columns["held_centroid"][row]
                 )
                 self._forget_relations([int(ids[row])])
-
-    # --- row storage ----------------------------------------------------------------------
-
-    def _row_bytes(self) -> int:
-        """Bytes of one row across all columns (embedding + metadata)."""
-        return sum(column.itemsize * math.prod(column.shape[1:]) for column in self._rows.values())
-
-    def _allocate(self, capacity: int) -> dict[str, np.ndarray]:
-        return {
-            "embedding": np.zeros((capacity, self.dim), np.int8),
-            "scale": np.zeros(capacity, np.float32),
-            "scale_bf16": np.zeros(capacity, np.uint16),  # the kernel's copy, bfloat16 bits
-            "points_lo": np.zeros((capacity, 3), np.float32),
-            "points_step": np.zeros((capacity, 3), np.float32),
-            "id": np.zeros(capacity, np.int64),
-            "version": np.zeros(capacity, np.int64),
-            "bbox": np.zeros((capacity, 6), np.float32),
-            "centroid": np.zeros((capacity, 3), np.float32),
-            "held_centroid": np.zeros((capacity, 3), np.float32),  # the relations' centroid
-            "n_obs": np.zeros(capacity, np.int64),
-            "last_seen_t": np.full(capacity, np.nan, np.float64),
-            "updated": np.zeros(capacity, np.int64),
-            "label_code": np.zeros(capacity, np.int32),  # into _code_labels
-            "n_points": np.zeros(capacity, np.int32),  # held points
-        }
-
-    def _reallocate(self, capacity: int) -> None:
-        """Move the n live rows into columns of `capacity` rows (>= n), order kept."""
-        new = self._allocate(capacity)
-        for name, column in self._rows.items():
-            new[name][: self._n] = column[: self._n]
-        self._set_columns(new)
-
-    def _set_columns(self, columns: dict[str, np.ndarray]) -> None:
-        self._rows = columns
-        # from_numpy shares the buffer: queries read the int8 matrix in place, no copy.
-        self._embeddings_t = torch.from_numpy(columns["embedding"])
-        self._scales_bf16_t = torch.from_numpy(columns["scale_bf16"]).view(torch.bfloat16)
-
-    def _ensure_capacity(self, needed: int) -> None:
-        capacity = self._rows["id"].shape[0]
-        if needed > capacity:
-            self._reallocate(max(needed, capacity + capacity // _GROWTH))
-
-    def _keep_rows(self, keep: np.ndarray, capacity: int) -> None:
-        """Keep only rows `keep` (int [m], ascending), compacted into columns of `capacity`."""
-        m = len(keep)
-        new = self._allocate(capacity)
-        for name, column in self._rows.items():
-            new[name][:m] = column[keep]
-        self._set_columns(new)
-        kept = keep.tolist()
-        self._labels = [self._labels[row] for row in kept]
-        self._points = [self._points[row] for row in kept]
-        self._points_nbytes = sum(_entry_bytes(data) for data in self._points)
-        self._n = m
-        self._rebuild_index()
-        self._forget_relations([oid for oid in self._bodies if self._row(oid) is None])
-
-    # --- id index -------------------------------------------------------------------------
-
-    def _rebuild_index(self) -> None:
-        """Sort the held ids (after rows came or went): O(n log n), ~2 ms at 50k objects."""
-        ids = self._rows["id"][: self._n]
-        order = np.argsort(ids, kind="stable")
-        self._index_ids = ids[order]
-        self._index_rows = order.astype(np.int32)
-
-    def _rows_of(self, ids: np.ndarray) -> np.ndarray:
-        """int64 rows of int64 `ids` [m], -1 where not held."""
-        ids = np.asarray(ids, np.int64)
-        at = np.searchsorted(self._index_ids, ids)
-        found = at < len(self._index_ids)
-        found[found] = self._index_ids[at[found]] == ids[found]
-        rows = np.full(len(ids), -1, np.int64)
-        rows[found] = self._index_rows[at[found]]
-        return rows
-
-    def _row(self, oid: int) -> int | None:
-        """The row of `oid`, or None if not held."""
-        at = int(np.searchsorted(self._index_ids, oid))
-        if at < len(self._index_ids) and int(self._index_ids[at]) == oid:
-            return int(self._index_rows[at])
-        return None
 
     # --- budget ---------------------------------------------------------------------------
 
     def _eviction_order(self) -> np.ndarray:
         """int64 [n] rows, the first to evict first (groups, then farthest / oldest, then id)."""
-        n = self._n
-        columns = self._rows
+        n = self._store.n
+        columns = self._store.columns
         group = np.zeros(n, np.int8)  # 0: ordinary, 1: near the user, 2: priority class
         if self._user_position is not None:
             distance_m = np.linalg.norm(
@@ -731,7 +455,9 @@ class LocalMap:
             within_group = columns["updated"][:n]  # least recently updated first
         if self._priority:
             is_priority = np.fromiter(
-                (label.strip().casefold() in self._priority for label in self._labels), bool, n
+                (label.strip().casefold() in self._priority for label in self._store.labels),
+                bool,
+                n,
             )
             group[is_priority] = 2
         return np.lexsort((columns["id"][:n], within_group, group))
@@ -743,24 +469,25 @@ class LocalMap:
         self._forget_relations()  # a cache goes before any object
         if self.memory_bytes() <= self._budget_bytes:
             return
-        n = self._n
+        n = self._store.n
         order = self._eviction_order()
-        row_bytes = self._row_bytes()
-        per_object = np.fromiter((_entry_bytes(data) for data in self._points), np.int64, n)
-        per_object += PYTHON_BYTES_PER_OBJECT + _INDEX_BYTES_PER_OBJECT + row_bytes
+        row_bytes = self._store.row_bytes()
+        per_object = np.fromiter((entry_bytes(data) for data in self._store.points), np.int64, n)
+        per_object += PYTHON_BYTES_PER_OBJECT + INDEX_BYTES_PER_OBJECT + row_bytes
         # cost[k]: bytes when keeping the k objects that come last in the eviction order, in
         # columns of exactly k rows. It increases with k, so the largest k that fits is found
         # by one search, with no evict-and-recheck loop.
         cost = np.concatenate(([0], np.cumsum(per_object[order[::-1]])))
         keep_count = int(np.searchsorted(cost, self._budget_bytes, side="right")) - 1
         spare_rows = (self._budget_bytes - int(cost[keep_count])) // row_bytes
-        capacity = min(self._rows["id"].shape[0], keep_count + spare_rows)
+        capacity = min(self._store.capacity, keep_count + spare_rows)
         self.evicted += n - keep_count
         if n - keep_count:
             log.debug(
                 "evicted %d objects to stay within %d bytes", n - keep_count, self._budget_bytes
             )
-        self._keep_rows(np.sort(order[n - keep_count :]), capacity)
+        self._store.keep_rows(np.sort(order[n - keep_count :]), capacity)
+        self._forget_relations([oid for oid in self._bodies if self._store.row(oid) is None])
 
     # --- queries --------------------------------------------------------------------------
 
@@ -769,28 +496,36 @@ class LocalMap:
         query = np.asarray(embedding, dtype=np.float32)
         if query.shape != (self.dim,) or not np.all(np.isfinite(query)):
             raise ValueError(f"query embedding must be {self.dim} finite numbers")
-        n = self._n
+        n = self._store.n
         if k < 1 or n == 0:
             return []
         query = query / max(float(np.linalg.norm(query)), 1e-12)
-        scores, error = self._approximate_scores(query)
+        columns = self._store.columns
+        scores, error = approximate_scores(
+            columns["embedding"],
+            columns["scale"],
+            self._store.embeddings_t,
+            self._store.scales_bf16_t,
+            n,
+            query,
+        )
         # Every row of the exact top k scores within 2 * error of the approximate k-th best,
         # so re-scoring those rows exactly gives the exact ranking (ties broken by id).
         kth = float(np.partition(scores, n - min(n, k))[n - min(n, k)])
         candidates = np.flatnonzero(scores >= kth - 2 * error)
-        exact = self._exact_scores(candidates, query)
-        best = np.lexsort((self._rows["id"][candidates], -exact))[:k]
+        exact = exact_scores(columns["embedding"], columns["scale"], candidates, query)
+        best = np.lexsort((self._store.columns["id"][candidates], -exact))[:k]
         hits = []
         for i in best.tolist():
             row = int(candidates[i])
             hits.append(
                 LocalHit(
-                    id=int(self._rows["id"][row]),
-                    label=self._labels[row],
+                    id=int(self._store.columns["id"][row]),
+                    label=self._store.labels[row],
                     score=float(exact[i]),
-                    bbox=[float(v) for v in self._rows["bbox"][row]],
-                    centroid=[float(v) for v in self._rows["centroid"][row]],
-                    last_seen_t=_seconds_or_none(float(self._rows["last_seen_t"][row])),
+                    bbox=[float(v) for v in self._store.columns["bbox"][row]],
+                    centroid=[float(v) for v in self._store.columns["centroid"][row]],
+                    last_seen_t=_seconds_or_none(float(self._store.columns["last_seen_t"][row])),
                 )
             )
         return hits
@@ -821,14 +556,14 @@ class LocalMap:
         over budget), and reads labels and centroids from columns.
         """
         reading = relational_reading(question)
-        if reading is None or self._n == 0:
+        if reading is None or self._store.n == 0:
             return None
         up_axis = Z_UP if up is None else snap_to_axis(np.asarray(up, np.float64))
         position = self._user_position if viewer is None else np.asarray(viewer, np.float64)
         labels, label_of, rows = self._labels_by_row()
         if len(rows) == 0:
             return None
-        columns = self._rows
+        columns = self._store.columns
         lo = columns["points_lo"][rows].astype(np.float64)
         hi = lo + POINT_LEVELS * columns["points_step"][rows].astype(np.float64)
         relations = OnDemandRelations(
@@ -843,32 +578,27 @@ class LocalMap:
             ids=columns["id"][rows],
             labels=labels,
             label_of=label_of[rows],
-            cosines=lambda positions, query: self._row_cosines(rows[positions], query),
+            cosines=lambda positions, query: row_cosines(
+                columns["embedding"], columns["scale"], rows[positions], query
+            ),
         )
         return ask(reading, things, relations, encoder, position, k)
-
-    def _row_cosines(self, rows: np.ndarray, query: np.ndarray) -> np.ndarray:
-        """float32 [m]: cosines of `rows` with the unit `query`, each row on its own
-        (app.answering.things.row_dots: copies with one embedding tie exactly)."""
-        columns = self._rows
-        embeddings = columns["embedding"][rows].astype(np.float32)
-        return row_dots(embeddings, np.asarray(query, np.float32)) * columns["scale"][rows]
 
     def _labels_by_row(self) -> tuple[list[str], np.ndarray, np.ndarray]:
         """(the distinct labels held, each row's label int [n] as an index into them, the
         rows with points int [m]), from the label and point-count columns."""
-        n = self._n
-        codes, label_of = np.unique(self._rows["label_code"][:n], return_inverse=True)
-        with_points = self._rows["n_points"][:n] > 0
+        n = self._store.n
+        codes, label_of = np.unique(self._store.columns["label_code"][:n], return_inverse=True)
+        with_points = self._store.columns["n_points"][:n] > 0
         rows = np.arange(n) if with_points.all() else np.flatnonzero(with_points)
         return [self._code_labels[code] for code in codes.tolist()], label_of, rows
 
     def _held_bodies(self, ids: np.ndarray, up: np.ndarray) -> list[Body]:
         """The relation bodies of held objects' points for `up`, from the cache where there."""
-        rows = self._rows_of(ids)
+        rows = self._store.rows_of(ids)
         if (rows < 0).any():
             raise KeyError(f"not held: {np.asarray(ids)[rows < 0][:5].tolist()}")
-        columns = self._rows
+        columns = self._store.columns
         axis = tuple(up.tolist())
         bodies = []
         for oid, row, version in zip(
@@ -881,7 +611,7 @@ class LocalMap:
                 bodies.append(cached[1])
                 continue
             points = dequantise_points(
-                self._points[row], columns["points_lo"][row], columns["points_step"][row]
+                self._store.points[row], columns["points_lo"][row], columns["points_step"][row]
             )
             body = Body(points, up)
             self._keep_body(oid, key, body)
@@ -915,25 +645,3 @@ class LocalMap:
             return
         for oid in ids:
             self._forget_body(int(oid))
-
-    def _exact_scores(self, rows: np.ndarray, query: np.ndarray) -> np.ndarray:
-        """float32 cosines of `rows` (int [m]) with the unit float32 `query`."""
-        columns = self._rows
-        return (columns["embedding"][rows].astype(np.float32) @ query) * columns["scale"][rows]
-
-    def _approximate_scores(self, query: np.ndarray) -> tuple[np.ndarray, float]:
-        """(float32 [n] scores of every held row against the unit `query`, bound on their
-        error against `_exact_scores`)."""
-        n = self._n
-        if self.dim % _KERNEL_MIN_DIM_MULTIPLE == 0 and hasattr(torch, "_weight_int8pack_mm"):
-            # torch only for the kernel: its small element-wise ops wake the thread pool,
-            # which costs milliseconds on a busy device; the rest is numpy.
-            scales = self._scales_bf16_t[:n]
-            query_bf16 = torch.from_numpy(query).to(torch.bfloat16)[None]
-            scores = torch._weight_int8pack_mm(query_bf16, self._embeddings_t[:n], scales)
-            return _float32_of_bfloat16(scores[0]), _KERNEL_ERROR
-        scores = np.empty(n, np.float32)
-        for start in range(0, n, _FALLBACK_CHUNK_ROWS):
-            rows = np.arange(start, min(n, start + _FALLBACK_CHUNK_ROWS))
-            scores[rows] = self._exact_scores(rows, query)
-        return scores, _FALLBACK_ERROR

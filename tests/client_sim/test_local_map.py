@@ -25,6 +25,7 @@ from app.mapping.object import MapObject
 from app.mapping.publish import delta_message
 from app.protocol import ChangeEntry, UpsertEntry, pack_delta
 from client_sim.local_map import BYTES_PER_MB, DeltaError, LocalMap
+from client_sim.local_scan import exact_scores
 from client_sim.querying import QueryAnswer, QueryRouter
 from world.categories import CATEGORIES
 
@@ -372,7 +373,7 @@ def test_a_delta_from_a_server_without_the_living_map_fields_applies():
     m.apply_delta(old_server)
 
     assert m.snapshot() == {1: (1, "chair"), 2: (1, "chair")}
-    assert np.isnan(m._rows["last_seen_t"][: len(m)]).all()  # stored as NaN ...
+    assert np.isnan(m._store.columns["last_seen_t"][: len(m)]).all()  # stored as NaN ...
     assert m.get(1)["last_seen_t"] is None  # ... answered as None
     assert m.query_embedding(unit_vector(1), k=1)[0].last_seen_t is None
 
@@ -519,8 +520,9 @@ def test_a_query_ranks_exactly_by_the_stored_cosines_with_ties_broken_by_id():
 
     hits = m.query_embedding(query, k=12)
 
-    rows = np.array([m._row(oid) for oid in range(300)])
-    exact = m._exact_scores(rows, (query / np.linalg.norm(query)).astype(np.float32))
+    rows = np.array([m._store.row(oid) for oid in range(300)])
+    unit = (query / np.linalg.norm(query)).astype(np.float32)
+    exact = exact_scores(m._store.columns["embedding"], m._store.columns["scale"], rows, unit)
     expected = sorted(range(300), key=lambda oid: (-exact[oid], oid))[:12]
     assert [hit.id for hit in hits] == expected == [7, *range(100, 111)]
 
@@ -726,10 +728,10 @@ def test_an_object_at_the_device_defaults_takes_the_compact_columns():
         delta(1, [upsert(i, n_points=200, embedding=unit_vector(i, 384)) for i in range(2000)])
     )
     per_object = m.memory_bytes() / 2000
-    capacity = m._rows["id"].shape[0]
+    capacity = m._store.columns["id"].shape[0]
 
-    assert m._rows["embedding"].nbytes == capacity * 384  # one byte a dimension
-    assert m._points_nbytes == 2000 * (200 * 3 + sys.getsizeof(b""))  # bytes and header
+    assert m._store.columns["embedding"].nbytes == capacity * 384  # one byte a dimension
+    assert m._store.points_nbytes == 2000 * (200 * 3 + sys.getsizeof(b""))  # bytes and header
     assert per_object <= 64 * BYTES_PER_MB / 50_000
 
 
