@@ -35,12 +35,12 @@ def build_map(scene: str, frames: int, seed: int):
     from app.semantics import get_text_encoder
     from evaluation.pipeline import map_keyframes
     from evaluation.semantic_scores import majority_gt_class
-    from evaluation.walk import EvalConfig, _encode_keyframes
+    from evaluation.walk import EvalConfig, encode_keyframes
     from world.gt import gt_point_cloud
 
     cfg = EvalConfig(scene=scene, frames=frames, seed=seed, modes=("semanticxr",))
     ratio = cfg.knobs.depth_downsampling_ratio
-    messages, world, _, in_view, sightings = _encode_keyframes(cfg, [ratio], print)
+    messages, world, _, in_view, sightings = encode_keyframes(cfg, [ratio], print)
     engine = MappingEngine(
         get_text_encoder(), cfg.knobs, "semanticxr", backend=make_perception(mode="semanticxr")
     )

@@ -141,7 +141,7 @@ def _in_view(detector: DetectionModel, view, frame_index: int) -> set[str]:
 UPSTREAMS: tuple[str, ...] = ("frames", "sightings")
 
 
-def _encode_keyframes(
+def encode_keyframes(
     cfg: EvalConfig, ratios: list[int], progress: Progress
 ) -> tuple[
     dict[int, list], object, dict, dict[str, int], dict[int, list[Sighting | SightingMessage]]
@@ -334,7 +334,7 @@ def run_eval(
     knobs_of = {mode: (mode, cfg.knobs) for mode in cfg.modes} | variants
     ratio = cfg.knobs.depth_downsampling_ratio
     ratios = sorted({ratio, *(knobs.depth_downsampling_ratio for _, knobs in knobs_of.values())})
-    by_ratio, scene, upstream, in_view, sightings = _encode_keyframes(cfg, ratios, progress)
+    by_ratio, scene, upstream, in_view, sightings = encode_keyframes(cfg, ratios, progress)
     n_keyframes = len(by_ratio[ratio])
     gt = gt_point_cloud(scene)
     categories = scene.categories_present
