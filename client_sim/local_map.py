@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -58,6 +57,7 @@ from app.relations.bodies import Z_UP, Body, snap_to_axis
 from app.relations.grammar import Reading
 from app.relations.on_demand import OnDemandRelations
 from app.semantics import TextEncoder
+from client_sim.local_bodies import BodyCache
 from client_sim.local_delta import ParsedDelta, cap_points, held_centroid, read_upserts
 from client_sim.local_rows import INDEX_BYTES_PER_OBJECT, LocalRows, entry_bytes
 from client_sim.local_scan import (
@@ -80,10 +80,6 @@ of the interned label. Checked against tracemalloc in the tests and the bench.""
 RELATION_CACHE_MB = 4.0
 """Default bound on the relation bodies a local map keeps between questions (SI MB; ~1,200
 objects of 200 points), always within what the budget leaves free."""
-
-_BODY_OVERHEAD_BYTES = 2000
-"""Bytes of a cached relation `Body` besides its points (float32 [3, N]): its box, centres,
-footprint and the cache's entry. Checked against tracemalloc in the tests."""
 
 _BOX_MARGIN_M = 1e-3
 """A held object's point box is widened this much for the relation prefilters (float32
@@ -114,11 +110,6 @@ def _is_finite_number(value: Any) -> bool:
 def _seconds_or_none(value: float) -> float | None:
     """A stored time as answers give it: None where the server sent none (NaN)."""
     return None if math.isnan(value) else float(value)
-
-
-def _body_bytes(body: Body) -> int:
-    """Bytes a cached relation body holds (its points exactly, the rest estimated)."""
-    return body.local.nbytes + _BODY_OVERHEAD_BYTES
 
 
 class LocalMap:
@@ -164,10 +155,7 @@ class LocalMap:
         # `memory_bytes()`, dropped for objects that change, go or are evicted:
         if not (_is_finite_number(relation_cache_mb) and relation_cache_mb >= 0):
             raise ValueError(f"relation_cache_mb must be a number >= 0, got {relation_cache_mb!r}")
-        self._relation_cache_bytes = int(relation_cache_mb * BYTES_PER_MB)
-        # id -> ((version, up axis), Body, bytes), least recently used first
-        self._bodies: OrderedDict[int, tuple[tuple, Body, int]] = OrderedDict()
-        self._bodies_nbytes = 0
+        self._bodies = BodyCache(int(relation_cache_mb * BYTES_PER_MB))
         # label -> code (the "label_code" column) and back, so a question reads each row's
         # label as an int; compacted when labels no longer held pile up
         self._label_codes: dict[str, int] = {}
@@ -240,7 +228,7 @@ class LocalMap:
         return self._store.nbytes() + self._store.n * PYTHON_BYTES_PER_OBJECT
 
     def _relation_bytes(self) -> int:
-        return self._bodies_nbytes
+        return self._bodies.nbytes
 
     @property
     def user_position(self) -> np.ndarray | None:
@@ -378,7 +366,7 @@ class LocalMap:
         columns["n_points"][target] = [len(delta.points[i]) // 3 for i in take.tolist()]
         columns["updated"][target] = self._clock + np.arange(1, len(take) + 1)
         self._clock += len(take)
-        self._forget_relations(delta.ids[take].tolist())
+        self._bodies.forget(delta.ids[take].tolist())
         for i, row in zip(take.tolist(), target.tolist(), strict=True):
             # new rows were numbered in order, so they append in order
             self._store.put(row, delta.labels[i], delta.points[i])
@@ -401,13 +389,13 @@ class LocalMap:
         ]
 
     def _clear(self) -> None:
-        self._forget_relations()
+        self._bodies.forget()
         self._label_codes, self._code_labels = {}, []
         self._store.clear()
 
     def _remove_ids(self, ids: Sequence[int]) -> None:
         """Drop the held ones of `ids` (unknown ids may have been evicted: not an error)."""
-        self._forget_relations(list(ids))
+        self._bodies.forget(list(ids))
         held = self._store.rows_of(np.fromiter(set(ids), np.int64))
         rows = set(held[held >= 0].tolist())
         if len(rows) < len(set(ids)):
@@ -435,7 +423,7 @@ class LocalMap:
                 self._store.columns["held_centroid"][row] = held_centroid(
                     capped, lo, step, self._store.columns["held_centroid"][row]
                 )
-                self._forget_relations([int(ids[row])])
+                self._bodies.forget([int(ids[row])])
 
     # --- budget ---------------------------------------------------------------------------
 
@@ -466,7 +454,7 @@ class LocalMap:
         """Evict (and shrink the columns) until `memory_bytes()` is within the budget."""
         if self.memory_bytes() <= self._budget_bytes:
             return
-        self._forget_relations()  # a cache goes before any object
+        self._bodies.forget()  # a cache goes before any object
         if self.memory_bytes() <= self._budget_bytes:
             return
         n = self._store.n
@@ -487,7 +475,7 @@ class LocalMap:
                 "evicted %d objects to stay within %d bytes", n - keep_count, self._budget_bytes
             )
         self._store.keep_rows(np.sort(order[n - keep_count :]), capacity)
-        self._forget_relations([oid for oid in self._bodies if self._store.row(oid) is None])
+        self._bodies.forget([oid for oid in self._bodies.ids() if self._store.row(oid) is None])
 
     # --- queries --------------------------------------------------------------------------
 
@@ -605,43 +593,14 @@ class LocalMap:
             np.asarray(ids).tolist(), rows.tolist(), columns["version"][rows].tolist(), strict=True
         ):
             key = (version, axis)
-            cached = self._bodies.get(oid)
-            if cached is not None and cached[0] == key:
-                self._bodies.move_to_end(oid)
-                bodies.append(cached[1])
+            cached = self._bodies.get(oid, key)
+            if cached is not None:
+                bodies.append(cached)
                 continue
             points = dequantise_points(
                 self._store.points[row], columns["points_lo"][row], columns["points_step"][row]
             )
             body = Body(points, up)
-            self._keep_body(oid, key, body)
+            self._bodies.keep(oid, key, body, self._budget_bytes - self._map_bytes())
             bodies.append(body)
         return bodies
-
-    def _keep_body(self, oid: int, key: tuple, body: Body) -> None:
-        """Cache a body, least recently used ones out, within `relation_cache_mb` and the
-        budget's free room."""
-        self._forget_body(oid)
-        nbytes = _body_bytes(body)
-        room = min(self._relation_cache_bytes, self._budget_bytes - self._map_bytes())
-        if nbytes > room:
-            return
-        while self._bodies_nbytes + nbytes > room:
-            _, (_, _, dropped) = self._bodies.popitem(last=False)
-            self._bodies_nbytes -= dropped
-        self._bodies[oid] = (key, body, nbytes)
-        self._bodies_nbytes += nbytes
-
-    def _forget_body(self, oid: int) -> None:
-        entry = self._bodies.pop(oid, None)
-        if entry is not None:
-            self._bodies_nbytes -= entry[2]
-
-    def _forget_relations(self, ids: Sequence[int] | None = None) -> None:
-        """Drop the relation bodies of these ids (every one when None)."""
-        if ids is None:
-            self._bodies.clear()
-            self._bodies_nbytes = 0
-            return
-        for oid in ids:
-            self._forget_body(int(oid))

@@ -20,7 +20,8 @@ from app.protocol import UpsertEntry, pack_delta
 from app.relations.bodies import Body
 from app.relations.grammar import parse
 from app.relations.index import ObjectGeometry, RelationIndex
-from client_sim.local_map import _BODY_OVERHEAD_BYTES, BYTES_PER_MB, LocalMap
+from client_sim.local_bodies import BODY_OVERHEAD_BYTES
+from client_sim.local_map import BYTES_PER_MB, LocalMap
 from client_sim.querying import LQ, QueryRouter
 
 Y_UP = np.array([0.0, 1.0, 0.0])
@@ -169,13 +170,13 @@ def test_kept_bodies_are_counted_and_dropped_when_their_object_changes_or_goes(
     local = local_map_of(ROOM, label_embeddings)
     empty = local.memory_bytes()
     local.relational_query("the mug on the desk", encoder)
-    kept = dict(local._bodies)
+    kept = local._bodies.sizes()
     assert 10 in kept and 1 in kept
-    assert local.memory_bytes() > empty + sum(entry[2] for entry in kept.values()) - 1
+    assert local.memory_bytes() > empty + sum(kept.values()) - 1
     moved = upserts({10: ROOM[10]}, label_embeddings, version=2)
     local.apply_delta(pack_delta(2, moved, removed=[1]))
     assert 10 not in local._bodies and 1 not in local._bodies
-    assert local.memory_bytes() < empty + sum(entry[2] for entry in kept.values())
+    assert local.memory_bytes() < empty + sum(kept.values())
 
 
 def test_kept_bodies_stay_within_their_bound_and_the_budget(label_embeddings, encoder):
@@ -184,7 +185,7 @@ def test_kept_bodies_stay_within_their_bound_and_the_budget(label_embeddings, en
     small_cache.set_user_position(VIEWER)
     for text in ["the biggest table", "the lamp closest to me", "the mug on the desk"]:
         small_cache.relational_query(text, encoder)
-        assert small_cache._bodies_nbytes <= 0.02 * BYTES_PER_MB
+        assert small_cache._bodies.nbytes <= 0.02 * BYTES_PER_MB
     tight = local_map_of(floor, label_embeddings)
     budget_mb = (tight.memory_bytes() + 20_000) / BYTES_PER_MB
     tight.set_policy(budget_mb=budget_mb)
@@ -193,8 +194,8 @@ def test_kept_bodies_stay_within_their_bound_and_the_budget(label_embeddings, en
     assert tight.memory_bytes() <= budget_mb * BYTES_PER_MB
     assert tight.relational_query("the mug on the desk", encoder)[0].id == 10
     # a tighter budget drops the kept bodies before any object
-    tight.set_policy(budget_mb=(tight.memory_bytes() - tight._bodies_nbytes) / BYTES_PER_MB)
-    assert len(tight) == len(floor) and tight._bodies_nbytes == 0
+    tight.set_policy(budget_mb=(tight.memory_bytes() - tight._bodies.nbytes) / BYTES_PER_MB)
+    assert len(tight) == len(floor) and tight._bodies.nbytes == 0
 
 
 def test_a_kept_body_costs_what_memory_bytes_counts():
@@ -211,7 +212,7 @@ def test_a_kept_body_costs_what_memory_bytes_counts():
         traced = tracemalloc.get_traced_memory()[0] - start
     finally:
         tracemalloc.stop()
-    counted = sum(b.local.nbytes + _BODY_OVERHEAD_BYTES for b in bodies)
+    counted = sum(b.local.nbytes + BODY_OVERHEAD_BYTES for b in bodies)
     assert 0.8 <= traced / counted <= 1.1
 
 
