@@ -10,7 +10,7 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
-from world.render import Camera
+from world.render import Camera, camera_rays
 from world.scene import Scene
 
 SEEN_PX = 400
@@ -84,14 +84,7 @@ class _InstanceCaster:
         """(instance ids uint16 [H, W], z-depth float32 [H, W], 0 = no hit) from `pose`."""
         rays = self._rays.get(camera)
         if rays is None:
-            u, v = np.meshgrid(
-                np.arange(camera.width, dtype=np.float32),
-                np.arange(camera.height, dtype=np.float32),
-            )
-            rays = np.stack(
-                [(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], -1
-            ).reshape(-1, 3)
-            self._rays[camera] = rays
+            rays = self._rays[camera] = camera_rays(camera)
         pose = np.asarray(pose, np.float64)
         batch = np.empty((len(rays), 6), np.float32)
         batch[:, :3] = pose[:3, 3]

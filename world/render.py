@@ -35,6 +35,16 @@ class Camera:
         return (self.fx, self.fy, self.cx, self.cy)
 
 
+def camera_rays(camera: Camera) -> np.ndarray:
+    """float32 [H*W, 3] ray directions in the camera frame with z = 1, row-major pixels."""
+    u, v = np.meshgrid(
+        np.arange(camera.width, dtype=np.float32), np.arange(camera.height, dtype=np.float32)
+    )
+    return np.stack(
+        [(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], -1
+    ).reshape(-1, 3)
+
+
 def default_camera(width: int = 640, height: int = 480) -> Camera:
     """A 60 degree horizontal field of view with square pixels and a centred principal point."""
     f = (width / 2) / math.tan(math.radians(60.0) / 2)
@@ -129,14 +139,7 @@ class Renderer:
         """float32 [H*W, 3] ray directions in the camera frame with z = 1."""
         rays = self._ray_cache.get(camera)
         if rays is None:
-            u, v = np.meshgrid(
-                np.arange(camera.width, dtype=np.float32),
-                np.arange(camera.height, dtype=np.float32),
-            )
-            rays = np.stack(
-                [(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], -1
-            ).reshape(-1, 3)
-            self._ray_cache[camera] = rays
+            rays = self._ray_cache[camera] = camera_rays(camera)
         return rays
 
     def render(
