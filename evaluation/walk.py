@@ -316,6 +316,7 @@ def run_eval(
     progress: Progress = stderr_progress,
     keep_latencies: bool = False,
     variants: dict[str, tuple[Mode, Knobs]] | None = None,
+    engines_out: dict[str, MappingEngine] | None = None,
 ) -> dict:
     """Run the pipeline for each mode in `cfg.modes`; the `eval --json` document
     (docs/evaluation.md "Machine-readable outputs").
@@ -323,6 +324,8 @@ def run_eval(
     variants: extra engines by name, (mode, knobs) each (say, another point cap, or the
     baseline at another depth ratio: keyframes are encoded at each ratio the engines use),
     mapped in the same interleaved loop and reported under "variants".
+    engines_out: filled with the engines by name as the walk left them (for a scenario that
+    scores their maps further: evaluation/geometry.py).
     """
     if cfg.upstream not in UPSTREAMS:
         raise ValueError(f"upstream must be one of {', '.join(UPSTREAMS)}, got {cfg.upstream!r}")
@@ -372,6 +375,8 @@ def run_eval(
         sightings,
         {name: knobs.depth_downsampling_ratio for name, (_, knobs) in knobs_of.items()},
     )
+    if engines_out is not None:
+        engines_out.update(engines)
     if variants:
         result["variants"] = {}
     for mode, engine in engines.items():

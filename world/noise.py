@@ -7,6 +7,11 @@ Profiles:
               semantically close one (Category.confusions), masks eroded or dilated by 1-2 px,
               Kinect-like depth noise (std 1.2 mm + 1.9 mm * (z - 0.4)^2), and in ~5% of frames a
               spurious blob with a random label that lives for up to 3 frames.
+  "bleed"     "standard" with the mask and depth bleeding of an outside room: every mask is
+              dilated by BLEED_EXTRA_PX more (3-4 px) onto whatever lies behind, below or
+              in front of it, never eroded, and depth is smeared across depth edges (flying
+              pixels: a pixel next to a jump of over FLYING_EDGE_M takes, with probability
+              FLYING_RATE, a depth between the two sides).
 
 Everything is deterministic given (seed, frame_index), whatever order frames are asked in.
 Detection ids are per frame (1..K) and unrelated to scene instance ids, as with a real
@@ -24,7 +29,14 @@ from world.categories import CATEGORIES
 from world.render import View
 from world.scene import Scene
 
-NOISE_PROFILES: tuple[str, ...] = ("none", "standard")
+NOISE_PROFILES: tuple[str, ...] = ("none", "standard", "bleed")
+
+BLEED_EXTRA_PX = 2
+""""bleed": pixels added to every mask's dilation radius (1-2 px in "standard")."""
+FLYING_EDGE_M = 0.05
+""""bleed": a depth jump (3x3 neighbourhood range) over this is an edge..."""
+FLYING_RATE = 0.5
+"""...and each pixel on it takes a depth between its sides with this probability."""
 
 MISS_RATE = 0.08
 SMALL_MISS_RATE = 0.2
@@ -142,9 +154,17 @@ class DetectionModel:
             mask = clean[ys, xs] == det
             radius = int(rng.integers(1, 3))
             region = out[ys, xs]
+            erode = rng.random() < 0.5
+            if self.profile == "bleed":
+                radius, erode = radius + BLEED_EXTRA_PX, False
+                grown = slice(max(0, ys.start - BLEED_EXTRA_PX), min(h, ys.stop + BLEED_EXTRA_PX))
+                grown_x = slice(max(0, xs.start - BLEED_EXTRA_PX), min(w, xs.stop + BLEED_EXTRA_PX))
+                ys, xs = grown, grown_x
+                mask = clean[ys, xs] == det
+                region = out[ys, xs]
             # Repaint the whole (eroded or grown) mask: a smaller object, processed later,
             # takes its pixels back from a larger neighbour's dilation.
-            if rng.random() < 0.5:
+            if erode:
                 eroded = ndimage.binary_erosion(mask, iterations=radius)
                 region[mask & ~eroded & (region == det)] = 0
                 region[eroded] = det
@@ -169,7 +189,22 @@ class DetectionModel:
         sigma = 0.0012 + 0.0019 * np.square(np.maximum(z - 0.4, 0.0))
         noisy = z + sigma * rng.standard_normal(z.shape, dtype=np.float32)
         noisy = np.where(z > 0, np.maximum(noisy, 0.0), 0.0).astype(np.float32)
+        if self.profile == "bleed":
+            noisy = self._flying_pixels(noisy, frame_index)
         return NoisyDetections(noisy, out, instances, sources)
+
+    def _flying_pixels(self, depth_m: np.ndarray, frame_index: int) -> np.ndarray:
+        """Depth smeared across its edges: pixels beside a jump over FLYING_EDGE_M take, with
+        probability FLYING_RATE, a depth uniformly between the nearest and the farthest
+        surface of their 3x3 neighbourhood (the mixed returns of a real depth sensor)."""
+        rng = np.random.default_rng([self.seed, int(frame_index), 3])
+        valid = depth_m > 0
+        near = ndimage.minimum_filter(np.where(valid, depth_m, np.inf), size=3)
+        far = ndimage.maximum_filter(depth_m, size=3)
+        edge = valid & np.isfinite(near) & (far - near > FLYING_EDGE_M)
+        flying = edge & (rng.random(depth_m.shape) < FLYING_RATE)
+        mixed = near + rng.random(depth_m.shape, dtype=np.float32) * (far - near)
+        return np.where(flying, mixed, depth_m).astype(np.float32)
 
     def _spurious_blob(self, h: int, w: int, frame_index: int):
         """(mask, label, score) of a false detection, or None; lives for a few frames."""

@@ -436,6 +436,11 @@ class MappingEngine:
                 touched.discard(obj.id)
         return removed
 
+    def settle(self) -> IntegrationStats:
+        """The map once its stream has closed: nothing is done to it yet (the map stays as
+        the last keyframe left it). Returns what changed (nothing)."""
+        return IntegrationStats(seq=self.log.seq, keyframe=self.keyframes)
+
     def _qualifies(self, obj: MapObject) -> bool:
         """Seen on `min_observations` keyframes, or by sightings (`Sightings.qualifies`): an
         object in view for a second or two of a sweep (one keyframe and the frames after
