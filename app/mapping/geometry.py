@@ -15,6 +15,13 @@ PATCH_EROSION_PX = 2
 """Mask boundary (px) not lifted from a full-resolution depth patch..."""
 PATCH_MIN_INNER_PX = 30
 """...unless fewer pixels than this would remain (then the whole mask is lifted)."""
+DEPTH_EDGE_MIN_M = 0.02
+"""A mask-edge depth sample is lifted only if its depth continues its mask's surface within
+this much..."""
+DEPTH_EDGE_PER_M = 0.02
+"""...plus this much per metre of its depth (sensor noise grows with range)."""
+_NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (-1, 1), (1, -1), (1, 1))
+"""(dv, du) of a depth pixel's 8 neighbours, the 4 sharing a side first."""
 
 
 def depth_to_rgb_pixel_grid(
@@ -55,6 +62,57 @@ def valid_depth_mask(depth_m: np.ndarray, max_depth_m: float) -> np.ndarray:
         return np.isfinite(depth_m) & (depth_m > 0) & (depth_m <= max_depth_m)
 
 
+def _shifted(image: np.ndarray, dv: int, du: int, fill) -> np.ndarray:
+    """image[v + dv, u + du] at every (v, u), `fill` where that falls outside."""
+    h, w = image.shape
+    out = np.full_like(image, fill)
+    out[max(0, -dv) : h - max(0, dv), max(0, -du) : w - max(0, du)] = image[
+        max(0, dv) : h - max(0, -dv) or None, max(0, du) : w - max(0, -du) or None
+    ]
+    return out
+
+
+def depth_edge_keep(ids_d: np.ndarray, depth_m: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """bool [h, w]: the mask samples worth lifting, at depth resolution.
+
+    ids_d: int [h, w] the mask (instance id, 0 = none) sampled at the depth pixels;
+    depth_m: float [h, w]; valid: bool [h, w] usable depth. A detector's mask bleeds a pixel
+    or two onto what lies behind, below or in front of the thing, and a depth sensor mixes
+    the two sides of an edge: so a sample on its mask's edge (a side neighbour outside the
+    mask) is dropped when its depth does not continue the mask's surface: no interior
+    neighbour (all of whose side neighbours are in the mask) agrees with it, as it is or
+    extrapolated one pixel further (a slanted surface), within DEPTH_EDGE_MIN_M +
+    DEPTH_EDGE_PER_M * depth. A mask with no interior next to a sample (a pole or a leg one
+    or two depth pixels wide) keeps it unless it lies that much behind a neighbouring sample
+    of its mask (the rim on the wall behind the pole): erosion would delete such parts
+    whole."""
+    ids_d = np.where(valid, ids_d, 0).astype(np.int64)
+    z = np.where(valid, depth_m, 0.0).astype(np.float64)
+    inside = ids_d > 0
+    same = [(_shifted(ids_d, dv, du, -1) == ids_d) & inside for dv, du in _NEIGHBOURS]
+    beyond = [_shifted(ids_d, dv, du, -1) == -1 for dv, du in _NEIGHBOURS[:4]]
+    # the image's border is not the mask's edge: the thing goes on out of view
+    edge = inside & ~np.logical_and.reduce([s | b for s, b in zip(same[:4], beyond, strict=True)])
+    interior = inside & ~edge
+    residual = np.full(z.shape, np.inf)
+    judged = np.zeros(z.shape, bool)
+    for (dv, du), same_d in zip(_NEIGHBOURS, same, strict=True):
+        beside = same_d & _shifted(interior, dv, du, False)
+        z1 = _shifted(z, dv, du, 0.0)
+        z2 = _shifted(z, 2 * dv, 2 * du, 0.0)
+        further = beside & (_shifted(ids_d, 2 * dv, 2 * du, -1) == ids_d)
+        r = np.minimum(np.abs(z - z1), np.where(further, np.abs(z - (2 * z1 - z2)), np.inf))
+        residual = np.where(beside, np.minimum(residual, r), residual)
+        judged |= beside
+    tolerance = DEPTH_EDGE_MIN_M + DEPTH_EDGE_PER_M * z
+    # Where no interior judges (a thin mask), a sample behind a neighbour of its own mask
+    # by more than the tolerance is the rim on what lies behind the thin thing.
+    behind = np.zeros(z.shape, bool)
+    for (dv, du), same_d in zip(_NEIGHBOURS, same, strict=True):
+        behind |= same_d & (z - _shifted(z, dv, du, 0.0) > tolerance)
+    return inside & ~(edge & np.where(judged, residual > tolerance, behind))
+
+
 def lift_detection(
     mask_rgb: np.ndarray,
     depth_m: np.ndarray,
@@ -62,13 +120,15 @@ def lift_detection(
     pose: np.ndarray,
     max_depth_m: float,
 ) -> np.ndarray:
-    """World points [N, 3] of one detection: its RGB-resolution mask sampled at the depth pixels.
+    """World points [N, 3] of one detection: its RGB-resolution mask sampled at the depth
+    pixels, less the edge samples whose depth leaves the mask's surface (`depth_edge_keep`).
 
     mask_rgb: bool [H, W]; depth_m: float32 [h, w] (downsampled or not).
     """
     height, width = mask_rgb.shape
     u_rgb, v_rgb = depth_to_rgb_pixel_grid((depth_m.shape[1], depth_m.shape[0]), (width, height))
-    mask_d = mask_rgb[np.ix_(v_rgb, u_rgb)] & valid_depth_mask(depth_m, max_depth_m)
+    valid = valid_depth_mask(depth_m, max_depth_m)
+    mask_d = depth_edge_keep(mask_rgb[np.ix_(v_rgb, u_rgb)], depth_m, valid)
     vd, ud = np.nonzero(mask_d)
     return backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
 
@@ -89,7 +149,7 @@ def lift_instances_batched(
     height, width = instance_image.shape
     u_rgb, v_rgb = depth_to_rgb_pixel_grid((depth_m.shape[1], depth_m.shape[0]), (width, height))
     ids_d = instance_image[np.ix_(v_rgb, u_rgb)]
-    keep = valid_depth_mask(depth_m, max_depth_m) & (ids_d > 0)
+    keep = depth_edge_keep(ids_d, depth_m, valid_depth_mask(depth_m, max_depth_m))
     vd, ud = np.nonzero(keep)
     ids = ids_d[vd, ud]
     points = backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
