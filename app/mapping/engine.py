@@ -366,9 +366,9 @@ class MappingEngine:
             self._changed_since_cleanup, self.keyframes, self.knobs.cleanup_interval
         )
 
-    def _cleanup(self, touched: set[int], due: list[int]) -> set[int]:
+    def _cleanup(self, touched: set[int], due: list[int], merge: bool = False) -> set[int]:
         """Outlier removal on the `due` objects (`_denoise_due`); every `cleanup_interval`
-        keyframes, merge of duplicates and pruning of transients. Both organisations run
+        keyframes (or when `merge`), merge of duplicates and pruning of transients. Both organisations run
         this code. The merge compares only the pairs with an object changed since its last
         merge check: two objects that did not change since they were compared cannot have
         started to qualify, so nothing is compared twice for nothing.
@@ -388,7 +388,7 @@ class MappingEngine:
                 obj.version += 1
                 touched.add(oid)
                 self._changed_since_merge_check.add(oid)
-        if self.keyframes % self.knobs.cleanup_interval:
+        if self.keyframes % self.knobs.cleanup_interval and not merge:
             return removed
 
         changed = self._changed_since_merge_check & self.objects.keys()
@@ -437,9 +437,26 @@ class MappingEngine:
         return removed
 
     def settle(self) -> IntegrationStats:
-        """The map once its stream has closed: nothing is done to it yet (the map stays as
-        the last keyframe left it). Returns what changed (nothing)."""
-        return IntegrationStats(seq=self.log.seq, keyframe=self.keyframes)
+        """The map once its stream has closed: every object denoised and compared for a
+        merge once more (during the walk clean-up visits an object only on its slot of the
+        clean-up interval, so the last keyframes' strays would stay for good), the changes
+        committed to the delta log. Returns what changed (published_ids, removed_ids, seq)."""
+        stats = IntegrationStats(seq=self.log.seq, keyframe=self.keyframes)
+        touched: set[int] = set()
+        self._changed_since_merge_check |= set(self.objects)
+        removed = self._cleanup(touched, sorted(self.objects), merge=True)
+        stats.retracted_added.extend(sorted(removed))
+        published = {oid for oid in touched if oid in self.objects and self.objects[oid].confirmed}
+        for oid in published:
+            self.objects[oid].refresh_stay()
+        stats.seq = self.log.commit(published, removed)
+        stats.published_ids, stats.removed_ids = sorted(published), sorted(removed)
+        stats.removed = len(removed)
+        if published or removed:
+            self._confirmed_matrix = None
+        stats.objects = len(self.objects)
+        stats.confirmed = sum(o.confirmed for o in self.objects.values())
+        return stats
 
     def _qualifies(self, obj: MapObject) -> bool:
         """Seen on `min_observations` keyframes, or by sightings (`Sightings.qualifies`): an

@@ -404,16 +404,21 @@ def _components(n: int, edges: np.ndarray) -> np.ndarray:
             root = jumped
 
 
+PART_SHARE = 0.25
+"""Outlier removal keeps every cluster of at least this share of the largest one's points."""
+
+
 def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.ndarray:
-    """Keep the largest DBSCAN cluster (the object; stray depth is small and far away).
+    """Keep the object's DBSCAN clusters of core cells: the largest, any other of at least
+    PART_SHARE of its points (a lamp's base apart from its shade), and the chains of cells
+    too sparse to be core that reach them with `min_points` points or more (a surface's
+    rim, a pole, a leg); a stray point or two is dropped even where it touches the thing.
 
     DBSCAN runs over cells of eps_m / 2, each cell a point at its points' mean weighing as
     many points: a cell is core when the cells within eps_m of it hold `min_points` points,
-    core cells within eps_m of each other share a cluster, and a border cell joins a core
-    neighbour's. On capped object clouds this keeps what point-wise DBSCAN keeps to within
-    a few points in a thousand, at a third of its cost (a cell has a few neighbours where a
-    point has dozens).
-    Returns the input when it is too small to cluster or has no dominant cluster.
+    and core cells within eps_m of each other share a cluster (a third of point-wise
+    DBSCAN's cost: a cell has a few neighbours where a point has dozens).
+    Returns the input when it is too small to cluster or has no cluster at all.
     """
     if len(points) < 4 * min_points:
         return points
@@ -429,15 +434,26 @@ def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np
     np.add.at(near_weight, pairs[:, 1], weight[pairs[:, 0]])
     core = near_weight >= min_points
     linked = pairs[core[pairs[:, 0]] & core[pairs[:, 1]]]
-    labels = np.where(core, _components(len(weight), linked), -1)
-    border = pairs[core[pairs[:, 0]] != core[pairs[:, 1]]]
-    from_core = core[border[:, 0]]
-    labels[np.where(from_core, border[:, 1], border[:, 0])] = labels[
-        np.where(from_core, border[:, 0], border[:, 1])
-    ]
-    clustered = labels >= 0
-    if not clustered.any():
+    labels = np.where(core, _components(len(weight), linked), 0)
+    if not core.any():
         return points
-    largest = np.bincount(labels[clustered], weights=weight[clustered]).argmax()
-    kept = points[labels[cell_of] == largest]
-    return kept if len(kept) >= 0.25 * len(points) else points
+    mass = np.bincount(labels[core], weights=weight[core], minlength=len(weight))
+    kept_cell = core & (mass[labels] >= PART_SHARE * mass.max())
+    # The cells that are not core (a surface's rim, a pole, a leg, a stray) are kept as
+    # chains: a chain of at least `min_points` points reaching a kept cluster is a part of
+    # the thing; a stray point or two touching it is not.
+    sparse = ~core
+    chain = _components(len(weight), pairs[sparse[pairs[:, 0]] & sparse[pairs[:, 1]]])
+    chain_mass = np.bincount(chain, weights=np.where(sparse, weight, 0), minlength=len(weight))
+    touching = pairs[kept_cell[pairs[:, 0]] != kept_cell[pairs[:, 1]]]
+    from_kept = kept_cell[touching[:, 0]]
+    reached = np.where(from_kept, touching[:, 1], touching[:, 0])
+    cluster = labels[np.where(from_kept, touching[:, 0], touching[:, 1])]
+    on_sparse = sparse[reached]
+    reached, cluster = reached[on_sparse], cluster[on_sparse]
+    # ...and so is a short chain that bridges two kept clusters (a gap in a pole)
+    links = np.unique(np.stack([chain[reached], cluster], 1), axis=0)
+    bridges = np.bincount(links[:, 0], minlength=len(weight))
+    part = (bridges >= 2) | ((bridges >= 1) & (chain_mass >= min_points))
+    kept_cell |= sparse & part[chain]
+    return points[kept_cell[cell_of]]

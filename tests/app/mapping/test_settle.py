@@ -1,0 +1,79 @@
+"""Clean-up keeps a thing's own parts and drops what is not its own; a map settles once its
+stream has closed."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.config import Knobs
+from app.mapping import geometry as geo
+from app.mapping.engine import OUTLIER_EPS_M, MappingEngine, make_perception
+from app.mapping.object import MapObject
+
+RNG = np.random.default_rng(0)
+
+
+def _disc(centre, radius_m: float, n: int) -> np.ndarray:
+    r = radius_m * np.sqrt(RNG.random(n))
+    a = RNG.random(n) * 2 * np.pi
+    return np.stack(
+        [centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), np.full(n, centre[2])], 1
+    )
+
+
+def _lamp() -> np.ndarray:
+    """A lamp as a capped cloud: a dense base and shade, a pole of one point per 4 cm."""
+    base = _disc((0.0, 0.0, 0.0), 0.1, 150)
+    pole = np.stack([np.zeros(30), np.zeros(30), 0.02 + 0.04 * np.arange(30)], 1)
+    shade = _disc((0.0, 0.0, 1.25), 0.15, 150)
+    return np.concatenate([base, pole, shade]).astype(np.float32)
+
+
+def test_a_lamps_pole_and_base_survive_outlier_removal():
+    lamp = _lamp()
+    kept = geo.remove_outliers(lamp, OUTLIER_EPS_M)
+    assert len(kept) == len(lamp)
+
+
+def test_a_stray_touching_the_thing_does_not_survive_outlier_removal():
+    lamp = _lamp()
+    stray = np.array([[0.17, 0.0, -0.02], [0.19, 0.01, -0.03]], np.float32)  # 7-9 cm off the base
+    kept = geo.remove_outliers(np.concatenate([lamp, stray]), OUTLIER_EPS_M)
+    assert len(kept) == len(lamp)
+    assert kept[:, 0].max() < 0.16
+
+
+def test_a_far_cluster_under_a_quarter_of_the_thing_is_dropped_even_when_most_is_scattered():
+    """No 'keep everything' fallback: a cloud whose largest cluster is a minority still
+    loses its strays."""
+    body = _disc((0.0, 0.0, 0.0), 0.1, 100)
+    strays = RNG.uniform(-3, 3, size=(300, 3))  # scattered single points, far apart
+    kept = geo.remove_outliers(np.concatenate([body, strays]).astype(np.float32), OUTLIER_EPS_M)
+    assert np.abs(kept).max() <= 0.11
+
+
+def _engine_with(encoder, points: np.ndarray) -> MappingEngine:
+    engine = MappingEngine(encoder, Knobs(), backend=make_perception())
+    obj = MapObject(id=1, first_seen=1, first_seen_t=0.0, last_seen_t=1.0, confirmed=True)
+    obj.set_points(points, 0.025)
+    obj.observe_label("lamp", encoder.encode(["lamp"])[0])
+    engine.objects[1] = obj
+    engine.next_object_id = 2
+    return engine
+
+
+def test_settling_a_closed_stream_drops_the_strays_clean_up_had_not_visited(encoder):
+    lamp = _lamp()
+    stray = np.array([[0.6, 0.6, 0.0]], np.float32)
+    engine = _engine_with(encoder, np.concatenate([lamp, stray]))
+    seq = engine.log.seq
+    stats = engine.settle()
+    assert stats.published_ids == [1] and stats.seq == seq + 1
+    assert len(engine.objects[1].points) == len(lamp)
+    np.testing.assert_allclose(engine.objects[1].bbox, geo.bbox_of(lamp))
+
+
+def test_settling_a_clean_map_publishes_nothing(encoder):
+    engine = _engine_with(encoder, _lamp())
+    seq = engine.log.seq
+    assert engine.settle().seq == seq and engine.log.seq == seq
