@@ -12,6 +12,13 @@ present map, when it answers.
 - **near**: else the nearest large object (box volume >= LARGE_VOLUME_M3 or a side >=
   LARGE_SIDE_M) within NEAR_MAX_M of the point (distance to its box).
 
+Map objects are described by their points, boxes only narrowing the search: a support must
+hold points under the point (within ON_REACH_M of it across, in the gap along up), and
+"near" is the distance to its nearest points (the ON_MIN_POINTS-th nearest). A few stray points blow a box up (a table's
+box reaching the floor, a floor-level thing's box reaching a table top) and would swallow
+everything; they are few where a surface is many. Landmarks given as boxes alone (no
+points) are described by their boxes.
+
 "Up" is one of the world axes (our synthetic world is Z-up, XR runtimes are Y-up), named
 "+x", "-x", "+y", "-y", "+z" or "-z" (`up_vector`, `up_name`). A session may set it; else
 `UpInference` takes it from its keyframes' camera poses once they agree (`infer_up`: at once,
@@ -42,6 +49,11 @@ LARGE_VOLUME_M3 = 0.03
 """An object is large (a landmark) with a box of at least this volume..."""
 LARGE_SIDE_M = 0.5
 """...or a box side at least this long (a table top, a wall, a door)."""
+ON_REACH_M = 0.25
+"""A support holds a point this close across (perpendicular to up) to the thing's point: the
+surface right under a thing is hidden by it, the surface round it is seen."""
+ON_MIN_POINTS = 3
+"""...and at least this many such points (a stray or two is not a surface)."""
 
 
 @dataclass(frozen=True)
@@ -60,11 +72,14 @@ class Landmarks:
     ids:    int64 [n]
     labels: n labels (any sequence)
     boxes:  float64 [n, 6] (x0, y0, z0, x1, y1, z1) metres, world frame
+    points: n float [k, 3] clouds (world metres) the places are read from, or None: the
+            boxes alone
     """
 
     ids: np.ndarray
     labels: Sequence[str]
     boxes: np.ndarray
+    points: Sequence[np.ndarray] | None = None
 
     @classmethod
     def of(cls, objects: Iterable[MapObject]) -> Landmarks:
@@ -76,6 +91,7 @@ class Landmarks:
             ids=np.array([o.id for o in objects], np.int64),
             labels=_LabelsOf(objects),
             boxes=np.asarray(boxes, np.float64).reshape(-1, 6),
+            points=[o.points for o in objects],
         )
 
 
@@ -238,16 +254,22 @@ def describe_places(
         others = landmarks.ids != excluded[start : start + step, None]  # [c, n]
         # on: the point above the top surface, inside the footprint; the largest wins
         gap = sign * p[a] - top
-        supports = others & (gap >= -ON_SLACK_M) & (gap <= ON_MAX_GAP_M)
+        if landmarks.points is None:
+            supports = others & (gap >= -ON_SLACK_M) & (gap <= ON_MAX_GAP_M)
+        else:  # anywhere from the box's bottom up: its points tell where its top is
+            supports = others & (gap >= -ON_SLACK_M - sides[a]) & (gap <= ON_MAX_GAP_M)
         for f in (f0, f1):
             supports &= (lo[f] - FOOTPRINT_MARGIN_M <= p[f]) & (p[f] <= hi[f] + FOOTPRINT_MARGIN_M)
-        support = np.argmax(np.where(supports, footprint, -1.0), axis=1)
         # near: the nearest large object (distance to its box, 0 inside)
         squared = np.zeros(others.shape)
         for i in range(3):
             outside = np.maximum(np.maximum(lo[i] - p[i], p[i] - hi[i]), 0.0)
             squared += outside * outside
         candidates = others & large & (squared <= NEAR_MAX_M**2)
+        if landmarks.points is not None:
+            chunk = points[start : start + step]
+            _by_points(chunk, landmarks.points, supports, squared, candidates, a, sign)
+        support = np.argmax(np.where(supports, footprint, -1.0), axis=1)
         nearest = np.argmin(np.where(candidates, squared, np.inf), axis=1)
         for row in range(len(supports)):
             if supports[row, support[row]]:
@@ -257,6 +279,39 @@ def describe_places(
             else:
                 places.append(None)
     return places
+
+
+def _by_points(
+    points: np.ndarray,
+    clouds: Sequence[np.ndarray],
+    supports: np.ndarray,
+    squared: np.ndarray,
+    candidates: np.ndarray,
+    a: int,
+    sign: float,
+) -> None:
+    """Narrow the box answers [c, n] of points float64 [c, 3] to what the landmarks' clouds
+    say, in place: a support keeps ON_MIN_POINTS points within ON_REACH_M across of the
+    point and in its gap along up (axis `a`, `sign`); `squared` becomes the squared
+    distance to the ON_MIN_POINTS-th nearest point of each candidate landmark (a farther
+    one drops out)."""
+    across = [i for i in range(3) if i != a]
+    for row, col in zip(*np.nonzero(supports | candidates), strict=True):
+        cloud = np.asarray(clouds[col], np.float64)
+        if len(cloud) == 0:
+            supports[row, col] = candidates[row, col] = False
+            continue
+        offset = points[row] - cloud
+        if supports[row, col]:
+            gap = sign * offset[:, a]
+            reach = np.hypot(offset[:, across[0]], offset[:, across[1]])
+            under = (reach <= ON_REACH_M) & (gap >= -ON_SLACK_M) & (gap <= ON_MAX_GAP_M)
+            supports[row, col] = int(under.sum()) >= ON_MIN_POINTS
+        if candidates[row, col]:
+            distances = np.einsum("ij,ij->i", offset, offset)
+            k = min(ON_MIN_POINTS, len(distances)) - 1  # a stray or two is not the thing
+            squared[row, col] = float(np.partition(distances, k)[k])
+            candidates[row, col] = squared[row, col] <= NEAR_MAX_M**2
 
 
 def _place(relation: Literal["on", "near"], landmarks: Landmarks, i: int) -> Place:
