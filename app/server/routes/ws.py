@@ -279,6 +279,7 @@ async def _stream_frames(ws: WebSocket, manager: SessionManager, session: Sessio
         return
     finally:
         session.on_close.discard(close_now)
+        await manager.settle(session)  # the device stopped: its map settles once
         session.flush()  # the device stopped: its last changes go out now
         manager.save_counters_soon(session)  # and its frame count is saved
     if not closing:

@@ -286,6 +286,10 @@ class SessionManager:
         """Hand a validated keyframe to the keyframe pipeline (`KeyframePipeline.submit`)."""
         await self.pipeline.submit(session, frame, reply, sent, decode_ms, stream)
 
+    async def settle(self, session: Session) -> None:
+        """A stream of `session` closed: settle its map (`KeyframePipeline.settle`)."""
+        await self.pipeline.settle(session)
+
     # ------------------------------------------------------------------ housekeeping
     async def watch_storage(self) -> None:
         """Until cancelled, every STORAGE_PROBE_INTERVAL_S, in the store thread: the server's

@@ -4,6 +4,7 @@ mapped and committed in one hold of the map lock, and is acknowledged."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from typing import NamedTuple
@@ -271,6 +272,48 @@ class KeyframePipeline:
                     )
             latency_ms = pending.decode_ms + (time.perf_counter() - t_locked) * 1e3
             return _Mapped(ack, stats.keyframe, latency_ms)
+
+    async def settle(self, session: Session) -> None:
+        """Once a stream has closed: settle the session's map (`MappingEngine.settle`: the
+        strays clean-up had not yet visited leave, duplicates merge), commit what changed
+        and publish it. In a worker thread under the map lock, after any keyframe in flight;
+        a failed commit puts the engine back to the store's state, as for a keyframe."""
+        with contextlib.suppress(RuntimeError):  # no loop or executor: the server is stopping
+            await asyncio.to_thread(self._settle_and_persist, session)
+            session.flush()
+
+    def _settle_and_persist(self, session: Session) -> None:
+        with session.lane.lock:
+            if session.moved or session.closed or not self.storage.probe():
+                return
+            engine = session.engine
+            pose = engine.last_pose
+            try:
+                stats = engine.settle()
+                if not stats.published_ids and not stats.removed_ids:
+                    return
+                self.store.commit_keyframe(
+                    KeyframeCommit(
+                        session.id,
+                        stats.seq,
+                        [engine.objects[i] for i in stats.published_ids],
+                        stats.removed_ids,
+                        counters=session.counters(),
+                        next_object_id=engine.next_object_id,
+                        last_used_at=session.record.last_used_at,
+                        retracted_added=stats.retracted_added,
+                        last_t=engine.last_t,
+                        last_pose=engine.last_pose,
+                        epoch=session.epoch,
+                    )
+                )
+            except SessionFenced:
+                self.claims.drop_taken_over(session, close=False)
+            except Exception:
+                log.exception("session %s: settling its map failed; undone", session.id)
+                self._back_to_durable(session, pose)
+            else:
+                self.counters.saved(session.id)
 
     def _done_ack(self, session: Session, pending: PendingKeyframe) -> Ack | None:
         """The ack of a keyframe committed before under the same (stream, seq), if the store
