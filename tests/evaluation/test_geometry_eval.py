@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from evaluation import geometry
+from world import make_scene
 from world.noise import DetectionModel
 from world.render import Renderer, default_camera
-from world import make_scene
 
 RNG = np.random.default_rng(0)
 
