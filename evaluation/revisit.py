@@ -12,17 +12,18 @@ Scoring (docs/evaluation.md "Measured honestly"; pooled over seeds, `evaluation.
   present after the first walk against the first scene (a moved or removed object keeps its
   id, so its change is judged by what it was), new ones against the second scene.
 - A change counts when object and kind are right; `added` is scored apart.
-- Time to update: from the first keyframe of the second walk that showed the evidence
-  (the old place without the thing, the new place with it) to the change's `t`. Beside it,
-  the walk's bound (how long after that the walk had shown enough for the rules to conclude:
-  a removal needs `removal_min_evidence` keyframes showing the empty place) and the map's
-  delay beyond that bound.
+- Time to update: from the first frame of the second walk that showed the evidence (the
+  old place without the thing, the new place with it), keyframe or not, as a person watching
+  the stream would count it, to the change's `t`. Beside it, the walk's bound (how long after
+  that the walk's regular keyframes had shown enough for the rules to conclude: a removal
+  needs `removal_min_evidence` keyframes showing the empty place) and the map's delay beyond
+  that bound.
 - False removals under occlusion: removed or moved changes of a hidden object.
 - Stale answers: after the second walk, a query for a moved or removed thing's category
   whose top-1 is the map's object for that thing still at its old place (within
   STALE_RADIUS_M of it, and nearer it than the new place); apart, those about things whose
-  old place the walk showed at least `removal_min_evidence` times (the rest it showed too
-  few times for the map to conclude anything).
+  old place the walk showed at least STALE_MIN_SHOWINGS times (regular keyframes, one a
+  second, that showed it: the rest the walk barely glimpsed).
 - Last-seen errors: "where did I last see X" for each removed thing whose category has no
   other instance left (else the question is ambiguous), ranked over present and removed
   objects (`include=removed`): the top-1's distance to where X was and its `last_seen_t`
@@ -53,11 +54,18 @@ from world.gt import gt_point_cloud
 from world.render import default_camera
 
 SEEN_PX = 400
-"""A keyframe shows a thing (or its place) when it covers this many pixels at 640 x 480."""
+"""A frame shows a thing (or its place) when it covers this many pixels at 640 x 480."""
 PLACE_VISIBLE_FRACTION = 0.7
-"""A keyframe shows an old place when this fraction of the pixels the first walk saw the
-thing at now show something at or behind where it was, within the range negative evidence
-reads (`absence_min_depth_m`..`absence_max_depth_m`: farther, depth is too coarse)."""
+"""A frame shows an old place when this fraction of the pixels the first walk saw the
+thing at (from the same pose) now show something at or behind where it was, within the range
+negative evidence reads (`absence_min_depth_m`..`absence_max_depth_m`: farther, depth is too
+coarse): the empty place itself in view, not merely in the frustum behind an occluder."""
+PLACE_GRID_PX = 4
+"""The first walk's pixels of a watched thing are kept on a grid of one pixel in 4 x 4 (the
+fraction above, read on every frame of the walk, in bounded memory)."""
+STALE_MIN_SHOWINGS = 2
+"""A stale answer counts apart when the walk's regular keyframes (one a second) showed the old
+place at least this many times."""
 IDENTITY_RADIUS_M = 0.05
 """Map points farther than this from every ground-truth point vote for no instance."""
 STALE_RADIUS_M = 0.5
@@ -90,9 +98,14 @@ class _Walks:
     keyframe_t: list[float]
     walk1_keyframes: int
     old_place_shown_t: dict[int, list[float]] = field(default_factory=dict)
-    """Instance -> t of every walk-2 keyframe showing its old place without it."""
+    """Instance -> t of every walk-2 regular keyframe (`is_keyframe`) showing its old place
+    without it."""
     new_place_seen_t: dict[int, float] = field(default_factory=dict)
-    """Instance -> t of the first walk-2 keyframe showing it (at its new place)."""
+    """Instance -> t of the first walk-2 regular keyframe showing it (at its new place)."""
+    old_place_first_frame_t: dict[int, float] = field(default_factory=dict)
+    """Instance -> t of the first walk-2 frame (any) showing its old place without it."""
+    new_place_first_frame_t: dict[int, float] = field(default_factory=dict)
+    """Instance -> t of the first walk-2 frame (any) showing it at its new place."""
     last_seen_walk1_t: dict[int, float] = field(default_factory=dict)
     """Instance -> t of the last walk-1 keyframe showing it."""
 
@@ -114,70 +127,83 @@ def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
     watched = {c.instance_id for c in scenario.changes} | set(scenario.occluded_ids)
     walks = _Walks(scenario, [], {}, [], 0)
     first_walk_pixels: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
-    """Walk-1 frame index -> instance -> (its pixels, its depth there)."""
+    """Walk-1 frame index -> instance -> (its pixels on the PLACE_GRID_PX grid, its depth
+    there)."""
     for index in range(len(scenario)):
+        # every frame is rendered: the clock starts at the first frame, keyframe or not,
+        # that shows a change's evidence
         keyframe = is_keyframe(index, interval)
-        if not keyframe and not cfg.sightings:
-            continue
         frame = source.frame(index)
         walk = scenario.walk_of(index)
-        if not keyframe:
-            after = len(walks.messages) - 1
-            walks.sightings.setdefault(after, []).append(Sighting.of(frame, {ratio: encoder}))
-            continue
-        walks.messages.append(encoder.encode_source_frame(frame).message)
-        walks.keyframe_t.append(frame.t)
-        ids = frame.view.instance_ids.ravel()
-        depth = frame.view.depth_m.ravel()
-        counts = np.bincount(ids, minlength=1)
+        ids_image = frame.view.instance_ids
+        counts = np.bincount(ids_image.ravel(), minlength=1)
+        ids = ids_image[::PLACE_GRID_PX, ::PLACE_GRID_PX].ravel()
+        depth = frame.view.depth_m[::PLACE_GRID_PX, ::PLACE_GRID_PX].ravel()
+        shown = [i for i in watched if i < len(counts) and counts[i] >= seen_px]
         if walk == 1:
-            walks.walk1_keyframes += 1
             pixels = {}
-            for instance in watched:
-                if instance < len(counts) and counts[instance] >= seen_px:
-                    where = np.flatnonzero(ids == instance)
+            for instance in shown:
+                where = np.flatnonzero(ids == instance)
+                if len(where):
                     pixels[instance] = (where, depth[where])
-                    walks.last_seen_walk1_t[instance] = frame.t
+                    if keyframe:
+                        walks.last_seen_walk1_t[instance] = frame.t
             first_walk_pixels[index] = pixels
         else:
             same_pose = index - scenario.walk1_frames
-            for instance in watched:
-                if instance < len(counts) and counts[instance] >= seen_px:
+            for instance in shown:
+                walks.new_place_first_frame_t.setdefault(instance, frame.t)
+                if keyframe:
                     walks.new_place_seen_t.setdefault(instance, frame.t)
-                held = first_walk_pixels.get(same_pose, {}).get(instance)
-                if held is not None:
-                    where, before = held
-                    now = depth[where]
-                    behind = (now >= before - 0.05) & (ids[where] != instance)
-                    in_range = (
-                        cfg.knobs.absence_min_depth_m
-                        <= float(np.median(before))
-                        <= cfg.knobs.absence_max_depth_m
-                    )
-                    if in_range and behind.mean() >= PLACE_VISIBLE_FRACTION:
+            for instance, (where, before) in first_walk_pixels.get(same_pose, {}).items():
+                now = depth[where]
+                behind = (now >= before - 0.05) & (ids[where] != instance)
+                in_range = (
+                    cfg.knobs.absence_min_depth_m
+                    <= float(np.median(before))
+                    <= cfg.knobs.absence_max_depth_m
+                )
+                if in_range and behind.mean() >= PLACE_VISIBLE_FRACTION:
+                    walks.old_place_first_frame_t.setdefault(instance, frame.t)
+                    if keyframe:
                         walks.old_place_shown_t.setdefault(instance, []).append(frame.t)
+        if not keyframe:
+            if cfg.sightings:
+                after = len(walks.messages) - 1
+                walks.sightings.setdefault(after, []).append(Sighting.of(frame, {ratio: encoder}))
+            continue
+        walks.messages.append(encoder.encode_source_frame(frame).message)
+        walks.keyframe_t.append(frame.t)
+        walks.walk1_keyframes += walk == 1
         if len(walks.messages) % 50 == 0:
             progress(f"[revisit] seed {seed}: rendered and encoded {len(walks.messages)} keyframes")
     return walks
 
 
 def _true_change(walks: _Walks, change, key: int, min_evidence: int) -> TrueChange:
-    """A scripted change with the times its evidence was shown. A removal's bound is the
-    `min_evidence`-th keyframe showing the empty place (keyframes are 1 s apart, so the span
-    rule holds by then); a move or an addition can be concluded once both places were shown
-    (a suspect old place and a new candidate confirmed from sightings)."""
-    old = walks.old_place_shown_t.get(change.instance_id, [])
-    new = walks.new_place_seen_t.get(change.instance_id)
+    """A scripted change with the times its evidence was shown: the first frame (any) that
+    showed it. A removal's bound is the `min_evidence`-th regular keyframe showing the empty
+    place (keyframes are 1 s apart, so the span rule holds by then); a move or an addition
+    can be concluded once both places were shown (a suspect old place and a new candidate
+    confirmed from sightings). No evidence frame: no time (the walk never showed it)."""
+    i = change.instance_id
+    old = walks.old_place_shown_t.get(i, [])
+    new = walks.new_place_seen_t.get(i)
+    old_first = walks.old_place_first_frame_t.get(i)
+    new_first = walks.new_place_first_frame_t.get(i)
     if change.kind == "removed":
-        t_evidence = old[0] if old else None
+        t_evidence = old_first
         t_bound = old[min_evidence - 1] if len(old) >= min_evidence else None
         if t_evidence is not None and t_bound is None:
-            t_bound = old[-1]  # shown fewer times than the rule asks: its last showing
+            t_bound = old[-1] if old else t_evidence  # shown fewer times: its last showing
     elif change.kind == "added":
-        t_evidence = t_bound = new
+        t_evidence, t_bound = new_first, new
     else:
-        t_evidence = t_bound = None if not old or new is None else max(old[0], new)
-    return TrueChange(key + change.instance_id, change.kind, t_evidence, t_bound)
+        t_evidence = None if old_first is None or new_first is None else max(old_first, new_first)
+        t_bound = None if not old or new is None else max(old[0], new)
+    if t_evidence is not None and t_bound is not None:
+        t_bound = max(t_bound, t_evidence)
+    return TrueChange(key + i, change.kind, t_evidence, t_bound)
 
 
 def _identities(objects: list[MapObject], tree: cKDTree, instance_of_point: np.ndarray):
@@ -312,7 +338,7 @@ def run_revisit(
                 if near_old and before_identity.get(top.id) == change.instance_id:
                     shown = len(walks.old_place_shown_t.get(change.instance_id, []))
                     stale[mode] += 1
-                    stale_shown_enough[mode] += shown >= cfg.knobs.removal_min_evidence
+                    stale_shown_enough[mode] += shown >= STALE_MIN_SHOWINGS
                     stale_cases[mode].append(
                         {
                             "seed": seed,
