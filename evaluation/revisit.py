@@ -34,8 +34,10 @@ Scoring (docs/evaluation.md "Measured honestly"; pooled over seeds, `evaluation.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import msgpack
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -43,11 +45,15 @@ from app.config import MODES, Knobs
 from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine, make_perception
 from app.mapping.object import MapObject
+from app.mapping.publish import update_message
+from app.protocol import parse_frame
+from app.protocol.delta import SEQ_FIELD
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
+from client_sim.keyframe_pick import KeyframePick
 from client_sim.sources.revisit import RevisitSource
 from evaluation.change_scores import ConcludedChange, TrueChange, score_changes
-from evaluation.pipeline import Progress, Sighting, labels_of, map_keyframes, stderr_progress
+from evaluation.pipeline import MappedRun, Progress, Sighting, labels_of, stderr_progress
 from evaluation.report import Report
 from world.changes import DEFAULT_GAP_S, DEFAULT_WALK_FRAMES, RevisitScenario
 from world.gt import gt_point_cloud
@@ -86,6 +92,10 @@ class RevisitConfig:
     knobs: Knobs = field(default_factory=Knobs)
     sightings: bool = True
     """Hand the frames between keyframes to `sight`, as the server does."""
+    doubt_keyframes: bool = True
+    """The device also makes a keyframe of a frame showing a place the map doubts
+    (`client_sim.keyframe_pick`, from the newest keyframe's doubted places); else only the
+    shared selector's keyframes."""
 
 
 @dataclass
@@ -93,10 +103,6 @@ class _Walks:
     """One seed's encoded walks and what the ground truth needs from the renders."""
 
     scenario: RevisitScenario
-    messages: list[dict]
-    sightings: dict[int, list[Sighting]]
-    keyframe_t: list[float]
-    walk1_keyframes: int
     old_place_shown_t: dict[int, list[float]] = field(default_factory=dict)
     """Instance -> t of every walk-2 regular keyframe (`is_keyframe`) showing its old place
     without it."""
@@ -110,7 +116,18 @@ class _Walks:
     """Instance -> t of the last walk-1 keyframe showing it."""
 
 
-def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
+def _walk_and_map(
+    cfg: RevisitConfig,
+    seed: int,
+    engines: dict[str, MappingEngine],
+    at_walk2: Callable[[RevisitScenario], None],
+    progress: Progress,
+) -> tuple[_Walks, dict[str, MappedRun], dict[str, KeyframePick]]:
+    """Render both walks frame by frame, note what each frame shows of the changes (the
+    ground truth's clock), and map each frame in every engine as its device would send it:
+    whole when its `KeyframePick` picks it (decode + mapping + the downstream update timed,
+    as `map_keyframes` does), else as a sighting. Each engine's device reads the doubted
+    places of that engine's newest keyframe. `at_walk2` runs between the walks."""
     source = RevisitSource(
         cfg.scene,
         seed=seed,
@@ -125,16 +142,22 @@ def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
     interval = cfg.knobs.keyframe_interval
     seen_px = SEEN_PX * cfg.width * cfg.height / (640 * 480)
     watched = {c.instance_id for c in scenario.changes} | set(scenario.occluded_ids)
-    walks = _Walks(scenario, [], {}, [], 0)
+    walks = _Walks(scenario)
+    runs = {name: MappedRun() for name in engines}
+    published = dict.fromkeys(engines, 0)
+    picks = {
+        name: KeyframePick(interval, cfg.knobs.absence_min_depth_m, cfg.knobs.absence_max_depth_m)
+        for name in engines
+    }
     first_walk_pixels: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
     """Walk-1 frame index -> instance -> (its pixels on the PLACE_GRID_PX grid, its depth
     there)."""
     for index in range(len(scenario)):
-        # every frame is rendered: the clock starts at the first frame, keyframe or not,
-        # that shows a change's evidence
         keyframe = is_keyframe(index, interval)
         frame = source.frame(index)
         walk = scenario.walk_of(index)
+        if index == scenario.walk1_frames:
+            at_walk2(scenario)
         ids_image = frame.view.instance_ids
         counts = np.bincount(ids_image.ravel(), minlength=1)
         ids = ids_image[::PLACE_GRID_PX, ::PLACE_GRID_PX].ravel()
@@ -167,17 +190,62 @@ def _encode_walks(cfg: RevisitConfig, seed: int, progress: Progress) -> _Walks:
                     walks.old_place_first_frame_t.setdefault(instance, frame.t)
                     if keyframe:
                         walks.old_place_shown_t.setdefault(instance, []).append(frame.t)
-        if not keyframe:
-            if cfg.sightings:
-                after = len(walks.messages) - 1
-                walks.sightings.setdefault(after, []).append(Sighting.of(frame, {ratio: encoder}))
-            continue
-        walks.messages.append(encoder.encode_source_frame(frame).message)
-        walks.keyframe_t.append(frame.t)
-        walks.walk1_keyframes += walk == 1
-        if len(walks.messages) % 50 == 0:
-            progress(f"[revisit] seed {seed}: rendered and encoded {len(walks.messages)} keyframes")
-    return walks
+        height, width = frame.rgb.shape[:2]
+        whole = {
+            name: pick.pick(
+                frame.index, frame.pose, frame.intrinsics, (width, height), frame.depth_m
+            )
+            for name, pick in picks.items()
+        }
+        message = encoder.encode_source_frame(frame).message if any(whole.values()) else None
+        sighting = (
+            Sighting.of(frame, {ratio: encoder})
+            if cfg.sightings and not all(whole.values())
+            else None
+        )
+        if message is not None:
+            # label embeddings are cached per process (a server has them all): warm the
+            # cache outside the timed mapping, as `run_eval` does
+            next(iter(engines.values())).encoder.encode(labels_of([message]))
+        for name, engine in engines.items():
+            if whole[name]:
+                _map_one(engine, message, runs[name], published, name)
+                if cfg.doubt_keyframes and engine.knobs.negative_evidence:
+                    picks[name].doubted = engine.changes.doubted_places()
+            elif sighting is not None:
+                t0 = time.perf_counter()
+                engine.sight(*sighting.decode(engine, ratio))  # type: ignore[arg-type]
+                runs[name].sightings_ms.append((time.perf_counter() - t0) * 1e3)
+        if (index + 1) % 100 == 0:
+            progress(
+                f"[revisit] seed {seed}: walked {index + 1}/{len(scenario)} frames; keyframes "
+                + ", ".join(f"{name} {len(run.latencies_ms)}" for name, run in runs.items())
+            )
+    return walks, runs, picks
+
+
+def _map_one(
+    engine: MappingEngine, message: dict, run: MappedRun, published: dict[str, int], name: str
+) -> None:
+    """One keyframe through decode + mapping + the downstream update, timed (as
+    `evaluation.pipeline.map_keyframes`)."""
+    t0 = time.perf_counter()
+    frame = parse_frame(message, engine.backend.needs_rgb)
+    t1 = time.perf_counter()
+    stats = engine.integrate(frame)
+    run.changes.extend(stats.changes)
+    run.retired.extend(stats.retired)
+    run.retracted_added.update(stats.retracted_added)
+    run.retracted_removed.update(stats.retracted_removed)
+    t2 = time.perf_counter()
+    if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
+        update = update_message(engine, published[name])
+        run.update_bytes.append(len(msgpack.packb(update)))
+        published[name] = update[SEQ_FIELD]
+    t3 = time.perf_counter()
+    run.latencies_ms.append((t3 - t0) * 1e3)
+    run.add_stage("decode", (t1 - t0) * 1e3)
+    run.add_stage("update", (t3 - t2) * 1e3)
 
 
 def _true_change(walks: _Walks, change, key: int, min_evidence: int) -> TrueChange:
@@ -247,17 +315,12 @@ def run_revisit(
     last_seen_m: dict[str, list[float]] = {m: [] for m in cfg.modes}
     last_seen_s: dict[str, list[float]] = {m: [] for m in cfg.modes}
     per_seed = []
+    doubt_keyframes: dict[str, int] = {}
+    """Keyframes the devices made of frames showing a doubted place, by engine."""
     off_knobs = Knobs(**{**cfg.knobs.__dict__, "negative_evidence": False})
     on_knobs = Knobs(**{**cfg.knobs.__dict__, "negative_evidence": True})
     for seed in cfg.seeds:
-        walks = _encode_walks(cfg, seed, progress)
-        scenario = walks.scenario
-        # label embeddings are cached per process (a server has them all): warm the cache
-        # outside the timed loop, as `run_eval` does
-        encoder.encode(labels_of(walks.messages))
         key = seed * 1_000_000  # instances of different seeds never match each other
-        before_gt, after_gt = gt_point_cloud(scenario.before), gt_point_cloud(scenario.after)
-        before_tree, after_tree = cKDTree(before_gt.points), cKDTree(after_gt.points)
         engines = {
             m: MappingEngine(encoder, on_knobs, m, backend=make_perception(mode=m))
             for m in cfg.modes
@@ -266,32 +329,24 @@ def run_revisit(
             m + NO_EVIDENCE: MappingEngine(encoder, off_knobs, m, backend=make_perception(mode=m))
             for m in cfg.modes
         }
-        k1 = walks.walk1_keyframes
-        ratios = dict.fromkeys(engines, cfg.knobs.depth_downsampling_ratio)
-        first = map_keyframes(
-            {name: walks.messages[:k1] for name in engines},
-            engines,
-            progress,
-            {i: s for i, s in walks.sightings.items() if i < k1},
-            ratios,
-        )
-        walk1_identity = {
-            name: _identities(
-                engine.confirmed_objects(), before_tree, before_gt.instance_ids.astype(np.int64)
-            )
-            for name, engine in engines.items()
-        }
-        second = map_keyframes(
-            {name: walks.messages[k1:] for name in engines},
-            engines,
-            progress,
-            {i - k1: s for i, s in walks.sightings.items() if i >= k1},
-            ratios,
-        )
+        walk1_identity: dict[str, dict[int, int]] = {}
+
+        def identify_walk1(scenario: RevisitScenario, engines=engines, out=walk1_identity):
+            """Each map object's instance after walk 1, against the first scene."""
+            gt = gt_point_cloud(scenario.before)
+            tree = cKDTree(gt.points)
+            for name, engine in engines.items():
+                out[name] = _identities(
+                    engine.confirmed_objects(), tree, gt.instance_ids.astype(np.int64)
+                )
+
+        walks, runs, picks = _walk_and_map(cfg, seed, engines, identify_walk1, progress)
+        scenario = walks.scenario
+        after_gt = gt_point_cloud(scenario.after)
+        after_tree = cKDTree(after_gt.points)
         for name in engines:
-            latencies.setdefault(name, []).extend(
-                first[name].latencies_ms + second[name].latencies_ms
-            )
+            latencies.setdefault(name, []).extend(runs[name].latencies_ms)
+            doubt_keyframes[name] = doubt_keyframes.get(name, 0) + picks[name].doubt_picks
         for change in scenario.changes:
             truth.append(_true_change(walks, change, key, cfg.knobs.removal_min_evidence))
         seed_report: dict = {"seed": seed, "changes": len(scenario.changes), "modes": {}}
@@ -300,11 +355,8 @@ def run_revisit(
         stale_asked += sum(c.kind in ("moved", "removed") for c in scenario.changes)
         for mode in cfg.modes:
             engine = engines[mode]
-            second[mode].changes[:0] = first[mode].changes
-            second[mode].retracted_added |= first[mode].retracted_added
-            second[mode].retracted_removed |= first[mode].retracted_removed
-            run = second[mode].standing_changes()
-            retired = first[mode].retired + second[mode].retired
+            run = runs[mode].standing_changes()
+            retired = runs[mode].retired
             present = engine.confirmed_objects()
             after_identity = _identities(
                 present + retired, after_tree, after_gt.instance_ids.astype(np.int64)
@@ -378,6 +430,7 @@ def run_revisit(
         "gap_s": cfg.gap_s,
         "fps": 5.0,
         "keyframe_interval": cfg.knobs.keyframe_interval,
+        "doubt_keyframes": cfg.doubt_keyframes,
         "noise": cfg.noise,
         "scripted_changes": len(truth),
         "per_seed": per_seed,
@@ -398,8 +451,18 @@ def run_revisit(
         scores["last_seen_error_s"] = {
             "p50": float(np.median(last_seen_s[mode])) if last_seen_s[mode] else None
         }
-        scores["mapping_cost_pct"] = 100.0 * (with_ms / without_ms - 1.0)
+        with_total = float(np.sum(latencies[mode]))
+        without_total = float(np.sum(latencies[mode + NO_EVIDENCE]))
+        # the change work's cost over the same walks: its keyframes' mapping and the
+        # keyframes its doubted places added
+        scores["mapping_cost_pct"] = 100.0 * (with_total / without_total - 1.0)
+        scores["mapping_cost_per_keyframe_pct"] = 100.0 * (with_ms / without_ms - 1.0)
         scores["latency_ms"] = {"with_evidence_mean": with_ms, "without_evidence_mean": without_ms}
+        scores["keyframes"] = {
+            "with_evidence": len(latencies[mode]),
+            "without_evidence": len(latencies[mode + NO_EVIDENCE]),
+            "doubted_place_picks": doubt_keyframes.get(mode, 0),
+        }
         result["modes"][mode] = {"changes": scores}
     result["seconds"] = time.perf_counter() - started
     return result
