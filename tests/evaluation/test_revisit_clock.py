@@ -9,7 +9,7 @@ from world.changes import GroundTruthChange
 
 
 def _walks(**shown) -> _Walks:
-    walks = _Walks(scenario=None, messages=[], sightings={}, keyframe_t=[], walk1_keyframes=0)  # type: ignore[arg-type]
+    walks = _Walks(scenario=None)  # type: ignore[arg-type]
     for name, value in shown.items():
         getattr(walks, name).update(value)
     return walks
