@@ -1,6 +1,6 @@
 """The device's keyframe pick with the sightings extension: the shared selector's keyframes
 (`app.keyframes`), and between them a frame in which a place the server doubts comes into
-view (the ack's `doubted`, docs/protocol.md).
+view once one more keyframe could settle it (the ack's `doubted`, docs/protocol.md).
 
 A removal needs several keyframes showing the empty place (`app.mapping.living`); at one
 keyframe a second the walk often looks away before they are in. Making the frames that
@@ -30,6 +30,7 @@ something in front of it: occluded, no pick (occlusion is no evidence)."""
 
 def doubted_place_in_view(
     places: np.ndarray,
+    t: float,
     pose: np.ndarray,
     intrinsics: tuple[float, float, float, float],
     rgb_size: tuple[int, int],
@@ -37,14 +38,16 @@ def doubted_place_in_view(
     min_depth_m: float,
     max_depth_m: float,
 ) -> bool:
-    """Whether the frame shows one of `places` (float [K, 4]: x, y, z, radius, metres):
-    its centre inside the image (DOUBT_IMAGE_MARGIN in), at `min_depth_m`..`max_depth_m`
-    from the camera, and the sensed depth there not in front of the place.
+    """Whether the frame (device time `t`) shows one of `places` (float [K, 5]: x, y, z,
+    radius metres, t_ready) whose t_ready has come: its centre inside the image
+    (DOUBT_IMAGE_MARGIN in), at `min_depth_m`..`max_depth_m` from the camera, and the
+    sensed depth there not in front of the place.
 
     pose: float [4, 4] camera-to-world (OpenCV frame); intrinsics (fx, fy, cx, cy) and
     rgb_size (W, H) of the RGB image; depth_m: float [h, w] metres (0: none), the RGB size
     divided by an integer ratio."""
-    places = np.asarray(places, np.float64).reshape(-1, 4)
+    places = np.asarray(places, np.float64).reshape(-1, 5)
+    places = places[places[:, 4] <= t]
     if not len(places):
         return False
     pose = np.asarray(pose, np.float64)
@@ -87,7 +90,7 @@ class KeyframePick:
     """The `absence_min_depth_m` knob: nearer, the server reads no absence."""
     max_depth_m: float
     """The `absence_max_depth_m` knob."""
-    doubted: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.float32))
+    doubted: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
     last_keyframe: int | None = None
     """Seq of the last frame picked."""
     doubt_picks: int = 0
@@ -96,6 +99,7 @@ class KeyframePick:
     def pick(
         self,
         seq: int,
+        t: float,
         pose: np.ndarray,
         intrinsics: tuple[float, float, float, float],
         rgb_size: tuple[int, int],
@@ -109,6 +113,7 @@ class KeyframePick:
         else:
             picked = doubted_place_in_view(
                 self.doubted,
+                t,
                 pose,
                 intrinsics,
                 rgb_size,

@@ -464,7 +464,9 @@ class DeviceClient:
         if pick is not None:
             height, width = frame.rgb.shape[:2]
             picks_before = pick.doubt_picks
-            whole = pick.pick(seq, frame.pose, frame.intrinsics, (width, height), frame.depth_m)
+            whole = pick.pick(
+                seq, frame.t, frame.pose, frame.intrinsics, (width, height), frame.depth_m
+            )
             self.stats.doubt_keyframes += pick.doubt_picks - picks_before
         if whole:
             return encoder.encode_source_frame(frame, seq), position
@@ -635,7 +637,7 @@ class _StreamLink:
         elif reply.keyframe:
             self.stats.keyframes_acked += 1
             if reply.doubted is not None:
-                self.client._pick.doubted = np.asarray(reply.doubted, np.float32).reshape(-1, 4)
+                self.client._pick.doubted = np.asarray(reply.doubted, np.float64).reshape(-1, 5)
             if self.storage_failing:
                 self.storage_failing = False
                 self.storage_backoff.reset()

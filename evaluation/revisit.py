@@ -193,7 +193,7 @@ def _walk_and_map(
         height, width = frame.rgb.shape[:2]
         whole = {
             name: pick.pick(
-                frame.index, frame.pose, frame.intrinsics, (width, height), frame.depth_m
+                frame.index, frame.t, frame.pose, frame.intrinsics, (width, height), frame.depth_m
             )
             for name, pick in picks.items()
         }

@@ -37,8 +37,9 @@ class Ack:
     objects: int | None = None
     """Extension: confirmed objects after this keyframe (packed only when known)."""
     doubted: list[list[float]] | None = None
-    """Extension: [x, y, z, radius] metres of each place the map doubts after this keyframe
-    (a keyframe saw through it; packed only when known, [] for none; at most
+    """Extension: [x, y, z, radius, t_ready] of each place the map doubts after this
+    keyframe (a keyframe saw through it): metres, and the device time from which one more
+    keyframe seeing through it would settle it (packed only when known, [] for none; at most
     MAX_DOUBTED_PLACES). A device with the sightings extension may make a frame showing one
     a keyframe (docs/protocol.md)."""
 
@@ -112,7 +113,8 @@ def _bool(message: dict, key: str, default: bool | None = None) -> bool:
 
 
 def _places(message: dict, key: str) -> list[list[float]] | None:
-    """message[key] as a list of [x, y, z, radius] finite numbers; None where absent."""
+    """message[key] as a list of [x, y, z, radius, t_ready] finite numbers; None where
+    absent."""
     value = message.get(key)
     if value is None:
         return None
@@ -124,13 +126,13 @@ def _places(message: dict, key: str) -> list[list[float]] | None:
     for i, place in enumerate(value):
         if (
             not isinstance(place, list)
-            or len(place) != 4
+            or len(place) != 5
             or not all(
                 not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
                 for v in place
             )
         ):
-            raise InputError(f"{key}[{i}]", "must be 4 finite numbers [x, y, z, radius]")
+            raise InputError(f"{key}[{i}]", "must be 5 finite numbers [x, y, z, radius, t_ready]")
         places.append([float(v) for v in place])
     return places
 

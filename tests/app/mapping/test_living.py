@@ -187,6 +187,7 @@ def test_a_glimpse_of_the_empty_place_and_another_two_seconds_later_remove_it(en
     (place,) = engine.changes.doubted_places()
     np.testing.assert_allclose(place[:3], [-0.4, -0.1, 2.0], atol=0.03)
     assert 0.0 < place[3] < 0.2
+    assert place[4] == 600.0 + engine.knobs.removal_min_span_s  # one more keyframe settles it
     second = walk.see([WALL])
     assert changes([second]) == [(mug, "removed")] and second.changes[0].t == 602.0
     assert not len(engine.changes.doubted_places())

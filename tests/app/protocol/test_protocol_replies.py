@@ -24,7 +24,7 @@ acks = st.builds(
     dropped=st.booleans(),
     update_seq=st.none() | seqs,
     objects=st.none() | st.integers(0, 10**6),
-    doubted=st.none() | st.lists(st.lists(finite, min_size=4, max_size=4), max_size=32),
+    doubted=st.none() | st.lists(st.lists(finite, min_size=5, max_size=5), max_size=32),
 )
 errors = st.builds(ErrorReply, seq=st.none() | seqs, code=st.text(max_size=20), message=st.text())
 
@@ -52,7 +52,7 @@ def test_an_ack_packs_the_v1_fields_and_only_the_extensions_it_has():
 
 
 def test_doubted_places_are_capped_in_the_ack_and_fit_the_reply_limits():
-    many = [[float(i), 0.0, 2.0, 0.1] for i in range(MAX_DOUBTED_PLACES + 10)]
+    many = [[float(i), 0.0, 2.0, 0.1, 600.0] for i in range(MAX_DOUBTED_PLACES + 10)]
     packed = Ack(4, True, 12.0, 2.0, update_seq=9, objects=5, doubted=many).pack()
     assert len(packed["doubted"]) == MAX_DOUBTED_PLACES
     assert unpack_reply(wire(packed)).doubted == many[:MAX_DOUBTED_PLACES]
@@ -85,10 +85,10 @@ MALFORMED = [
     ("update_seq", {**_ack(), "update_seq": 2.5}),
     ("objects", {**_ack(), "objects": "5"}),
     ("doubted", {**_ack(), "doubted": {"x": 1}}),
-    ("doubted[1]", {**_ack(), "doubted": [[0, 0, 1, 0.1], [0, 0, 1]]}),
-    ("doubted[0]", {**_ack(), "doubted": [[0, 0, float("inf"), 0.1]]}),
-    ("doubted[0]", {**_ack(), "doubted": [[0, 0, True, 0.1]]}),
-    ("doubted", {**_ack(), "doubted": [[0, 0, 1, 0.1]] * 33}),
+    ("doubted[1]", {**_ack(), "doubted": [[0, 0, 1, 0.1, 2], [0, 0, 1, 0.1]]}),
+    ("doubted[0]", {**_ack(), "doubted": [[0, 0, float("inf"), 0.1, 2]]}),
+    ("doubted[0]", {**_ack(), "doubted": [[0, 0, True, 0.1, 2]]}),
+    ("doubted", {**_ack(), "doubted": [[0, 0, 1, 0.1, 2]] * 33}),
     ("seq", {**_error(), "seq": 1.0}),
     ("code", _without(_error(), "code")),
     ("message", {**_error(), "message": 5}),
