@@ -7,9 +7,11 @@ forever until `stop()`):
   `max_in_flight` frames wait for their ack. Frames are samples, not a log: a frame due
   while the link is down is skipped (counted in `dropped`), never queued or resent. The
   device offers the sightings extension (app/protocol/sighting.py); where the server
-  selects it, the device picks the keyframes (`app.keyframes`, the server's own selector)
-  and sends only those whole, and between them a `sighting` of each frame's detections (a
-  frame without detections then has nothing to send). Otherwise every frame goes whole.
+  selects it, the device picks the keyframes (`app.keyframes`, the server's own selector,
+  and a frame showing a place the newest keyframe's ack says the map doubts:
+  `client_sim.keyframe_pick`) and sends only those whole, and between them a `sighting` of
+  each frame's detections (a frame without detections then has nothing to send). Otherwise
+  every frame goes whole.
 - `/v1/sessions/{sid}/updates` (`DeviceClient.follow_updates`, an
   `app.client.UpdatesSubscriber`): deltas down, applied to the `LocalMap`. After a
   disconnect it resumes from `local_map.seq` (the server sends what changed since, so no
@@ -40,6 +42,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import msgpack
+import numpy as np
 from websockets.asyncio.client import ClientConnection
 
 from app.client import (
@@ -55,7 +58,6 @@ from app.client import (
 )
 from app.client.connection import describe, sleep_unless, until
 from app.config import Knobs
-from app.keyframes import is_keyframe
 from app.protocol import (
     SIGHTINGS_SUBPROTOCOL,
     ErrorReply,
@@ -65,6 +67,7 @@ from app.protocol import (
     unpack_update,
 )
 from client_sim.encoder import EncodedFrame, FrameEncoder, session_encoder_options
+from client_sim.keyframe_pick import KeyframePick
 from client_sim.local_map import DeltaError, LocalMap
 from client_sim.sources.base import FrameSource
 
@@ -100,6 +103,9 @@ class DeviceStats:
     """Frames written to the stream socket (whole frames and sightings)."""
     sightings_sent: int = 0
     """Of `frames_sent`, sightings (the sightings extension: frames between keyframes)."""
+    doubt_keyframes: int = 0
+    """Of the frames sent whole with the sightings extension, those picked for showing a
+    place the map doubts (not the shared selector's keyframes)."""
     acks: int = 0
     """Acks received (keyframes and others, including keyframes the server superseded)."""
     errors: int = 0
@@ -213,6 +219,13 @@ class DeviceClient:
         self._links: set[_StreamLink] = set()
         self._updates: UpdatesSubscriber | None = None
         self._next_seq = 0  # frame seq across stream() calls: unique per device
+        self._pick = KeyframePick(
+            self.knobs.keyframe_interval,
+            self.knobs.absence_min_depth_m,
+            self.knobs.absence_max_depth_m,
+        )
+        """Which frames go whole with the sightings extension; its doubted places come
+        with keyframe acks."""
 
     # --- session set-up (REST) ------------------------------------------------------------
 
@@ -410,10 +423,10 @@ class DeviceClient:
                 elif not await link.wait_for_slot(wait_for_link=True):
                     break  # stopped
                 seq, self._next_seq = self._next_seq, self._next_seq + 1
-                # With the extension, a frame the shared selector does not pick is sighted.
-                sighting = link.sightings and not is_keyframe(seq, self.knobs.keyframe_interval)
+                # With the extension, a frame the device's pick does not take is sighted.
+                pick = self._pick if link.sightings else None
                 encoded, position = await asyncio.to_thread(
-                    self._capture, source, index, seq, encoder, sighting
+                    self._capture, source, index, seq, encoder, pick
                 )
                 if encoded is None:
                     continue  # a sighting without detections: nothing to send
@@ -433,16 +446,29 @@ class DeviceClient:
             self._links.discard(link)
         return self.stats.copy()
 
-    @staticmethod
     def _capture(
-        source: FrameSource, index: int, seq: int, encoder: FrameEncoder, sighting: bool
+        self,
+        source: FrameSource,
+        index: int,
+        seq: int,
+        encoder: FrameEncoder,
+        pick: KeyframePick | None,
     ) -> tuple[EncodedFrame | None, list[float]]:
         """In a worker thread: read (render) frame `index` and encode it as frame `seq`, whole
-        or as a sighting (None: a sighting of a frame without detections); slow (rendering,
-        JPEG, zstd): off the loop so acks and deltas keep flowing."""
+        or, where `pick` (the sightings extension) does not take it, as a sighting (None: a
+        sighting of a frame without detections); slow (rendering, JPEG, zstd): off the loop
+        so acks and deltas keep flowing."""
         frame = source.frame(index)
         position = [float(v) for v in frame.pose[:3, 3]]
-        if not sighting:
+        whole = pick is None
+        if pick is not None:
+            height, width = frame.rgb.shape[:2]
+            picks_before = pick.doubt_picks
+            whole = pick.pick(
+                seq, frame.t, frame.pose, frame.intrinsics, (width, height), frame.depth_m
+            )
+            self.stats.doubt_keyframes += pick.doubt_picks - picks_before
+        if whole:
             return encoder.encode_source_frame(frame, seq), position
         if frame.instance_ids is None:
             return None, position
@@ -610,6 +636,8 @@ class _StreamLink:
             self.stats.superseded += 1
         elif reply.keyframe:
             self.stats.keyframes_acked += 1
+            if reply.doubted is not None:
+                self.client._pick.doubted = np.asarray(reply.doubted, np.float64).reshape(-1, 5)
             if self.storage_failing:
                 self.storage_failing = False
                 self.storage_backoff.reset()

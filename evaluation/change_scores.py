@@ -30,11 +30,11 @@ class ConcludedChange:
 
 @dataclass(frozen=True)
 class TrueChange:
-    """A change of the world. t_evidence: device time of the first keyframe that showed the
-    evidence the map needs (its old place without it, its new place with it); None when no
-    keyframe did. t_bound: the earliest time the map's settled rules could conclude it from
-    what the walk showed (a removal needs several keyframes showing the empty place, and the
-    walk may look away between them); None: t_evidence."""
+    """A change of the world. t_evidence: device time of the first frame (keyframe or not)
+    that showed the evidence the map needs (its old place without it, its new place with it);
+    None when no frame did. t_bound: the earliest time the map's settled rules could conclude
+    it from what the walk's regular keyframes showed (a removal needs several keyframes
+    showing the empty place, and the walk may look away between them); None: t_evidence."""
 
     instance: int
     kind: str
@@ -77,7 +77,16 @@ def _rates(
             delays.append(delay)
             beyond.append(max(0.0, change.t - bound))
             walk_bound.append(bound - true.t_evidence)
-        matched.append({"instance": change.instance, "kind": change.kind, "delay_s": delay})
+        matched.append(
+            {
+                "instance": change.instance,
+                "kind": change.kind,
+                "delay_s": delay,
+                "t": change.t,
+                "t_evidence": true.t_evidence,
+                "t_bound": true.t_bound,
+            }
+        )
     precision = hits / len(concluded) if concluded else 1.0
     recall = hits / len(truth) if truth else 1.0
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
@@ -92,7 +101,10 @@ def _rates(
         "true": len(truth),
         "matched": matched,
         "wrong": wrong,
-        "missed": [{"instance": c.instance, "kind": c.kind} for c in unmatched.values()],
+        "missed": [
+            {"instance": c.instance, "kind": c.kind, "t_evidence": c.t_evidence}
+            for c in unmatched.values()
+        ],
         "walk_bound_s": _percentiles(walk_bound),
         "beyond_walk_bound_s": _percentiles(beyond),
     }, delays
@@ -102,7 +114,7 @@ def score_changes(concluded: Sequence[ConcludedChange], truth: Sequence[TrueChan
     """The `changes` figures of `semanticxr eval --scenario revisit` for moved and removed
     (pooled), with `added` apart under "added". Rates are fractions 0..1; times seconds.
 
-    `time_to_update_s` runs from the first keyframe that showed the evidence; `walk_bound_s`
+    `time_to_update_s` runs from the first frame that showed the evidence; `walk_bound_s`
     is how much of that the walk itself imposes (from the first showing keyframe to the
     earliest the rules could conclude); `beyond_walk_bound_s` is the map's own delay."""
     main = [c for c in concluded if c.kind != "added"]

@@ -386,6 +386,28 @@ class ChangeDetector:
             self.map.knobs,
         )
 
+    def doubted_places(self) -> np.ndarray:
+        """float64 [K, 5]: (x, y, z, radius, t_ready) of the place of each suspect object
+        with depth evidence (a keyframe saw through it), the places the map doubts; metres,
+        and the device time from which one more keyframe seeing through it would remove it
+        (its first depth evidence + `removal_min_span_s`) (docs/protocol.md, the ack's `doubted`: a device that picks its
+        keyframes makes one when such a place comes into view, so the evidence that settles
+        the doubt arrives within a glance). The centre is the median of a sample of its
+        points and the radius the 90th percentile of their distances from it (strays do not
+        stretch the place)."""
+        places = []
+        for obj in self._suspected_objects():
+            # thin evidence alone is weak (a detector missing a big thing gives it) and
+            # needs two viewpoints anyway: only a place seen through is worth a keyframe
+            if not len(obj.points) or not any(e.kind == "depth" for e in self.suspects[obj.id]):
+                continue
+            sample = living.object_sample(obj.points).astype(np.float64)
+            centre = np.median(sample, axis=0)
+            radius = float(np.percentile(np.linalg.norm(sample - centre, axis=1), 90))
+            first = min(e.t for e in self.suspects[obj.id] if e.kind == "depth")
+            places.append((*centre, radius, first + self.map.knobs.removal_min_span_s))
+        return np.asarray(places, np.float64).reshape(-1, 5)
+
     def clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
         """A sighting that shows a suspect object where it was clears its suspicion: at
         least SIGHTING_MIN_POINTS of its points at the sensed depth (the evidence test's

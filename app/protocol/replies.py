@@ -2,7 +2,8 @@
 
 Extensions of v1 (optional fields a v1 client may ignore) on acks: `dropped` (a keyframe was
 superseded by a newer one before it was mapped), `update_seq` (the map's seq after mapping
-it) and `objects` (confirmed objects after mapping it).
+it), `objects` (confirmed objects after mapping it) and `doubted` (the places the map doubts
+after mapping it, for a device that picks its keyframes).
 """
 
 from __future__ import annotations
@@ -14,6 +15,9 @@ from typing import Any
 
 from app.errors import InputError
 from app.protocol.limits import REPLY_LIMITS, unpack_limited
+
+MAX_DOUBTED_PLACES = 32
+"""At most this many doubted places go in one ack (within `REPLY_LIMITS`)."""
 
 
 @dataclass
@@ -32,6 +36,12 @@ class Ack:
     """Extension: the map's seq after this keyframe (packed only when known)."""
     objects: int | None = None
     """Extension: confirmed objects after this keyframe (packed only when known)."""
+    doubted: list[list[float]] | None = None
+    """Extension: [x, y, z, radius, t_ready] of each place the map doubts after this
+    keyframe (a keyframe saw through it): metres, and the device time from which one more
+    keyframe seeing through it would settle it (packed only when known, [] for none; at most
+    MAX_DOUBTED_PLACES). A device with the sightings extension may make a frame showing one
+    a keyframe (docs/protocol.md)."""
 
     def pack(self) -> dict:
         """The v1 `ack` message, ready for `msgpack.packb`."""
@@ -48,6 +58,10 @@ class Ack:
             message["update_seq"] = self.update_seq
         if self.objects is not None:
             message["objects"] = self.objects
+        if self.doubted is not None:
+            message["doubted"] = [
+                [float(v) for v in place] for place in self.doubted[:MAX_DOUBTED_PLACES]
+            ]
         return message
 
 
@@ -98,6 +112,31 @@ def _bool(message: dict, key: str, default: bool | None = None) -> bool:
     return value
 
 
+def _places(message: dict, key: str) -> list[list[float]] | None:
+    """message[key] as a list of [x, y, z, radius, t_ready] finite numbers; None where
+    absent."""
+    value = message.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, list):
+        raise InputError(key, f"must be a list, got {type(value).__name__}")
+    if len(value) > MAX_DOUBTED_PLACES:
+        raise InputError(key, f"holds {len(value)} places, at most {MAX_DOUBTED_PLACES}")
+    places = []
+    for i, place in enumerate(value):
+        if (
+            not isinstance(place, list)
+            or len(place) != 5
+            or not all(
+                not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
+                for v in place
+            )
+        ):
+            raise InputError(f"{key}[{i}]", "must be 5 finite numbers [x, y, z, radius, t_ready]")
+        places.append([float(v) for v in place])
+    return places
+
+
 def _str(message: dict, key: str) -> str:
     value = message.get(key)
     if not isinstance(value, str):
@@ -127,6 +166,7 @@ def parse_reply(message: Any) -> Ack | ErrorReply:
         dropped=_bool(message, "dropped", default=False),
         update_seq=_int(message, "update_seq", optional=True),
         objects=_int(message, "objects", optional=True),
+        doubted=_places(message, "doubted"),
     )
 
 

@@ -28,7 +28,7 @@ def test_right_object_and_kind_count_once_added_apart():
     assert scores["added"]["time_to_update_s"]["p50"] == pytest.approx(1.5)
     assert [m["instance"] for m in scores["matched"]] == [1]
     assert scores["matched"][0]["delay_s"] == pytest.approx(2.0)
-    assert scores["missed"] == [{"instance": 2, "kind": "removed"}]
+    assert scores["missed"] == [{"instance": 2, "kind": "removed", "t_evidence": 20.0}]
 
 
 def test_nothing_concluded_is_perfect_precision_and_no_recall():

@@ -146,6 +146,14 @@ def test_removal_needs_three_keyframes_and_a_time_span_or_two_viewpoints():
     assert living.removal_due(turned, knobs)
 
 
+def test_two_keyframes_seeing_through_the_place_a_span_apart_are_enough():
+    knobs = Knobs()
+    assert living.removal_due([_evidence("depth", t) for t in (0, 1.5)], knobs)
+    assert not living.removal_due([_evidence("depth", t) for t in (0, 1.4)], knobs)
+    assert not living.removal_due([_evidence("thin", t) for t in (0, 5)], knobs)
+    assert not living.removal_due([_evidence("depth", 0), _evidence("thin", 3)], knobs)
+
+
 # ---------------------------------------------------------------------- the engine
 def test_a_thing_taken_away_is_removed_and_kept_as_history(encoder):
     engine = make_engine(encoder)
@@ -165,6 +173,24 @@ def test_a_thing_taken_away_is_removed_and_kept_as_history(encoder):
     assert mug not in engine.objects
     assert stats.changes[0].t == 602.0  # the third keyframe of evidence concluded it
     np.testing.assert_allclose(stats.changes[0].from_xyz, [-0.4, -0.1, 2.0], atol=0.03)
+
+
+def test_a_glimpse_of_the_empty_place_and_another_two_seconds_later_remove_it(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 3)
+    (mug,) = mug_ids(engine)
+    assert not len(engine.changes.doubted_places())
+    walk.t = 600.0
+    first = walk.see([WALL], dt=2.0)  # then the walk looks elsewhere for two seconds
+    assert not first.changes
+    (place,) = engine.changes.doubted_places()
+    np.testing.assert_allclose(place[:3], [-0.4, -0.1, 2.0], atol=0.03)
+    assert 0.0 < place[3] < 0.2
+    assert place[4] == 600.0 + engine.knobs.removal_min_span_s  # one more keyframe settles it
+    second = walk.see([WALL])
+    assert changes([second]) == [(mug, "removed")] and second.changes[0].t == 602.0
+    assert not len(engine.changes.doubted_places())
 
 
 def test_a_thing_hidden_behind_something_new_stays(encoder):

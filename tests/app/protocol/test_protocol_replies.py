@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from app.errors import InputError
 from app.protocol import Ack, ErrorReply, parse_reply, unpack_reply
+from app.protocol.replies import MAX_DOUBTED_PLACES
 
 FEW = settings(max_examples=60, deadline=None)
 seqs = st.integers(0, 2**63 - 1)
@@ -23,6 +24,7 @@ acks = st.builds(
     dropped=st.booleans(),
     update_seq=st.none() | seqs,
     objects=st.none() | st.integers(0, 10**6),
+    doubted=st.none() | st.lists(st.lists(finite, min_size=5, max_size=5), max_size=32),
 )
 errors = st.builds(ErrorReply, seq=st.none() | seqs, code=st.text(max_size=20), message=st.text())
 
@@ -45,8 +47,15 @@ def test_an_ack_packs_the_v1_fields_and_only_the_extensions_it_has():
         "keyframe": False,
         "map_ms": 0.0,
     }
-    extended = Ack(4, True, 12.0, 2.0, dropped=True, update_seq=9, objects=5).pack()
-    assert list(extended)[5:] == ["dropped", "update_seq", "objects"]
+    extended = Ack(4, True, 12.0, 2.0, dropped=True, update_seq=9, objects=5, doubted=[]).pack()
+    assert list(extended)[5:] == ["dropped", "update_seq", "objects", "doubted"]
+
+
+def test_doubted_places_are_capped_in_the_ack_and_fit_the_reply_limits():
+    many = [[float(i), 0.0, 2.0, 0.1, 600.0] for i in range(MAX_DOUBTED_PLACES + 10)]
+    packed = Ack(4, True, 12.0, 2.0, update_seq=9, objects=5, doubted=many).pack()
+    assert len(packed["doubted"]) == MAX_DOUBTED_PLACES
+    assert unpack_reply(wire(packed)).doubted == many[:MAX_DOUBTED_PLACES]
 
 
 def _ack() -> dict:
@@ -75,6 +84,11 @@ MALFORMED = [
     ("dropped", {**_ack(), "dropped": "yes"}),
     ("update_seq", {**_ack(), "update_seq": 2.5}),
     ("objects", {**_ack(), "objects": "5"}),
+    ("doubted", {**_ack(), "doubted": {"x": 1}}),
+    ("doubted[1]", {**_ack(), "doubted": [[0, 0, 1, 0.1, 2], [0, 0, 1, 0.1]]}),
+    ("doubted[0]", {**_ack(), "doubted": [[0, 0, float("inf"), 0.1, 2]]}),
+    ("doubted[0]", {**_ack(), "doubted": [[0, 0, True, 0.1, 2]]}),
+    ("doubted", {**_ack(), "doubted": [[0, 0, 1, 0.1, 2]] * 33}),
     ("seq", {**_error(), "seq": 1.0}),
     ("code", _without(_error(), "code")),
     ("message", {**_error(), "message": 5}),
