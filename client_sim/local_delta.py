@@ -39,6 +39,7 @@ class ParsedDelta:
     n_obs: np.ndarray  # int64 [m]
     last_seen_t: np.ndarray  # float64 [m], device-clock seconds, NaN where not sent
     removed: list[int]
+    label_texts: dict[str, tuple[str, ...]]  # the labels' texts the server sent, by label
 
 
 def cap_points(points: np.ndarray, max_points: int, oid: int, version: int) -> np.ndarray:
@@ -72,6 +73,7 @@ def read_upserts(delta: DeltaMessage, dim: int, max_points: int) -> ParsedDelta:
     n_obs = np.empty(m, np.int64)
     last_seen_t = np.full(m, np.nan, np.float64)
     labels: list[str] = []
+    label_texts: dict[str, tuple[str, ...]] = {}
     embeddings = np.empty((m, dim), np.float16)
     bboxes = np.empty((m, 6), np.float32)
     centroids = np.empty((m, 3), np.float32)
@@ -84,6 +86,8 @@ def read_upserts(delta: DeltaMessage, dim: int, max_points: int) -> ParsedDelta:
         if upsert.last_seen_t is not None:  # an older server sends none: NaN stays
             last_seen_t[i] = upsert.last_seen_t
         labels.append(sys.intern(upsert.label))  # thousands of objects share a few labels
+        if upsert.label_texts is not None:  # an older server sends none: the label alone
+            label_texts[labels[-1]] = upsert.label_texts
         bboxes[i] = upsert.bbox
         embeddings[i] = upsert.embedding
         points = upsert.points
@@ -113,4 +117,5 @@ def read_upserts(delta: DeltaMessage, dim: int, max_points: int) -> ParsedDelta:
         n_obs=n_obs,
         last_seen_t=last_seen_t,
         removed=delta.removed,
+        label_texts=label_texts,
     )

@@ -160,6 +160,9 @@ class LocalMap:
         # label as an int; compacted when labels no longer held pile up
         self._label_codes: dict[str, int] = {}
         self._code_labels: list[str] = []
+        # label -> the texts the server sent with it (the match rule's input; a label the
+        # server sent none for is rated by the shipped background's texts, else alone)
+        self._label_texts: dict[str, tuple[str, ...]] = {}
 
         self.set_policy(
             budget_mb=budget_mb,
@@ -202,6 +205,10 @@ class LocalMap:
             "n_obs": int(rows["n_obs"][row]),
             "last_seen_t": _seconds_or_none(float(rows["last_seen_t"][row])),
         }
+
+    def label_texts(self) -> dict[str, tuple[str, ...]]:
+        """label -> its texts as the server sent them (`rate_hits`' label_texts)."""
+        return self._label_texts
 
     def labels(self) -> list[str]:
         """The distinct labels of the held objects."""
@@ -311,8 +318,10 @@ class LocalMap:
         delta = self._parse(message)
         if delta.full:
             self._clear()
+            self._label_texts = {}
         else:
             self._remove_ids(delta.removed)
+        self._label_texts.update(delta.label_texts)
         self._upsert(delta)
         self.seq = delta.seq
         self._store.trim()  # memory follows the object count
@@ -570,7 +579,7 @@ class LocalMap:
                 columns["embedding"], columns["scale"], rows[positions], query
             ),
         )
-        return ask(reading, things, relations, encoder, position, k)
+        return ask(reading, things, relations, encoder, position, k, self._label_texts)
 
     def _labels_by_row(self) -> tuple[list[str], np.ndarray, np.ndarray]:
         """(the distinct labels held, each row's label int [n] as an index into them, the

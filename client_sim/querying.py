@@ -46,7 +46,14 @@ import numpy as np
 
 from app.answering.ask import relational_reading
 from app.answering.phrases import phrases_of
-from app.answering.relevance import is_match, rate_hits, rater_for
+from app.answering.relevance import (
+    LabelTexts,
+    background_texts,
+    is_match,
+    rate_hits,
+    rater_for,
+    texts_of,
+)
 from app.answering.things import is_match as is_relational_match
 from app.client import SessionApi
 from app.mapping.places import up_vector
@@ -388,7 +395,9 @@ class QueryRouter:
         hits = self.local_map.query_embedding(embedding, k)
         labels = [hit.label for hit in hits]
         # Rated as the server rates SQ hits; off the loop (the first one embeds the vocabulary).
-        rating = await asyncio.to_thread(rate_hits, self.encoder, embedding, labels)
+        rating = await asyncio.to_thread(
+            rate_hits, self.encoder, embedding, labels, self.local_map.label_texts()
+        )
         now_s = time.perf_counter()
         return QueryAnswer(
             text=text,
@@ -429,7 +438,9 @@ class QueryRouter:
         # the answer finds them) and, once, the rater's vocabulary. The map is read on the
         # loop, the only place it is touched.
         labels = self.local_map.labels()
-        await asyncio.to_thread(_prepare, self.encoder, phrases_of(reading), labels)
+        await asyncio.to_thread(
+            _prepare, self.encoder, phrases_of(reading), labels, self.local_map.label_texts()
+        )
         hits = self.local_map.relational_query(reading, self.encoder, up=self.up_axis(), k=k)
         if hits is None:
             return None
@@ -480,9 +491,14 @@ def _unanswered(text: str, reason: str, start_s: float, rtt: float | None) -> Qu
     )
 
 
-def _prepare(encoder: TextEncoder, phrases: list[str], labels: list[str]) -> None:
+def _prepare(
+    encoder: TextEncoder, phrases: list[str], labels: list[str], label_texts: LabelTexts
+) -> None:
     """In a worker thread: what a relational answer embeds, into the encoder's caches (the
-    phrases, the map's labels, the rater's vocabulary)."""
+    phrases, the map's labels and their texts, the rater's vocabulary)."""
     encoder.encode(phrases)
     encoder.encode(labels)
+    encoder.encode(
+        [t for label in labels for t in texts_of(label, label_texts, background_texts())]
+    )
     rater_for(encoder)

@@ -48,6 +48,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from app.answering.ask import ask
+from app.answering.label_knowledge import SERVED_LABEL_TEXTS, served_texts
 from app.answering.relevance import CONFIDENT, rate_hits
 from app.answering.things import MapThing, RelationalHit, is_match
 from app.config import Knobs
@@ -260,7 +261,7 @@ def _map_walk(
 
 def _publish(engine: MappingEngine, local_map: LocalMap, since: int) -> int:
     """Hand the device the engine's update since `since`; the new seq."""
-    update = update_message(engine, since)
+    update = update_message(engine, since, served_texts)
     local_map.apply_delta(update)
     return update[SEQ_FIELD]
 
@@ -374,7 +375,7 @@ def _perfect_view(scene, gt, encoder: TextEncoder, viewer: np.ndarray, max_point
 def _ask(text: str, view: _MapView, encoder: TextEncoder) -> _Answer:
     """The server's answer (`Session.relational_query`, else `Session.rated_query`)."""
     k = max(len(view.things), 1)  # the whole ranking, to tell why an answer lost
-    hits = ask(text, view.things, view.index, encoder, view.viewer, k)
+    hits = ask(text, view.things, view.index, encoder, view.viewer, k, SERVED_LABEL_TEXTS)
     if hits is not None:
         return _Answer(True, hits[0].id if hits else None, is_match(hits[:ANSWER_K]), hits)
     return _plain(text, view, encoder)
@@ -384,7 +385,7 @@ def _plain(text: str, view: _MapView, encoder: TextEncoder) -> _Answer:
     """Today's ranking and its rating (the plain path, whatever the question says)."""
     embedding = encoder.encode_query(text)
     hits = view.rank(embedding, ANSWER_K)
-    rating = rate_hits(encoder, embedding, [h.label for h in hits])
+    rating = rate_hits(encoder, embedding, [h.label for h in hits], SERVED_LABEL_TEXTS)
     return _Answer(False, hits[0].id if hits else None, rating.match)
 
 

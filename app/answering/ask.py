@@ -16,6 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from app.answering.relational import answer
+from app.answering.relevance import LabelTexts
 from app.answering.things import MapThing, MapThings, RelationalHit
 from app.relations.grammar import Reading, is_relational, parse
 from app.relations.source import RelationSource
@@ -36,15 +37,17 @@ def ask(
     encoder: TextEncoder,
     viewer: np.ndarray | None = None,
     k: int = 5,
+    label_texts: LabelTexts | None = None,
 ) -> list[RelationalHit] | None:
     """The top-k objects answering a question about how things stand, best first; None: a
     plain question, or one to answer as plain (an anchor the map holds nothing confident of,
     a question seen from the asker with no position).
 
     things: the map's objects, each with its geometry in `relations` under its id (same up
-    axis); viewer: the asker's position float [3], metres, world frame (None: unknown).
+    axis); viewer: the asker's position float [3], metres, world frame (None: unknown);
+    label_texts: the labels' texts the match rule reads (None: each label alone).
     """
     reading = relational_reading(question)
     if reading is None:
         return None
-    return answer(reading, things, relations, encoder, viewer, k)
+    return answer(reading, things, relations, encoder, viewer, k, label_texts)

@@ -8,7 +8,7 @@ from functools import cached_property
 import numpy as np
 
 from app.answering.phrases import head_noun, same_head
-from app.answering.relevance import CONFIDENT, QueryRater
+from app.answering.relevance import CONFIDENT, LabelTexts, QueryRater
 from app.answering.things import MapThings
 from app.relations.between import between_degrees
 from app.relations.bodies import Body
@@ -33,10 +33,17 @@ table" for the phrase "table"), yet in a question about a map the phrase means t
 class Grounding:
     """A phrase's relevance to every object (rated per label, as a plain query's hits)."""
 
-    def __init__(self, rater: QueryRater, phrase: str, embedding: np.ndarray, things: MapThings):
+    def __init__(
+        self,
+        rater: QueryRater,
+        phrase: str,
+        embedding: np.ndarray,
+        things: MapThings,
+        label_texts: LabelTexts | None = None,
+    ):
         self.embedding = embedding
         labels = list(things.labels)
-        rating = rater.rate(embedding, labels)
+        rating = rater.rate(embedding, labels, label_texts)
         by_label = np.array(
             [
                 max(rated, HEAD_NOUN_RELEVANCE) if same_head(phrase, label) else rated
@@ -75,8 +82,11 @@ class Question:
         rater: QueryRater,
         embeddings: dict[str, np.ndarray],
         viewer: np.ndarray | None,
+        label_texts: LabelTexts | None = None,
     ):
+        """label_texts: the labels' texts the rater reads (None: each label alone)."""
         self.things, self.index, self.viewer = things, index, viewer
+        self.label_texts = label_texts
         self.up = index.up
         self._rater, self._embeddings = rater, embeddings
         self._groundings: dict[str, Grounding] = {}
@@ -87,7 +97,7 @@ class Question:
     def ground(self, phrase: str) -> Grounding:
         if phrase not in self._groundings:
             self._groundings[phrase] = Grounding(
-                self._rater, phrase, self.embedding(phrase), self.things
+                self._rater, phrase, self.embedding(phrase), self.things, self.label_texts
             )
         return self._groundings[phrase]
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from app.answering.phrases import anchor_phrases_of, phrases_of, target_phrase_of
 from app.answering.question import NO_ANCHOR, Clause, Question
-from app.answering.relevance import rater_for
+from app.answering.relevance import LabelTexts, rater_for
 from app.answering.superlative import SuperlativePart
 from app.answering.things import HitRelation, MapThing, MapThings, RelationalHit
 from app.relations.grammar import Reading, is_relational
@@ -57,9 +57,11 @@ def answer(
     encoder: TextEncoder,
     viewer: np.ndarray | None = None,
     k: int = 5,
+    label_texts: LabelTexts | None = None,
 ) -> list[RelationalHit] | None:
     """The top-k objects answering a relational reading, best first; None when the caller
-    should answer as a plain query (see the module docstring).
+    should answer as a plain query (see the module docstring). label_texts: the labels'
+    texts the phrases are rated against (app.answering.relevance; None: each label alone).
 
     things: the map's objects (in any order), each with its geometry in `index` under its id
     (same up axis); viewer: the asker's position float [3], metres, world frame (None:
@@ -75,7 +77,12 @@ def answer(
     phrases = phrases_of(reading)
     embedded = encoder.encode(phrases).astype(np.float32)  # one call; labels are cached
     q = Question(
-        things, index, rater_for(encoder), dict(zip(phrases, embedded, strict=True)), viewer
+        things,
+        index,
+        rater_for(encoder),
+        dict(zip(phrases, embedded, strict=True)),
+        viewer,
+        label_texts,
     )
     if not all(q.is_floor(a) or q.ground(a).confident for a in anchor_phrases):
         return None

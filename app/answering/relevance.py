@@ -3,45 +3,52 @@
 Raw cosine scores do not say whether anything matches: "xyzzy plugh" scores 0.33 against a
 coffee maker, "the milk cold" 0.35 against the refrigerator it means. What does tell them
 apart is how the query scores against a hit's *label* compared with every other label it
-could have meant: the label vocabulary (the `models` backend's indoor vocabulary, a few
-everyday things people lose, and the hits' own labels), all embedded by the session's
-encoder. Two numbers, both in standard deviations of the query's scores over that
-vocabulary, so they do not depend on the encoder's cosine scale:
+could have meant: a fixed background vocabulary (the `models` backend's indoor vocabulary and
+a few everyday things people lose). A label is scored by the best cosine over its *texts*:
+the label, its synonyms, what it is and what kind of thing it is, from WordNet
+(app.answering.label_knowledge), so "my rucksack" finds a backpack and "where can I sit down
+to watch a movie" a sofa; the background labels are scored over theirs the same way
+(`background_texts`, shipped in this package). Three numbers, in standard deviations of the
+query's scores over the background, so they do not depend on the encoder's cosine scale:
 
-- `z`: how far the hit's label stands out from the vocabulary. A real query singles out a
-  few labels (z >= 3.2); a nonsense query scores them all alike (z ~ 2).
-- `gap`: how far the hit's label is behind the best label of the vocabulary. "keys" on a
-  map without keys finds a keyboard, but the label "keys" scores far above it (gap 5).
+- `z`: how far the hit's label (over its texts) stands out from the background. A real
+  query singles out a few labels; a nonsense query scores them all alike.
+- `gap`: how far the hit's label is behind the best background label not *alike* it (label
+  names at cosine >= alike_cosine): "keys" on a map without keys finds a keyboard, but the
+  label "keys" scores far above it; "the bedside table" names a nightstand, and the
+  background's own "bedside table" is alike it, so it does not count against it.
+- `z_name`: how far the label's name alone stands out (a name the query says outright).
 
-A hit is a confident match when z >= MATCH_MIN_Z and gap <= MATCH_MAX_GAP_Z; its relevance
-is the smaller of two ramps that cross 0.5 exactly at those limits, so `relevance >= 0.5`
-and "confident match" are one test. Measured with all-MiniLM-L6-v2 on the synthetic
-categories' names and paraphrases: 89 % of the queries whose object is in a 20-category map
-match it, 10 % of those whose object is absent match an unrelated one (`python -m
-bench.relevance`). Server (SQ) and device (LQ) both rate their hits here, so both answer
-alike.
+A hit's relevance is a ramp of a calibrated linear score of the three, w . (z, gap, z_name)
++ bias, crossing CONFIDENT where the score is 0: `relevance >= 0.5` and "confident match"
+are one test. The weights, bias and alike_cosine are fitted per text tower by `python -m
+bench.relevance --calibrate` on the synthetic categories' names and paraphrases (never on the
+held-out wordings of bench/data/wordings/) and shipped in `match_rules.json`, keyed by the
+session's `embedding.model`. Server (SQ) and device (LQ) both rate their hits here with the
+same label texts (the server serves them with the session's labels), so both answer alike.
 """
 
 from __future__ import annotations
 
+import functools
+import json
+import logging
 import threading
 import weakref
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
+from typing import NamedTuple
 
 import numpy as np
 
 from app.semantics import TextEncoder
 
-MATCH_MIN_Z = 3.2
-"""Least standing-out (vocabulary standard deviations) of a confidently matched label."""
-MATCH_MAX_GAP_Z = 2.0
-"""Most a matched label may trail the query's best vocabulary label (standard deviations)."""
-RAMP_Z = 1.0
-"""Half-width of the z ramp: relevance goes 0 -> 1 over MATCH_MIN_Z -/+ RAMP_Z."""
-RAMP_GAP_Z = 2.0
-"""Half-width of the gap ramp: relevance goes 1 -> 0 over MATCH_MAX_GAP_Z -/+ RAMP_GAP_Z."""
+log = logging.getLogger(__name__)
+
+RAMP = 2.0
+"""Half-width of the relevance ramp in units of the linear score: relevance goes 0 -> 1 over
+score -RAMP .. +RAMP (0 at the limit)."""
 CONFIDENT = 0.5
 """Relevance from which a hit is a confident match."""
 
@@ -60,6 +67,62 @@ def background_vocabulary() -> list[str]:
 
 
 @dataclass(frozen=True)
+class MatchRule:
+    """A text tower's match rule (`python -m bench.relevance --calibrate` fits it):
+    score = w_z z + w_gap gap + w_name z_name + bias, a confident match from 0."""
+
+    w_z: float = 0.9
+    """Weight of the label's standing-out over its texts."""
+    w_gap: float = -0.6
+    """Weight of how far the label trails the best background label not alike it."""
+    w_name: float = 0.6
+    """Weight of the label name's own standing-out."""
+    bias: float = -5.0
+    """The score of a label that stands out by nothing."""
+    alike_cosine: float = 0.7
+    """Cosine of two label names from which they are alike (the gap ignores alike labels)."""
+
+    def score(self, z: float, gap: float, z_name: float) -> float:
+        return self.w_z * z + self.w_gap * gap + self.w_name * z_name + self.bias
+
+
+RULES_RESOURCE = "match_rules.json"
+"""The calibration record in this package: {"towers": {embedding.model: {w_z, w_gap, w_name,
+bias, alike_cosine, ...}}} (extra keys say what it was calibrated on)."""
+BACKGROUND_TEXTS_RESOURCE = "background_texts.json"
+"""The background vocabulary's label texts in this package ({label: [text, ...]}), read from
+WordNet when calibrating, so every end holds the same without WordNet."""
+
+
+def rule_for(model_id: str) -> MatchRule:
+    """The calibrated rule of a text tower by its `embedding.model` name; for a tower without
+    a record, the first record's rule (its inputs are in standard deviations, so it carries
+    over roughly) and a warning, or MatchRule() when there is none."""
+    towers = _read_resource(RULES_RESOURCE).get("towers", {})
+    record = towers.get(model_id)
+    if record is None:
+        log.warning("no match calibration for text tower %r: another tower's rule", model_id)
+        record = next(iter(towers.values()), {})
+    fields = MatchRule.__dataclass_fields__
+    return MatchRule(**{k: float(v) for k, v in record.items() if k in fields})
+
+
+@functools.cache
+def background_texts() -> dict[str, tuple[str, ...]]:
+    """The background vocabulary's label texts shipped in this package (empty when absent:
+    each label its own text). Every end holds them: a background label's texts need not be
+    served."""
+    return {k: tuple(v) for k, v in _read_resource(BACKGROUND_TEXTS_RESOURCE).items()}
+
+
+def _read_resource(name: str) -> dict:
+    resource = resources.files("app.answering").joinpath(name)
+    if not resource.is_file():
+        return {}
+    return json.loads(resource.read_text("utf-8"))
+
+
+@dataclass(frozen=True)
 class Rating:
     """The hits of one query, rated."""
 
@@ -74,62 +137,119 @@ def is_match(relevances: Sequence[float]) -> bool:
     return any(r >= CONFIDENT for r in relevances)
 
 
-class QueryRater:
-    """Rates hits by their labels against the vocabulary, embedded once by `encoder`."""
+LabelTexts = Mapping[str, Sequence[str]]
+"""label -> its texts (app.answering.label_knowledge); a label without an entry is its own
+only text."""
 
-    def __init__(self, encoder: TextEncoder, vocabulary: Sequence[str] | None = None):
+
+class Standing(NamedTuple):
+    """How a query rates one label against the background (module docstring)."""
+
+    z: float
+    gap: float
+    z_name: float
+
+
+class QueryRater:
+    """Rates hits by their labels' texts against the background's, embedded once by
+    `encoder`, with the tower's rule (`rule_for(encoder.model_id)`)."""
+
+    def __init__(
+        self,
+        encoder: TextEncoder,
+        vocabulary: Sequence[str] | None = None,
+        vocabulary_texts: LabelTexts | None = None,
+        rule: MatchRule | None = None,
+    ):
+        """vocabulary: the background labels (None: `background_vocabulary()`, with the
+        shipped `background_texts()` unless vocabulary_texts is given)."""
         self.encoder = encoder
         self.vocabulary = list(vocabulary) if vocabulary is not None else background_vocabulary()
-        self._vocabulary_embeddings = encoder.encode(self.vocabulary)  # [V, dim] unit rows
+        if vocabulary_texts is None:
+            vocabulary_texts = background_texts() if vocabulary is None else {}
+        self.rule = rule if rule is not None else rule_for(encoder.model_id)
+        self._vocabulary_texts = vocabulary_texts
+        texts = [texts_of(label, vocabulary_texts) for label in self.vocabulary]
+        self._text_owner = np.repeat(np.arange(len(texts)), [len(t) for t in texts])  # [T]
+        self._text_embeddings = encoder.encode([t for ts in texts for t in ts])  # [T, dim]
+        self._name_embeddings = encoder.encode(self.vocabulary)  # [V, dim] unit rows
 
-    def rate(self, query_embedding: np.ndarray, labels: Sequence[str]) -> Rating:
+    def rate(
+        self,
+        query_embedding: np.ndarray,
+        labels: Sequence[str],
+        label_texts: LabelTexts | None = None,
+    ) -> Rating:
         """query_embedding: float [dim] of the query text; labels: the hits' labels, best
-        first. Relevance per hit and whether any matches."""
-        standing = self.standing(query_embedding, labels)
-        if standing is None:  # no labels, or every label alike: nothing stands out
+        first; label_texts: their texts (None, or a label missing: the background's texts of
+        a background label, else the label alone).
+        Relevance per hit and whether any matches."""
+        standings = self.standing(query_embedding, labels, label_texts)
+        if standings is None:  # no labels, or every label alike: nothing stands out
             return Rating([0.0] * len(labels), False)
-        relevance = [relevance_of(z, gap) for z, gap in standing]
+        relevance = [relevance_of(self.rule.score(*s)) for s in standings]
         return Rating(relevance, is_match(relevance))
 
     def standing(
-        self, query_embedding: np.ndarray, labels: Sequence[str]
-    ) -> list[tuple[float, float]] | None:
-        """Per label, (z, gap) of the query's score against it, in standard deviations of
-        the query's scores over the vocabulary (module docstring); None for no labels or a
-        query that scores every label alike."""
+        self,
+        query_embedding: np.ndarray,
+        labels: Sequence[str],
+        label_texts: LabelTexts | None = None,
+    ) -> list[Standing] | None:
+        """Per label, its `Standing` for the query; None for no labels or a query that
+        scores every background label alike."""
         if not labels:
             return None
         query = np.asarray(query_embedding, np.float32)
-        extra = [label for label in dict.fromkeys(labels) if label not in self.vocabulary]
-        vocabulary_scores = self._vocabulary_embeddings @ query
-        extra_scores = self.encoder.encode(extra) @ query if extra else np.zeros(0, np.float32)
-        scores = np.concatenate([vocabulary_scores, extra_scores]).astype(np.float64)
-        by_label = dict(zip(self.vocabulary + extra, scores.tolist(), strict=True))
+        scores = np.full(len(self.vocabulary), -np.inf)  # [V] best over each label's texts
+        np.maximum.at(scores, self._text_owner, (self._text_embeddings @ query).astype(np.float64))
         spread = float(scores.std())
         if spread < 1e-6:
             return None
-        mean, best = float(scores.mean()), float(scores.max())
-        return [((by_label[x] - mean) / spread, (best - by_label[x]) / spread) for x in labels]
+        mean = float(scores.mean())
+        distinct = list(dict.fromkeys(labels))
+        names = self.encoder.encode(distinct)  # [L, dim], from the encoder's cache
+        alike = names @ self._name_embeddings.T >= self.rule.alike_cosine  # [L, V]
+        name_scores = (names @ query).astype(np.float64)
+        by_label: dict[str, Standing] = {}
+        for i, label in enumerate(distinct):
+            texts = texts_of(label, label_texts or {}, self._vocabulary_texts)
+            score = float(np.max(self.encoder.encode(texts) @ query))
+            rivals = scores[~alike[i]]
+            best = float(rivals.max()) if len(rivals) else score
+            by_label[label] = Standing(
+                (score - mean) / spread, (best - score) / spread, (name_scores[i] - mean) / spread
+            )
+        return [by_label[label] for label in labels]
 
 
-def relevance_of(
-    z: float, gap: float, min_z: float = MATCH_MIN_Z, max_gap_z: float = MATCH_MAX_GAP_Z
-) -> float:
-    """A label's relevance in [0, 1] from its standing (`QueryRater.standing`): the smaller
-    of two ramps crossing CONFIDENT at min_z and max_gap_z."""
-    stands_out = CONFIDENT + (z - min_z) / (2 * RAMP_Z)
-    is_best = CONFIDENT + (max_gap_z - gap) / (2 * RAMP_GAP_Z)
-    return round(float(np.clip(min(stands_out, is_best), 0.0, 1.0)), 5)
+def texts_of(label: str, label_texts: LabelTexts, fallback: LabelTexts | None = None) -> list[str]:
+    """A label's texts from `label_texts` (else from `fallback`), the label itself first."""
+    given = label_texts.get(label)
+    if given is None and fallback is not None:
+        given = fallback.get(label)
+    return [label, *(t for t in given or () if t != label)]
+
+
+def relevance_of(score: float) -> float:
+    """A label's relevance in [0, 1] from its rule score (`MatchRule.score`): a ramp crossing
+    CONFIDENT at 0."""
+    return round(float(np.clip(CONFIDENT + score / (2 * RAMP), 0.0, 1.0)), 5)
 
 
 _raters: weakref.WeakKeyDictionary[TextEncoder, QueryRater] = weakref.WeakKeyDictionary()
 _raters_lock = threading.Lock()
 
 
-def rate_hits(encoder: TextEncoder, query_embedding: np.ndarray, labels: Sequence[str]) -> Rating:
-    """`QueryRater.rate` with one rater per encoder (the vocabulary is embedded on first use,
-    ~1 s with MiniLM on 2 cores; `rater_for(encoder)` ahead of time avoids the wait)."""
-    return rater_for(encoder).rate(query_embedding, labels)
+def rate_hits(
+    encoder: TextEncoder,
+    query_embedding: np.ndarray,
+    labels: Sequence[str],
+    label_texts: LabelTexts | None = None,
+) -> Rating:
+    """`QueryRater.rate` with one rater per encoder (the background's texts are embedded on first use,
+    a few seconds with MiniLM on 2 cores; `rater_for(encoder)` ahead of time avoids the wait)."""
+    return rater_for(encoder).rate(query_embedding, labels, label_texts)
 
 
 def rater_for(encoder: TextEncoder) -> QueryRater:

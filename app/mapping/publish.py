@@ -7,6 +7,8 @@ that builds a v1 `delta` (with the protocol's `DeltaMessage`).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import numpy as np
 
 from app.config import Knobs
@@ -38,8 +40,14 @@ def client_points(obj: MapObject, max_points: int | None) -> np.ndarray:
     return points
 
 
-def object_upsert(obj: MapObject, max_points: int | None) -> UpsertEntry:
-    """The `upserts[]` entry of one object."""
+LabelTextsOf = Callable[[str], Sequence[str]]
+"""label -> its texts (the server's label knowledge), sent with each upsert."""
+
+
+def object_upsert(
+    obj: MapObject, max_points: int | None, label_texts: LabelTextsOf | None = None
+) -> UpsertEntry:
+    """The `upserts[]` entry of one object (with its label's texts when `label_texts`)."""
     return UpsertEntry(
         id=obj.id,
         version=obj.version,
@@ -50,37 +58,55 @@ def object_upsert(obj: MapObject, max_points: int | None) -> UpsertEntry:
         n_obs=obj.n_obs,
         first_seen_t=obj.first_seen_t,
         last_seen_t=obj.last_seen_t,
+        label_texts=tuple(label_texts(obj.label)) if label_texts is not None else None,
     )
 
 
-def delta_message(delta: Delta, objects: dict[int, MapObject], max_points: int | None) -> dict:
+def delta_message(
+    delta: Delta,
+    objects: dict[int, MapObject],
+    max_points: int | None,
+    label_texts: LabelTextsOf | None = None,
+) -> dict:
     """A v1 `delta` message for `delta`; ids no longer in `objects` are skipped."""
-    return _delta(delta, objects, max_points).pack()
+    return _delta(delta, objects, max_points, label_texts).pack()
 
 
-def _delta(delta: Delta, objects: dict[int, MapObject], max_points: int | None) -> DeltaMessage:
+def _delta(
+    delta: Delta,
+    objects: dict[int, MapObject],
+    max_points: int | None,
+    label_texts: LabelTextsOf | None = None,
+) -> DeltaMessage:
     return DeltaMessage(
         seq=delta.seq,
         full=delta.full,
-        upserts=[object_upsert(objects[i], max_points) for i in delta.upserts if i in objects],
+        upserts=[
+            object_upsert(objects[i], max_points, label_texts)
+            for i in delta.upserts
+            if i in objects
+        ],
         removed=list(delta.removed),
     )
 
 
-def update_message(engine: MappingEngine, since: int | None) -> dict:
+def update_message(
+    engine: MappingEngine, since: int | None, label_texts: LabelTextsOf | None = None
+) -> dict:
     """The update a subscriber whose last applied seq is `since` receives.
 
     semanticxr: the objects changed since `since`, coalesced, at client resolution.
     baseline: the whole confirmed map at full resolution, every time (the organisation's
     `whole_map_downstream`; docs/architecture.md "Two system organisations").
     With the v1 extension "device_pose": the newest mapped keyframe's pose, so viewers can
-    show where the device is.
+    show where the device is. With `label_texts`, each upsert carries its label's texts
+    (the label-texts extension: the match rule's input, docs/protocol.md).
     """
     if engine.organisation.whole_map_downstream:
-        message = _delta(engine.delta_since(None), engine.objects, None)
+        message = _delta(engine.delta_since(None), engine.objects, None, label_texts)
     else:
         max_points = engine.knobs.max_object_points_client
-        message = _delta(engine.delta_since(since), engine.objects, max_points)
+        message = _delta(engine.delta_since(since), engine.objects, max_points, label_texts)
     message.device_pose = engine.last_pose
     if not message.full and since is not None:
         message.changes = [

@@ -33,6 +33,7 @@ from app.errors import InputError
 from app.protocol.limits import (
     MAX_CHANGES_PER_DELTA,
     MAX_LABEL_CHARS,
+    MAX_LABEL_TEXTS,
     MAX_REMOVED_PER_DELTA,
     MAX_UPSERTS_PER_DELTA,
     UPDATE_LIMITS,
@@ -86,6 +87,10 @@ class UpsertEntry:
     """Extension (living map): device-clock time of the first keyframe that observed it."""
     last_seen_t: float | None = None
     """Extension (living map): device-clock time of the newest keyframe that observed it."""
+    label_texts: tuple[str, ...] | None = None
+    """Extension (label texts): what the server knows the label by (the label, synonyms, a
+    definition, its kind), which the match rule rates a query against; None: not sent (the
+    label alone)."""
 
     def pack(self) -> dict:
         """The wire `upserts[]` entry (embedding and points as little-endian float16 bytes)."""
@@ -102,6 +107,8 @@ class UpsertEntry:
             entry["first_seen_t"] = float(self.first_seen_t)
         if self.last_seen_t is not None:
             entry["last_seen_t"] = float(self.last_seen_t)
+        if self.label_texts is not None:
+            entry["label_texts"] = list(self.label_texts)
         return entry
 
     def __eq__(self, other: object) -> bool:
@@ -117,6 +124,7 @@ class UpsertEntry:
                 other.first_seen_t,
                 other.last_seen_t,
             )
+            and self.label_texts == other.label_texts
             and tuple(self.bbox) == tuple(other.bbox)
             and np.array_equal(self.embedding, other.embedding)
             and np.array_equal(self.points, other.points)
@@ -278,9 +286,21 @@ def _upsert(value: Any, dim: int | None, field: str) -> UpsertEntry:
         raise DeltaError(exc.field, exc.message) from exc
     first_seen_t = _optional_time(value.get("first_seen_t"), f"{field}.first_seen_t")
     last_seen_t = _optional_time(value.get("last_seen_t"), f"{field}.last_seen_t")
+    label_texts = _optional_label_texts(value.get("label_texts"), f"{field}.label_texts")
     return UpsertEntry(
-        oid, version, label, embedding, points, bbox, n_obs, first_seen_t, last_seen_t
+        oid, version, label, embedding, points, bbox, n_obs, first_seen_t, last_seen_t, label_texts
     )
+
+
+def _optional_label_texts(value: Any, field: str) -> tuple[str, ...] | None:
+    """None, or at most MAX_LABEL_TEXTS strings of at most MAX_LABEL_CHARS each."""
+    if value is None:
+        return None
+    if not isinstance(value, list) or len(value) > MAX_LABEL_TEXTS:
+        raise DeltaError(field, f"expected a list of at most {MAX_LABEL_TEXTS} strings")
+    if not all(isinstance(t, str) and len(t) <= MAX_LABEL_CHARS for t in value):
+        raise DeltaError(field, f"expected strings of at most {MAX_LABEL_CHARS} characters")
+    return tuple(value)
 
 
 def _optional_time(value: Any, field: str) -> float | None:

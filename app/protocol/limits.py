@@ -57,6 +57,9 @@ before this limit moved here)."""
 MAX_LABEL_CHARS = 200
 """Longest label a device may send with a detection."""
 
+MAX_LABEL_TEXTS = 16
+"""Most texts an upsert's optional `label_texts` may list."""
+
 MAX_UPSERTS_PER_DELTA = 50_000
 """Most `upserts` one delta may hold: a full snapshot of the largest map a session is sized
 for (the device's target: 50k objects, docs/evaluation.md "Targets")."""

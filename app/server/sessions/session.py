@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.answering.ask import ask, relational_reading
+from app.answering.label_knowledge import SERVED_LABEL_TEXTS, served_texts
 from app.answering.relevance import Rating, rate_hits
 from app.answering.things import MapThing, RelationalHit
 from app.config import Knobs, knobs_to_dict
@@ -243,7 +244,8 @@ class Session:
             scores = np.stack([o.embedding for o in removed]) @ embedding.astype(np.float32)
             hits = [*hits, *(QueryHit(o, float(s)) for o, s in zip(removed, scores, strict=True))]
             hits = sorted(hits, key=lambda h: -h.score)[:k]
-        return hits, rate_hits(self.engine.encoder, embedding, [h.object.label for h in hits])
+        labels = [h.object.label for h in hits]
+        return hits, rate_hits(self.engine.encoder, embedding, labels, SERVED_LABEL_TEXTS)
 
     def relational_query(
         self, text: str, k: int, asker: np.ndarray | None = None
@@ -274,7 +276,15 @@ class Session:
 
         with self._relations_lock:  # the index computes pairs as it is read
             self._relations.sync(objects, up, held)
-            hits = ask(reading, things, self._relations, self.engine.encoder, viewer, k)
+            hits = ask(
+                reading,
+                things,
+                self._relations,
+                self.engine.encoder,
+                viewer,
+                k,
+                SERVED_LABEL_TEXTS,
+            )
         if hits is None:
             return None
         return hits, {o.id: o for o, _ in objects}
@@ -282,7 +292,7 @@ class Session:
     def build_delta(self, since: int | None) -> dict:
         """The update message for a subscriber whose last applied seq is `since`."""
         with self.lane.lock:
-            return update_message(self.engine, since)
+            return update_message(self.engine, since, served_texts)
 
     # ------------------------------------------------------------------ sightings
     def sight(self, frame: FrameInput, sent: FrameDetections) -> None:
