@@ -119,16 +119,20 @@ def lift_detection(
     intrinsics: tuple[float, float, float, float],
     pose: np.ndarray,
     max_depth_m: float,
+    edge_test: bool = True,
 ) -> np.ndarray:
     """World points [N, 3] of one detection: its RGB-resolution mask sampled at the depth
-    pixels, less the edge samples whose depth leaves the mask's surface (`depth_edge_keep`).
+    pixels, less the edge samples whose depth leaves the mask's surface (`depth_edge_keep`;
+    every sample with `edge_test` False).
 
     mask_rgb: bool [H, W]; depth_m: float32 [h, w] (downsampled or not).
     """
     height, width = mask_rgb.shape
     u_rgb, v_rgb = depth_to_rgb_pixel_grid((depth_m.shape[1], depth_m.shape[0]), (width, height))
     valid = valid_depth_mask(depth_m, max_depth_m)
-    mask_d = depth_edge_keep(mask_rgb[np.ix_(v_rgb, u_rgb)], depth_m, valid)
+    mask_d = mask_rgb[np.ix_(v_rgb, u_rgb)] & valid
+    if edge_test:
+        mask_d = depth_edge_keep(mask_d, depth_m, valid)
     vd, ud = np.nonzero(mask_d)
     return backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
 

@@ -242,10 +242,18 @@ class BaselineOrganisation(Organisation):
     whole_map_downstream: bool = True
 
     def lift(self, frame, detections, kept, knobs, stats):
-        """A full-image mask and lift per detection."""
+        """A full-image mask and lift per detection; a small one that the edge test would
+        leave under `min_detection_points` is lifted whole (this organisation has no depth
+        patch to fall back on)."""
         pose = np.asarray(frame.pose, np.float64)
         args = (frame.depth_m, frame.intrinsics, pose, knobs.max_depth_m)
-        return kept, [geo.lift_detection(detections.mask(d), *args) for d in kept]
+        lifted = []
+        for d in kept:
+            points = geo.lift_detection(detections.mask(d), *args)
+            if len(points) < knobs.min_detection_points:
+                points = geo.lift_detection(detections.mask(d), *args, edge_test=False)
+            lifted.append(points)
+        return kept, lifted
 
     def associate(self, observations, objects, knobs):
         """Pair by pair."""
