@@ -57,4 +57,8 @@ fi
 if [ "${SEMANTICXR_SKIP_SPEECH:-0}" != "1" ] && ! command -v espeak-ng >/dev/null; then
   install_optional espeak-ng "the spoken-question tests and eval"
 fi
+# The server reads its labels' synonyms and definitions (the match rule) from Debian's WordNet.
+if [ ! -f "${SEMANTICXR_WORDNET_DIR:-/usr/share/wordnet}/index.noun" ]; then
+  install_optional wordnet-base "the WordNet label texts (labels are then matched by name alone) and their tests"
+fi
 echo "[setup] ok"

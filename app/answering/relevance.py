@@ -213,7 +213,8 @@ class QueryRater:
         name_scores = (names @ query).astype(np.float64)
         by_label: dict[str, Standing] = {}
         for i, label in enumerate(distinct):
-            texts = texts_of(label, label_texts or {}, self._vocabulary_texts)
+            given = label_texts if label_texts is not None else {}  # an empty Mapping is falsy
+            texts = texts_of(label, given, self._vocabulary_texts)
             score = float(np.max(self.encoder.encode(texts) @ query))
             rivals = scores[~alike[i]]
             best = float(rivals.max()) if len(rivals) else score

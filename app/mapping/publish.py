@@ -40,8 +40,8 @@ def client_points(obj: MapObject, max_points: int | None) -> np.ndarray:
     return points
 
 
-LabelTextsOf = Callable[[str], Sequence[str]]
-"""label -> its texts (the server's label knowledge), sent with each upsert."""
+LabelTextsOf = Callable[[str], Sequence[str] | None]
+"""label -> its texts to send with an upsert (the server's label knowledge), None: none."""
 
 
 def object_upsert(
@@ -58,8 +58,13 @@ def object_upsert(
         n_obs=obj.n_obs,
         first_seen_t=obj.first_seen_t,
         last_seen_t=obj.last_seen_t,
-        label_texts=tuple(label_texts(obj.label)) if label_texts is not None else None,
+        label_texts=_texts(obj.label, label_texts),
     )
+
+
+def _texts(label: str, label_texts: LabelTextsOf | None) -> tuple[str, ...] | None:
+    texts = label_texts(label) if label_texts is not None else None
+    return tuple(texts) if texts is not None else None
 
 
 def delta_message(

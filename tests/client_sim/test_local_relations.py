@@ -7,11 +7,13 @@ from __future__ import annotations
 import asyncio
 import gc
 import tracemalloc
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from device_room import NEGATIVES, QUESTIONS, ROOM, TO_Y_UP, VIEWER
 
+from app.answering.label_knowledge import SERVED_LABEL_TEXTS, served_texts
 from app.answering.relational import answer
 from app.answering.things import MapThing, is_match
 from app.config import Knobs
@@ -242,3 +244,26 @@ def test_the_router_answers_relational_questions_offline_with_their_relation(
     assert set(found.results[0]) >= {"id", "label", "score", "relevance", "bbox", "centroid"}
     assert not nothing.match and nothing.results[0]["label"] == "mug"
     assert plain.results[0]["label"] == "sofa" and plain.results[0]["relation"] is None
+
+
+def test_with_the_label_texts_the_server_sends_the_device_answers_as_the_server(encoder):
+    # a label outside the shipped background: the server sends its WordNet texts with each
+    # upsert, and the device rates the question's phrases against them as the server does
+    room = {i: ("rucksack" if label == "bag" else label, p) for i, (label, p) in ROOM.items()}
+    labels = sorted({label for label, _ in room.values()})
+    embeddings = dict(zip(labels, encoder.encode(labels), strict=True))
+    entries = [
+        replace(entry, label_texts=served_texts(entry.label)) for entry in upserts(room, embeddings)
+    ]
+    assert any(entry.label_texts for entry in entries)
+    local = LocalMap(dim=384)
+    local.apply_delta(pack_delta(1, entries, full=True))
+    assert local.label_texts()["rucksack"] == served_texts("rucksack")
+    index = RelationIndex()
+    index.update({i: ObjectGeometry(label, held_points(p)) for i, (label, p) in room.items()})
+    things = [MapThing(i, label, embeddings[label]) for i, (label, _) in room.items()]
+    for text in ["the rucksack on the sofa", "the backpack under the table", "the bag on the sofa"]:
+        sq = answer(parse(text), things, index, encoder, VIEWER, 5, SERVED_LABEL_TEXTS)
+        lq = local.relational_query(text, encoder, viewer=VIEWER)
+        assert_same_answer(sq, lq, text)
+        assert [h.relevance for h in lq] == [h.relevance for h in sq], text

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from app.answering.label_knowledge import SERVED_LABEL_TEXTS
 from app.answering.relevance import CONFIDENT, QueryRater, is_match, rater_for
 from app.cli.demo import DEFAULT_QUERIES
 from app.semantics import TextEncoder
@@ -70,3 +71,26 @@ def test_an_encoder_that_tells_nothing_apart_matches_nothing():
 def test_no_hits_no_match(encoder):
     assert rater_for(encoder).rate(encoder.encode_query("chair"), []).match is False
     assert not is_match([]) and is_match([0.2, CONFIDENT])
+
+
+@pytest.mark.parametrize(
+    ("text", "label"),
+    [("my rucksack", "backpack"), ("the knapsack", "backpack"), ("where is my couch", "sofa")],
+)
+def test_a_thing_named_by_another_word_matches_its_label(encoder, text, label):
+    # rucksack -> backpack scores 0.08 by their names alone: the label's WordNet texts tie them
+    rater = rater_for(encoder)
+    embedding = encoder.encode_query(text)
+    assert rater.rate(embedding, [label], SERVED_LABEL_TEXTS).match, text
+    assert not rater.rate(embedding, ["dishwasher"], SERVED_LABEL_TEXTS).match, text
+
+
+def test_a_label_outside_the_background_is_matched_by_the_texts_served_with_it(encoder):
+    rater = rater_for(encoder)
+    embedding = encoder.encode_query("the zebra")
+    texts = {"zebra": SERVED_LABEL_TEXTS["zebra"]}
+    assert rater.rate(embedding, ["zebra"], texts).match
+    assert (
+        rater.rate(embedding, ["zebra"], SERVED_LABEL_TEXTS).relevance
+        == rater.rate(embedding, ["zebra"], texts).relevance
+    )  # the server's texts and the served copy rate alike

@@ -3,6 +3,8 @@ every malformed variant is one DeltaError naming the field."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import msgpack
 import numpy as np
 import pytest
@@ -206,3 +208,29 @@ def test_embeddings_of_two_dimensions_in_one_delta_are_refused_without_a_dim():
     message["upserts"][1]["embedding"] = np.ones(DIM + 2, "<f2").tobytes()
     with pytest.raises(DeltaError, match=r"^upserts\[1\].embedding: "):
         parse_delta(message)
+
+
+def test_an_upserts_label_texts_cross_the_wire_and_an_old_upsert_has_none():
+    entry = UpsertEntry(
+        id=1,
+        version=1,
+        label="rucksack",
+        embedding=np.full(8, 8**-0.5, np.float32),
+        points=np.zeros((2, 3), np.float32),
+        bbox=(0.0, 0.0, 0.0, 1.0, 1.0, 1.0),
+        n_obs=1,
+    )
+    with_texts = replace(entry, label_texts=("rucksack", "backpack", "bag"))
+    wire = msgpack.unpackb(msgpack.packb(pack_delta(1, [with_texts, replace(entry, id=2)])))
+    got = parse_delta(wire, 8).upserts
+    assert got[0].label_texts == ("rucksack", "backpack", "bag")
+    assert got[1].label_texts is None and "label_texts" not in wire["upserts"][1]
+
+
+@pytest.mark.parametrize("bad", ["backpack", [1, 2], ["x" * 201], ["a"] * 17])
+def test_malformed_label_texts_are_refused_by_name(bad):
+    entry = UpsertEntry(1, 1, "bag", np.full(8, 8**-0.5, np.float32), np.zeros((1, 3)), (0,) * 6, 1)
+    message = pack_delta(1, [entry])
+    message["upserts"][0]["label_texts"] = bad
+    with pytest.raises(DeltaError, match="label_texts"):
+        parse_delta(message, 8)
