@@ -31,10 +31,7 @@ Two kinds of evidence (docs/architecture.md "The living map"):
 An object is removed (`removal_due`) after `removal_min_evidence` keyframes of evidence that
 span `removal_min_span_s` of device time or two viewpoints (`removal_min_baseline_m` or
 `removal_min_angle_deg` apart); evidence that is mostly thin (fewer than two depth keyframes)
-always needs the two viewpoints. Seeing through the place is strong evidence (occlusion never
-is, and a present thing is matched, not seen through): DEPTH_EVIDENCE_ENOUGH depth keyframes
-spanning `removal_min_span_s` remove it too, whatever the count (a glance at the empty place,
-the walk looking away, a second glance: a person would call it gone).
+always needs the two viewpoints.
 """
 
 from __future__ import annotations
@@ -66,9 +63,6 @@ COVER_MAX_AREA_RATIO = 8.0
 """...counting only detections whose box is at most this many times the object's projected
 area: a detection that size may be the object under another label; a larger one is the
 surface it lay on (the table under a laptop taken away), which covers its place either way."""
-DEPTH_EVIDENCE_ENOUGH = 2
-"""Depth evidence keyframes (the place seen through) that remove an object when they span
-`removal_min_span_s`, fewer than `removal_min_evidence` (module doc)."""
 SUSPICION_MAX_KEYFRAMES = 20
 """Evidence older than this many keyframes is forgotten: a removal needs its evidence close
 together, not sporadic doubts gathered over a long session."""
@@ -295,12 +289,6 @@ def viewpoints_apart(evidence: Sequence[Evidence], knobs: Knobs) -> bool:
 
 def removal_due(evidence: Sequence[Evidence], knobs: Knobs) -> bool:
     """Whether the evidence gathered removes the object (module doc)."""
-    depth_times = [e.t for e in evidence if e.kind == "depth"]
-    if (
-        len(depth_times) >= DEPTH_EVIDENCE_ENOUGH
-        and max(depth_times) - min(depth_times) >= knobs.removal_min_span_s
-    ):
-        return True
     if len(evidence) < knobs.removal_min_evidence:
         return False
     if viewpoints_apart(evidence, knobs):

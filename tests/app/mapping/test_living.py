@@ -146,14 +146,6 @@ def test_removal_needs_three_keyframes_and_a_time_span_or_two_viewpoints():
     assert living.removal_due(turned, knobs)
 
 
-def test_two_keyframes_seeing_through_the_place_a_span_apart_are_enough():
-    knobs = Knobs()
-    assert living.removal_due([_evidence("depth", t) for t in (0, 1.5)], knobs)
-    assert not living.removal_due([_evidence("depth", t) for t in (0, 1.4)], knobs)
-    assert not living.removal_due([_evidence("thin", t) for t in (0, 5)], knobs)
-    assert not living.removal_due([_evidence("depth", 0), _evidence("thin", 3)], knobs)
-
-
 # ---------------------------------------------------------------------- the engine
 def test_a_thing_taken_away_is_removed_and_kept_as_history(encoder):
     engine = make_engine(encoder)
@@ -175,7 +167,7 @@ def test_a_thing_taken_away_is_removed_and_kept_as_history(encoder):
     np.testing.assert_allclose(stats.changes[0].from_xyz, [-0.4, -0.1, 2.0], atol=0.03)
 
 
-def test_a_glimpse_of_the_empty_place_and_another_two_seconds_later_remove_it(encoder):
+def test_a_glimpse_of_the_empty_place_makes_it_a_doubted_place_until_it_is_settled(encoder):
     engine = make_engine(encoder)
     walk = Walk(engine)
     walk.walk([WALL, MUG], 3)
@@ -188,9 +180,9 @@ def test_a_glimpse_of_the_empty_place_and_another_two_seconds_later_remove_it(en
     np.testing.assert_allclose(place[:3], [-0.4, -0.1, 2.0], atol=0.03)
     assert 0.0 < place[3] < 0.2
     assert place[4] == 600.0 + engine.knobs.removal_min_span_s  # one more keyframe settles it
-    second = walk.see([WALL])
-    assert changes([second]) == [(mug, "removed")] and second.changes[0].t == 602.0
-    assert not len(engine.changes.doubted_places())
+    second = walk.see([WALL])  # one viewpoint: not yet the evidence a removal needs
+    assert not second.changes
+    assert len(engine.changes.doubted_places()) == 1
 
 
 def test_a_thing_hidden_behind_something_new_stays(encoder):
