@@ -1,6 +1,6 @@
 """The device's keyframe pick with the sightings extension: the shared selector's keyframes
 (`app.keyframes`), and between them a frame in which a place the server doubts comes into
-view once one more keyframe could settle it (the ack's `doubted`, docs/protocol.md).
+view once a keyframe could complete its evidence (the ack's `doubted`, docs/protocol.md).
 
 A removal needs several keyframes showing the empty place (`app.mapping.living`); at one
 keyframe a second the walk often looks away before they are in. Making the frames that

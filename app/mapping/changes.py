@@ -389,8 +389,9 @@ class ChangeDetector:
     def doubted_places(self) -> np.ndarray:
         """float64 [K, 5]: (x, y, z, radius, t_ready) of the place of each suspect object
         with depth evidence (a keyframe saw through it), the places the map doubts; metres,
-        and the device time from which one more keyframe seeing through it would remove it
-        (its first depth evidence + `removal_min_span_s`) (docs/protocol.md, the ack's `doubted`: a device that picks its
+        and the device time from which a keyframe seeing through it can complete its evidence
+        (its first depth evidence + `removal_min_span_s`, the least span of a removal's
+        evidence) (docs/protocol.md, the ack's `doubted`: a device that picks its
         keyframes makes one when such a place comes into view, so the evidence that settles
         the doubt arrives within a glance). The centre is the median of a sample of its
         points and the radius the 90th percentile of their distances from it (strays do not
