@@ -38,8 +38,8 @@ class Ack:
     """Extension: confirmed objects after this keyframe (packed only when known)."""
     doubted: list[list[float]] | None = None
     """Extension: [x, y, z, radius, t_ready] of each place the map doubts after this
-    keyframe (a keyframe saw through it): metres, and the device time from which one more
-    keyframe seeing through it would settle it (packed only when known, [] for none; at most
+    keyframe (a keyframe saw through it): metres, and the device time from which a keyframe
+    seeing through it can complete the evidence a removal needs (packed only when known, [] for none; at most
     MAX_DOUBTED_PLACES). A device with the sightings extension may make a frame showing one
     a keyframe (docs/protocol.md)."""
 

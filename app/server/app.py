@@ -13,6 +13,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Match
 
 from app import __version__
+from app.answering.label_knowledge import label_texts
 from app.answering.relevance import rater_for
 from app.mapping.engine import limit_numpy_threads
 from app.semantics import TextEncoder, get_text_encoder
@@ -29,6 +30,15 @@ from app.speech import RecogniserPool, parse_asr
 from app.store import open_store, redact_url
 
 log = logging.getLogger("semanticxr")
+
+
+def warm_up_rating(encoder: TextEncoder) -> None:
+    """Embed the query rater's background texts (~1 s) and read WordNet (~0.5 s) now, not
+    in the first query or the first keyframe's delta (which holds the session's lane)."""
+    rater_for(encoder)
+    label_texts("chair")
+
+
 ERROR_BODY_REF = "#/components/schemas/ErrorBody"
 """The one error body (app.protocol.ErrorBody), as the REST routes document it."""
 HEALTH_RETRY_AFTER_S = 2
@@ -64,7 +74,7 @@ def create_app(
         log.info("store %s; %d sessions restored", redact_url(settings.store_url), restored)
         storage_watch = asyncio.create_task(manager.watch_storage())
         # Embed the query rater's label vocabulary now (~1 s), not in the first query.
-        rater_warm_up = asyncio.create_task(asyncio.to_thread(rater_for, manager.encoder))
+        rater_warm_up = asyncio.create_task(asyncio.to_thread(warm_up_rating, manager.encoder))
         try:
             yield
         finally:

@@ -209,7 +209,15 @@ class KeyframePipeline:
                 # keyframe that settled it (a reload never flips the session's answers).
                 inferred_up = None if rec.up else session.up_inference.observe(frame.pose)
                 committing = True
-                ack = Ack(frame.seq, keyframe=True, update_seq=stats.seq, objects=stats.confirmed)
+                ack = Ack(
+                    frame.seq,
+                    keyframe=True,
+                    update_seq=stats.seq,
+                    objects=stats.confirmed,
+                    doubted=engine.changes.doubted_places().tolist()
+                    if engine.knobs.negative_evidence
+                    else None,
+                )
                 self.store.commit_keyframe(
                     KeyframeCommit(
                         session.id,
