@@ -408,6 +408,9 @@ def _components(n: int, edges: np.ndarray) -> np.ndarray:
             root = jumped
 
 
+CORE_MIN_SHARE = 0.25
+"""Least share of a cloud's points in core cells for outlier removal to judge it: a sparser
+cloud (150 points over a sofa) is kept whole rather than cut to its one dense corner."""
 PART_SHARE = 0.25
 """Outlier removal keeps every cluster of at least this share of the largest one's points."""
 
@@ -422,7 +425,9 @@ def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np
     many points: a cell is core when the cells within eps_m of it hold `min_points` points,
     and core cells within eps_m of each other share a cluster (a third of point-wise
     DBSCAN's cost: a cell has a few neighbours where a point has dozens).
-    Returns the input when it is too small to cluster or has no cluster at all.
+    Returns the input when it is too small to cluster, or too sparse at eps_m: under
+    CORE_MIN_SHARE of its points in core cells (a device's capped copy, an imported map of a
+    few hundred points a piece), where nothing tells a stray from the thing's own surface.
     """
     if len(points) < 4 * min_points:
         return points
@@ -439,8 +444,8 @@ def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np
     core = near_weight >= min_points
     linked = pairs[core[pairs[:, 0]] & core[pairs[:, 1]]]
     labels = np.where(core, _components(len(weight), linked), 0)
-    if not core.any():
-        return points
+    if weight[core].sum() < CORE_MIN_SHARE * len(points):
+        return points  # too sparse at eps_m to tell a stray from the thing's own surface
     mass = np.bincount(labels[core], weights=weight[core], minlength=len(weight))
     kept_cell = core & (mass[labels] >= PART_SHARE * mass.max())
     # The cells that are not core (a surface's rim, a pole, a leg, a stray) are kept as
