@@ -376,9 +376,9 @@ def test_gt_cloud_drops_surfaces_hidden_by_contact(kitchen_gt):
 
 
 def test_bad_noise_profile_raises_value_error_naming_the_options(apartment):
-    with pytest.raises(ValueError, match="none.*standard"):
+    with pytest.raises(ValueError, match="none.*standard.*bleed"):
         DetectionModel(apartment, "heavy")
-    assert NOISE_PROFILES == ("none", "standard")
+    assert NOISE_PROFILES == ("none", "standard", "bleed")
 
 
 def test_no_noise_gives_one_exact_detection_per_visible_object(apartment, walk_views):
