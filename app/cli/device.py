@@ -471,6 +471,11 @@ async def _run(args: argparse.Namespace, source: FrameSource, recordings: list[R
             )
             for warning in session.warnings:  # each said once
                 print(f"[device] server warns: {warning}", file=sys.stderr, flush=True)
+            # a closed stream settles the server's map: its update comes after the last ack
+            if session.update_seq > stats.server_seq and await client.wait_synced(
+                session.update_seq, SYNC_TIMEOUT_S
+            ):
+                stats.server_seq = session.update_seq
         encoder = None
         if encoder_task is not None:
             try:

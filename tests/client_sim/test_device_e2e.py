@@ -481,7 +481,9 @@ def test_the_device_command_streams_queries_and_writes_a_summary(live_server, tm
     assert args.func(args) == 0
     result = json.loads(summary.read_text())
     assert result["frames"]["sent"] == 20 and result["frames"]["errors"] == 0
-    assert result["local_map"]["seq"] == result["local_map"]["server_seq"] > 0
+    # the device follows the server up to its seq once the stream closed; the settle of the
+    # closed stream may publish once more after the device read that seq, never before
+    assert result["local_map"]["seq"] >= result["local_map"]["server_seq"] > 0
     (query,) = result["queries"]
     assert query["mode"] == "SQ" and query["results"]
 
