@@ -89,8 +89,9 @@ def run(args: argparse.Namespace) -> int:
         )
     else:
         print(https_banner(settings, certificate, color=sys.stdout.isatty()), flush=True)
-    Server(uvicorn_config(create_app(settings), settings)).run()
-    return 0
+    server = Server(uvicorn_config(create_app(settings), settings))
+    server.run()
+    return _exit_code(server)
 
 
 def https_banner(settings: ServerSettings, certificate: Certificate, color: bool = False) -> str:
@@ -176,8 +177,9 @@ def run_cluster(settings: ServerSettings) -> int:
         f"SemanticXR gateway on http://{settings.host}:{settings.port} in front of "
         f"{settings.shards} map shards (Ray: {settings.cluster})"
     )
-    Server(uvicorn_config(create_gateway_app(settings), settings)).run()
-    return 0
+    server = Server(uvicorn_config(create_gateway_app(settings), settings))
+    server.run()
+    return _exit_code(server)
 
 
 def store_reachable(command: str, settings: ServerSettings) -> bool:
@@ -193,3 +195,16 @@ def store_reachable(command: str, settings: ServerSettings) -> bool:
         print(f"semanticxr {command}: --store: {exc}", file=sys.stderr)
         return False
     return True
+
+
+def _exit_code(server) -> int:
+    """130 when a Ctrl-C (SIGINT) stopped the server, else 0. uvicorn re-raises the signal
+    after its graceful shutdown, but asyncio's runner may then finish the main task before
+    the interrupt lands and return normally: the exit code must not depend on that race."""
+    import signal
+    import sys
+
+    if signal.SIGINT in getattr(server, "_captured_signals", ()):
+        print("interrupted", file=sys.stderr)
+        return 130
+    return 0
