@@ -45,6 +45,32 @@ RECENT_CHANGES = 256
 """Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
 
 
+def _denoise(obj: MapObject) -> bool:
+    """Clean one object's geometry: the points few of its views agree on dropped
+    (`geo.well_supported`, where the support is known), then the outliers
+    (`geo.outlier_free`), then what is left moved onto its local surface
+    (`geo.onto_local_surface`). Returns whether its points changed."""
+    points, support = obj.points, obj.support
+    if support is not None:
+        agreed = geo.well_supported(support)
+        if not agreed.all():
+            points, support = points[agreed], support[agreed]
+    kept = geo.outlier_free(points, OUTLIER_EPS_M)
+    if not kept.all():
+        points, support = points[kept], None if support is None else support[kept]
+    points = geo.onto_local_surface(points)
+    if len(points) == len(obj.points) and np.abs(points - obj.points).max(initial=0) < 1e-3:
+        return False  # under a millimetre: a clean object stays as it is
+    obj.set_points(points, obj.resolution_m, support)
+    return True
+
+
+def _joined_support(obj: MapObject, added: np.ndarray) -> np.ndarray | None:
+    """The support of obj's points followed by points of support `added` [M] (None while
+    obj's own is unknown)."""
+    return None if obj.support is None else np.concatenate([obj.support, added])
+
+
 @dataclass
 class QueryHit:
     object: MapObject
@@ -273,11 +299,14 @@ class MappingEngine:
         return observations
 
     # ------------------------------------------------------------------ merging
-    def _cap(self, points: np.ndarray, start_m: float | None = None) -> tuple[np.ndarray, float]:
-        """The object's geometry after a merge, as the organisation keeps it.
+    def _cap(
+        self, points: np.ndarray, support: np.ndarray | None, start_m: float | None = None
+    ) -> tuple[np.ndarray, float, np.ndarray | None]:
+        """The object's geometry after a merge, as the organisation keeps it, with its
+        support (`MapObject.support`; None: unknown).
 
         start_m: the merged objects' current spacing (the cap never refines it)."""
-        return self.organisation.cap(points, self.knobs, start_m)
+        return self.organisation.cap_supported(points, support, self.knobs, start_m)
 
     @property
     def _full(self) -> bool:
@@ -299,12 +328,13 @@ class MappingEngine:
                 )
                 self.next_object_id += 1
                 self.objects[obj.id] = obj
-                obj.set_points(*self._cap(obs.points))
+                obj.set_points(*self._cap(obs.points, np.ones(len(obs.points), np.float32)))
                 stats.created += 1
             else:
                 obj = self.objects[match]
+                support = _joined_support(obj, np.ones(len(obs.points), np.float32))
                 obj.set_points(
-                    *self._cap(np.concatenate([obj.points, obs.points]), obj.resolution_m)
+                    *self._cap(np.concatenate([obj.points, obs.points]), support, obj.resolution_m)
                 )
                 stats.matched += 1
             obj.observe_label(obs.detection.label, obs.embedding)
@@ -331,6 +361,7 @@ class MappingEngine:
         keep.set_points(
             *self._cap(
                 np.concatenate([keep.points, gone.points]),
+                None if gone.support is None else _joined_support(keep, gone.support),
                 max(keep.resolution_m, gone.resolution_m),
             )
         )
@@ -382,9 +413,7 @@ class MappingEngine:
             obj = self.objects.get(oid)
             if obj is None:
                 continue
-            kept = geo.remove_outliers(obj.points, OUTLIER_EPS_M)
-            if len(kept) < len(obj.points):
-                obj.set_points(kept, obj.resolution_m)
+            if _denoise(obj):
                 obj.version += 1
                 touched.add(oid)
                 self._changed_since_merge_check.add(oid)
@@ -437,14 +466,17 @@ class MappingEngine:
         return removed
 
     def settle(self) -> IntegrationStats:
-        """The map once its stream has closed: every object denoised and compared for a
-        merge once more (during the walk clean-up visits an object only on its slot of the
-        clean-up interval, so the last keyframes' strays would stay for good), the changes
-        committed to the delta log. Returns what changed (published_ids, removed_ids, seq)."""
+        """The map once its stream has closed: the objects changed since their last clean-up
+        denoised, and those changed since their last merge check compared for a merge (during
+        the walk clean-up visits an object only on its slot of the clean-up interval, so the
+        last keyframes' strays would stay for good; an object clean-up has seen since it last
+        changed is not visited again), the changes committed to the delta log. Returns what
+        changed (published_ids, removed_ids, seq)."""
         stats = IntegrationStats(seq=self.log.seq, keyframe=self.keyframes)
         touched: set[int] = set()
-        self._changed_since_merge_check |= set(self.objects)
-        removed = self._cleanup(touched, sorted(self.objects), merge=True)
+        removed = self._cleanup(
+            touched, sorted(self._changed_since_cleanup & self.objects.keys()), merge=True
+        )
         stats.retracted_added.extend(sorted(removed))
         published = {oid for oid in touched if oid in self.objects and self.objects[oid].confirmed}
         for oid in published:

@@ -236,6 +236,42 @@ def voxel_count(points: np.ndarray, voxel_m: float) -> int:
     return int(np.count_nonzero(_run_starts(np.sort(_voxel_keys(points, voxel_m)))))
 
 
+def voxel_merge(
+    points: np.ndarray, support: np.ndarray, voxel_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One point per occupied voxel, the support-weighted mean of its points, and the sum
+    of their support: float32 [M, 3] and float32 [M], M <= N, in voxel-key order.
+
+    support: float [N] how many views each point stands for (an observation's points 1
+    each). A voxel's running mean over views cuts a surface's range noise by about the
+    square root of the views that saw it, and its support says how many did."""
+    if len(points) == 0:
+        return EMPTY_POINTS, np.zeros(0, np.float32)
+    keys = _voxel_keys(points, voxel_m)
+    order = np.argsort(keys)
+    starts = np.flatnonzero(_run_starts(keys[order]))
+    weight = support[order].astype(np.float64)
+    sums = np.add.reduceat(points[order].astype(np.float64) * weight[:, None], starts, axis=0)
+    total = np.add.reduceat(weight, starts)
+    return (sums / total[:, None]).astype(np.float32), total.astype(np.float32)
+
+
+def _voxel_pick(points: np.ndarray, voxel_m: float, support: np.ndarray | None) -> np.ndarray:
+    """Index [M] of one point per occupied voxel, in voxel-key order: the best supported
+    (when `support`), then the one nearest the voxel's centre."""
+    keys = _voxel_keys(points, voxel_m)
+    offset = points / voxel_m - np.floor(points / voxel_m) - 0.5
+    order = np.argsort(keys)
+    first = _run_starts(keys[order])
+    dist = np.einsum("ij,ij->i", offset, offset)[order]
+    if support is not None:  # the most views first (a view counts 1, a distance under 0.75)
+        dist = dist - support[order]
+    run = np.cumsum(first) - 1
+    nearest = np.flatnonzero(dist == np.minimum.reduceat(dist, np.flatnonzero(first))[run])
+    nearest = nearest[_run_starts(run[nearest])]  # one per voxel where distances tie
+    return order[nearest]
+
+
 def voxel_sample(points: np.ndarray, voxel_m: float) -> np.ndarray:
     """One real point per occupied voxel: the one nearest the voxel's centre, float32 [M, 3],
     in voxel-key order.
@@ -247,15 +283,24 @@ def voxel_sample(points: np.ndarray, voxel_m: float) -> np.ndarray:
     """
     if len(points) == 0:
         return EMPTY_POINTS
+    return points[_voxel_pick(points, voxel_m, None)].astype(np.float32, copy=False)
+
+
+def voxel_sample_supported(
+    points: np.ndarray, support: np.ndarray, voxel_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """`voxel_sample` that keeps per voxel its best supported point (ties: nearest the
+    centre) and gives it the voxel's whole support: float32 [M, 3], float32 [M]."""
+    if len(points) == 0:
+        return EMPTY_POINTS, np.zeros(0, np.float32)
+    picked = _voxel_pick(points, voxel_m, support)
     keys = _voxel_keys(points, voxel_m)
-    offset = points / voxel_m - np.floor(points / voxel_m) - 0.5
-    order = np.argsort(keys)
-    first = _run_starts(keys[order])
-    dist = np.einsum("ij,ij->i", offset, offset)[order]
-    run = np.cumsum(first) - 1
-    nearest = np.flatnonzero(dist == np.minimum.reduceat(dist, np.flatnonzero(first))[run])
-    nearest = nearest[_run_starts(run[nearest])]  # one per voxel where distances tie
-    return points[order[nearest]].astype(np.float32, copy=False)
+    _, voxel_of = np.unique(keys, return_inverse=True)
+    total = np.bincount(voxel_of.ravel(), weights=support.astype(np.float64))
+    return (
+        points[picked].astype(np.float32, copy=False),
+        total[voxel_of.ravel()[picked]].astype(np.float32),
+    )
 
 
 def cap_points(
@@ -278,9 +323,30 @@ def cap_points(
     Returns (float32 [M, 3], M <= max_points unless max_spacing_m stops the search, the voxel
     in metres).
     """
-    points = voxel_downsample(points, voxel_m)
+    capped, spacing, _ = cap_points_supported(
+        points, None, max_points, voxel_m, start_m, max_spacing_m
+    )
+    return capped, spacing
+
+
+def cap_points_supported(
+    points: np.ndarray,
+    support: np.ndarray | None,
+    max_points: int,
+    voxel_m: float,
+    start_m: float | None = None,
+    max_spacing_m: float | None = None,
+) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """`cap_points` that carries each point's support (float [N], views it stands for;
+    None: unknown, as `cap_points`): voxels at `voxel_m` merge as `voxel_merge`, a coarser
+    voxel keeps its best supported point with the voxel's whole support.
+    Returns (points float32 [M, 3], spacing in metres, support float32 [M] or None)."""
+    if support is None:
+        points = voxel_downsample(points, voxel_m)
+    else:
+        points, support = voxel_merge(points, support, voxel_m)
     if len(points) <= max_points:
-        return points, voxel_m
+        return points, voxel_m, support
     if start_m is None:
         spacing = voxel_m * np.sqrt(len(points) / max_points)
     else:
@@ -292,12 +358,16 @@ def cap_points(
     while count > max_points and spacing < min(4 * extent_m, ceiling_m):
         spacing = min(ceiling_m, spacing * max(1.02, 1.005 * np.sqrt(count / max_points)))
         count = voxel_count(points, spacing)
-    best = voxel_sample(points, spacing)
+    if support is None:
+        best = voxel_sample(points, spacing)
+    else:
+        best, support = voxel_sample_supported(points, support, spacing)
     if (
         len(best) > max_points and spacing < ceiling_m
     ):  # a cap below the 2x2x2 voxels any grid can straddle
-        return best[np.linspace(0, len(best) - 1, max_points).astype(np.intp)], float(spacing)
-    return best, float(spacing)
+        keep = np.linspace(0, len(best) - 1, max_points).astype(np.intp)
+        return best[keep], float(spacing), None if support is None else support[keep]
+    return best, float(spacing), support
 
 
 def bbox_of(points: np.ndarray) -> np.ndarray:
@@ -416,7 +486,13 @@ PART_SHARE = 0.25
 
 
 def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.ndarray:
-    """Keep the object's DBSCAN clusters of core cells: the largest, any other of at least
+    """The points `outlier_free` keeps (the input itself when it keeps them all)."""
+    keep = outlier_free(points, eps_m, min_points)
+    return points if keep.all() else points[keep]
+
+
+def outlier_free(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.ndarray:
+    """bool [N], the points outlier removal keeps: keep the object's DBSCAN clusters of core cells: the largest, any other of at least
     PART_SHARE of its points (a lamp's base apart from its shade), and the chains of cells
     too sparse to be core that reach them with `min_points` points or more (a surface's
     rim, a pole, a leg); a stray point or two is dropped even where it touches the thing.
@@ -425,12 +501,13 @@ def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np
     many points: a cell is core when the cells within eps_m of it hold `min_points` points,
     and core cells within eps_m of each other share a cluster (a third of point-wise
     DBSCAN's cost: a cell has a few neighbours where a point has dozens).
-    Returns the input when it is too small to cluster, or too sparse at eps_m: under
+    Keeps every point of a cloud too small to cluster, or too sparse at eps_m: under
     CORE_MIN_SHARE of its points in core cells (a device's capped copy, an imported map of a
     few hundred points a piece), where nothing tells a stray from the thing's own surface.
     """
+    everything = np.ones(len(points), bool)
     if len(points) < 4 * min_points:
-        return points
+        return everything
     keys = _voxel_keys(points, eps_m / 2)
     _, cell_of, weight = np.unique(keys, return_inverse=True, return_counts=True)
     cell_of = cell_of.ravel()
@@ -445,7 +522,7 @@ def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np
     linked = pairs[core[pairs[:, 0]] & core[pairs[:, 1]]]
     labels = np.where(core, _components(len(weight), linked), 0)
     if weight[core].sum() < CORE_MIN_SHARE * len(points):
-        return points  # too sparse at eps_m to tell a stray from the thing's own surface
+        return everything  # too sparse at eps_m to tell a stray from the thing's own surface
     mass = np.bincount(labels[core], weights=weight[core], minlength=len(weight))
     kept_cell = core & (mass[labels] >= PART_SHARE * mass.max())
     # The cells that are not core (a surface's rim, a pole, a leg, a stray) are kept as
@@ -465,4 +542,54 @@ def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np
     bridges = np.bincount(links[:, 0], minlength=len(weight))
     part = (bridges >= 2) | ((bridges >= 1) & (chain_mass >= min_points))
     kept_cell |= sparse & part[chain]
-    return points[kept_cell[cell_of]]
+    return kept_cell[cell_of]
+
+
+SUPPORT_SHARE = 0.2
+"""Clean-up keeps a point whose support (the views that saw its voxel) is at least this share
+of its object's well-seen support (the 90th percentile of its points')..."""
+SUPPORT_PERCENTILE = 90
+"""...that percentile."""
+
+
+def well_supported(support: np.ndarray) -> np.ndarray:
+    """bool [N]: the points enough views agree on, from their support float [N].
+
+    A surface seen from k keyframes has its voxels hit by most of them; a range-noise tail,
+    a mask's rim on the table under a mug or a neighbour's edge lands in a voxel only a few
+    views hit. A point is kept when its support reaches SUPPORT_SHARE of the object's
+    SUPPORT_PERCENTILE-th percentile; an object seen in a view or two keeps every point
+    (nothing to tell a stray from a part seen once)."""
+    if len(support) == 0:
+        return np.ones(0, bool)
+    threshold = SUPPORT_SHARE * float(np.percentile(support, SUPPORT_PERCENTILE))
+    return support >= threshold
+
+
+SURFACE_NEIGHBOURS = 16
+"""Points whose local plane a point is projected onto (`onto_local_surface`)."""
+PLANAR_SPREAD = 0.25
+"""A neighbourhood is a surface when its second-largest spread (variance) is at least this
+share of its largest: a pole's or a leg's neighbours (spread along one line) are not
+moved."""
+
+
+def onto_local_surface(points: np.ndarray, k: int = SURFACE_NEIGHBOURS) -> np.ndarray:
+    """Each point moved onto the plane fitted to its k nearest points (itself included),
+    where they form a surface (PLANAR_SPREAD): float32 [N, 3].
+
+    A depth sensor's noise lies along its rays, so a surface seen from a few metres grows a
+    skin several centimetres thick that sets its box; the local plane of k points is about
+    sqrt(k) times closer to the true surface than one noisy point. An edge or a corner moves
+    by at most its neighbourhood's flattening; a thin part (no second spread) stays."""
+    if len(points) <= k:
+        return points
+    _, nearest = cKDTree(points).query(points, k=k)
+    around = points[nearest].astype(np.float64)
+    mean = around.mean(axis=1)
+    centred = around - mean[:, None]
+    spread, axes = np.linalg.eigh(centred.transpose(0, 2, 1) @ centred / k)
+    normal = axes[:, :, 0]
+    surface = spread[:, 1] >= PLANAR_SPREAD * spread[:, 2]
+    offset = np.einsum("ni,ni->n", points - mean, normal) * surface
+    return (points - offset[:, None] * normal).astype(np.float32)

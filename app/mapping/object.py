@@ -106,6 +106,9 @@ class MapObject:
     last_seen_t: float | None = None
     state: ObjectState = "present"
     stays: list[Stay] = field(default_factory=list)
+    support: np.ndarray | None = None
+    """float32 [N]: how many keyframes' views each point stands for (the views whose points
+    fell in its voxel); None where unknown (a stored, imported or re-placed object)."""
     _tree: cKDTree | None = field(default=None, repr=False)
     _bbox: np.ndarray | None = field(default=None, repr=False)
     _client_cache: tuple | None = field(default=None, repr=False)
@@ -204,12 +207,37 @@ class MapObject:
             self._tree = cKDTree(self.points, balanced_tree=False)
         return self._tree
 
-    def set_points(self, points: np.ndarray, resolution_m: float) -> None:
-        """Replace the geometry; drops the cached tree and box."""
+    def set_points(
+        self, points: np.ndarray, resolution_m: float, support: np.ndarray | None = None
+    ) -> None:
+        """Replace the geometry; drops the cached tree and box.
+
+        support: float [N] of the new points (`support`); without it, points kept from the
+        current geometry keep theirs, and any new point makes the support unknown."""
+        if support is None and self.support is not None:
+            support = _carried_support(self.points, self.support, points)
         self.points = points
+        self.support = None if support is None else np.asarray(support, np.float32)
         self.resolution_m = resolution_m
         self._tree = None
         self._bbox = None
+
+
+def _carried_support(
+    old: np.ndarray, old_support: np.ndarray, points: np.ndarray
+) -> np.ndarray | None:
+    """The support of `points` [M, 3] that are all rows of `old` [N, 3] (a subset kept,
+    such as the points a view did not see through), None if any is not."""
+    if len(points) == 0:
+        return np.zeros(0, np.float32)
+    rows = np.ascontiguousarray(old, np.float32).view(np.dtype((np.void, 12))).ravel()
+    wanted = np.ascontiguousarray(points, np.float32).view(np.dtype((np.void, 12))).ravel()
+    order = np.argsort(rows)
+    at = np.searchsorted(rows[order], wanted).clip(0, len(rows) - 1)
+    found = order[at]
+    if len(rows) == 0 or not np.array_equal(rows[found], wanted):
+        return None
+    return old_support[found]
 
 
 _STAY_DTYPE = np.dtype(

@@ -118,13 +118,25 @@ class Organisation(abc.ABC):
     def resolution_m(self, knobs: Knobs) -> float:
         """Voxel at which object geometry is kept."""
 
-    @abc.abstractmethod
     def cap(
         self, points: np.ndarray, knobs: Knobs, start_m: float | None = None
     ) -> tuple[np.ndarray, float]:
         """The object's geometry after a merge and its spacing in metres.
 
         start_m: the merged objects' current spacing (the cap never refines it)."""
+        capped, spacing_m, _ = self.cap_supported(points, None, knobs, start_m)
+        return capped, spacing_m
+
+    @abc.abstractmethod
+    def cap_supported(
+        self,
+        points: np.ndarray,
+        support: np.ndarray | None,
+        knobs: Knobs,
+        start_m: float | None = None,
+    ) -> tuple[np.ndarray, float, np.ndarray | None]:
+        """`cap` carrying each point's support (float [N], the views it stands for; None:
+        unknown): (points, spacing in metres, their support or None)."""
 
     @abc.abstractmethod
     def denoise_due(self, changed: set[int], keyframes: int, interval: int) -> list[int]:
@@ -215,9 +227,10 @@ class SemanticXROrganisation(Organisation):
     def resolution_m(self, knobs):
         return knobs.voxel_size_m
 
-    def cap(self, points, knobs, start_m=None):
-        return geo.cap_points(
+    def cap_supported(self, points, support, knobs, start_m=None):
+        return geo.cap_points_supported(
             points,
+            support,
             knobs.max_object_points_server,
             self.resolution_m(knobs),
             start_m,
@@ -273,8 +286,8 @@ class BaselineOrganisation(Organisation):
     def resolution_m(self, knobs):
         return BASELINE_RESOLUTION_M
 
-    def cap(self, points, knobs, start_m=None):
-        return geo.cap_points(points, 1 << 62, self.resolution_m(knobs), start_m)
+    def cap_supported(self, points, support, knobs, start_m=None):
+        return geo.cap_points_supported(points, support, 1 << 62, self.resolution_m(knobs), start_m)
 
     def denoise_due(self, changed, keyframes, interval):
         """The per-scene organisation: every changed object every `interval` keyframes."""

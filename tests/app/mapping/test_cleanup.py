@@ -28,17 +28,17 @@ class Calls:
         self.engine = engine
         self.denoised: list[int] = []
         self.compared: list[int] = []
-        remove_outliers, overlap_fraction = geo.remove_outliers, geo.overlap_fraction
+        outlier_free, overlap_fraction = geo.outlier_free, geo.overlap_fraction
 
         def counted_remove(points, *args, **kwargs):
             self.denoised += self._owners(points)
-            return remove_outliers(points, *args, **kwargs)
+            return outlier_free(points, *args, **kwargs)
 
         def counted_overlap(points, *args, **kwargs):
             self.compared += self._owners(points)
             return overlap_fraction(points, *args, **kwargs)
 
-        monkeypatch.setattr(geo, "remove_outliers", counted_remove)
+        monkeypatch.setattr(geo, "outlier_free", counted_remove)
         monkeypatch.setattr(geo, "overlap_fraction", counted_overlap)
 
     def _owners(self, points) -> list[int]:

@@ -52,12 +52,14 @@ def test_a_far_cluster_under_a_quarter_of_the_thing_is_dropped_even_when_most_is
     assert np.abs(kept).max() <= 0.11
 
 
-def _engine_with(encoder, points: np.ndarray) -> MappingEngine:
+def _engine_with(encoder, points: np.ndarray, changed: bool = True) -> MappingEngine:
     engine = MappingEngine(encoder, Knobs(), backend=make_perception())
     obj = MapObject(id=1, first_seen=1, first_seen_t=0.0, last_seen_t=1.0, confirmed=True)
     obj.set_points(points, 0.025)
     obj.observe_label("lamp", encoder.encode(["lamp"])[0])
     engine.objects[1] = obj
+    if changed:
+        engine.mark_changed(1)  # as mapping a keyframe into it would
     engine.next_object_id = 2
     return engine
 
@@ -73,7 +75,17 @@ def test_settling_a_closed_stream_drops_the_strays_clean_up_had_not_visited(enco
     np.testing.assert_allclose(engine.objects[1].bbox, geo.bbox_of(lamp))
 
 
-def test_settling_a_clean_map_publishes_nothing(encoder):
-    engine = _engine_with(encoder, _lamp())
+def test_a_settled_map_publishes_nothing_when_settled_again(encoder):
+    lamp = _lamp()
+    engine = _engine_with(encoder, np.concatenate([lamp, np.array([[0.6, 0.6, 0.0]], np.float32)]))
+    engine.settle()
     seq = engine.log.seq
     assert engine.settle().seq == seq and engine.log.seq == seq
+
+
+def test_settling_leaves_an_object_clean_up_has_seen_since_it_changed(encoder):
+    """Settle visits only the objects changed since their last clean-up, not the whole map."""
+    stray = np.array([[0.6, 0.6, 0.0]], np.float32)
+    engine = _engine_with(encoder, np.concatenate([_lamp(), stray]), changed=False)
+    seq = engine.log.seq
+    assert engine.settle().seq == seq and len(engine.objects[1].points) == len(_lamp()) + 1

@@ -1,0 +1,69 @@
+"""A point's support (how many keyframes' views it stands for) rides along every merge and
+cap, so that what a single view saw apart from the others can be told from the surface."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.mapping import geometry as geo
+from app.mapping.object import MapObject
+
+
+def test_a_voxels_points_merge_into_their_support_weighted_mean_with_the_sum_of_support():
+    points = np.array([[0.01, 0.01, 0.01], [0.02, 0.01, 0.01], [0.30, 0.0, 0.0]], np.float32)
+    merged, support = geo.voxel_merge(points, np.array([3.0, 1.0, 1.0]), 0.025)
+    assert len(merged) == 2
+    np.testing.assert_allclose(merged[0], [0.0125, 0.01, 0.01], atol=1e-6)
+    np.testing.assert_allclose(support, [4.0, 1.0])
+
+
+def test_a_coarse_cap_keeps_each_voxels_best_supported_point_with_the_voxels_support():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(0, 1, (3000, 3)).astype(np.float32)
+    support = rng.integers(1, 5, len(points)).astype(np.float32)
+    capped, spacing, kept_support = geo.cap_points_supported(points, support, 200, 0.025)
+    assert len(capped) <= 200 and len(kept_support) == len(capped)
+    assert kept_support.sum() == support.sum()  # a voxel's views are its kept point's
+    unsupported, unsupported_spacing = geo.cap_points(points, 200, 0.025)
+    assert spacing == unsupported_spacing and len(capped) == len(unsupported)
+
+
+def test_a_cap_without_support_is_the_plain_cap():
+    rng = np.random.default_rng(1)
+    points = rng.uniform(0, 1, (3000, 3)).astype(np.float32)
+    capped, spacing, support = geo.cap_points_supported(points, None, 200, 0.025)
+    plain, plain_spacing = geo.cap_points(points, 200, 0.025)
+    assert support is None and spacing == plain_spacing
+    np.testing.assert_array_equal(capped, plain)
+
+
+def test_points_kept_from_an_objects_geometry_keep_their_support_and_new_ones_unknown():
+    obj = MapObject(id=1)
+    points = np.arange(30, dtype=np.float32).reshape(10, 3)
+    obj.set_points(points, 0.025, np.arange(10, dtype=np.float32))
+    obj.set_points(points[[1, 5, 7]], 0.025)
+    np.testing.assert_array_equal(obj.support, [1, 5, 7])
+    obj.set_points(points[[1]] + 0.5, 0.025)
+    assert obj.support is None
+
+
+def test_points_few_views_agree_on_are_not_well_supported_unless_the_object_was_seen_once():
+    seen_often = np.array([12, 11, 10, 12, 9, 1, 2, 10], np.float32)
+    np.testing.assert_array_equal(geo.well_supported(seen_often), [1, 1, 1, 1, 1, 0, 0, 1])
+    assert geo.well_supported(np.ones(8, np.float32)).all()
+
+
+def test_a_noisy_wall_comes_back_onto_its_plane_and_keeps_its_extent():
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(0, 1, (1500, 2))
+    wall = np.column_stack([xy, rng.normal(0, 0.02, len(xy))]).astype(np.float32)
+    flat = geo.onto_local_surface(wall)
+    assert flat[:, 2].std() < 0.5 * wall[:, 2].std()  # range noise cut by about sqrt(k)
+    np.testing.assert_allclose(flat[:, :2].min(axis=0), wall[:, :2].min(axis=0), atol=0.02)
+    np.testing.assert_allclose(flat[:, :2].max(axis=0), wall[:, :2].max(axis=0), atol=0.02)
+
+
+def test_a_pole_is_not_flattened_onto_a_plane():
+    pole = np.stack([np.zeros(40), np.zeros(40), 0.03 * np.arange(40)], 1).astype(np.float32)
+    pole += np.random.default_rng(3).normal(0, 0.002, pole.shape).astype(np.float32)
+    np.testing.assert_array_equal(geo.onto_local_surface(pole), pole)
