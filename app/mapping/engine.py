@@ -45,20 +45,25 @@ RECENT_CHANGES = 256
 """Changes kept in memory for deltas (older ones are read from the store: GET .../changes)."""
 
 
-def _denoise(obj: MapObject) -> bool:
-    """Clean one object's geometry: the points few of its views agree on dropped
-    (`geo.well_supported`, where the support is known), then the outliers
-    (`geo.outlier_free`), then what is left moved onto its local surface
-    (`geo.onto_local_surface`). Returns whether its points changed."""
+def _denoise(obj: MapObject, settling: bool = False) -> bool:
+    """Clean one object's geometry: the points few of its views agree on dropped, where the
+    support is known (during the walk, against their neighbours' support,
+    `geo.locally_supported`: a part few views have shown yet may still gather more; once its
+    stream has closed, against the whole object's, `geo.well_supported`), then the outliers
+    (`geo.outlier_free`), then, once its stream has closed, what is left moved onto its local
+    surface (`geo.onto_local_surface`). Returns whether its points changed."""
     points, support = obj.points, obj.support
     if support is not None:
-        agreed = geo.well_supported(support)
+        agreed = geo.locally_supported(points, support)
+        if settling:
+            agreed &= geo.well_supported(support)
         if not agreed.all():
             points, support = points[agreed], support[agreed]
     kept = geo.outlier_free(points, OUTLIER_EPS_M)
     if not kept.all():
         points, support = points[kept], None if support is None else support[kept]
-    points = geo.onto_local_surface(points)
+    if settling:  # during the walk it would cost F-mIoU (rims and edges pulled in)
+        points = geo.onto_local_surface(points)
     if len(points) == len(obj.points) and np.abs(points - obj.points).max(initial=0) < 1e-3:
         return False  # under a millimetre: a clean object stays as it is
     obj.set_points(points, obj.resolution_m, support)
@@ -142,6 +147,8 @@ class MappingEngine:
         """Objects changed since they were last denoised."""
         self._changed_since_merge_check: set[int] = set()
         """Objects changed since they were last compared with their neighbours for a merge."""
+        self._changed_since_settle: set[int] = set()
+        """Objects changed since the map last settled (`settle`)."""
         self.sightings = Sightings()
         """What the frames said about the candidates (keyframes and sightings alike)."""
         self._confirmed_matrix: tuple[list[MapObject], np.ndarray] | None = None
@@ -167,6 +174,7 @@ class MappingEngine:
         self.next_object_id = max([next_object_id, *(o.id + 1 for o in objects)])
         self._changed_since_cleanup = set(self.objects)  # cleaned again once
         self._changed_since_merge_check = set(self.objects)
+        self._changed_since_settle = set(self.objects)
         self.sightings.clear()
         self._confirmed_matrix = None
 
@@ -348,6 +356,7 @@ class MappingEngine:
             touched.add(obj.id)
         self._changed_since_cleanup |= touched
         self._changed_since_merge_check |= touched
+        self._changed_since_settle |= touched
         if stats.over_cap and not self._at_cap:
             log.warning(
                 "a map reached its cap of %d objects (server setting max_objects, "
@@ -374,6 +383,7 @@ class MappingEngine:
             keep.last_seen, keep.last_seen_t = gone.last_seen, gone.last_seen_t
         keep.version += 1
         del self.objects[gone.id]
+        self._changed_since_settle.add(keep.id)
         self.changes.forget(gone.id)
         self.sightings.merge(keep, gone)
 
@@ -383,12 +393,14 @@ class MappingEngine:
         del self.objects[oid]
         self._changed_since_cleanup.discard(oid)
         self._changed_since_merge_check.discard(oid)
+        self._changed_since_settle.discard(oid)
         self.sightings.forget(oid)
 
     def mark_changed(self, oid: int) -> None:
         """Object `oid` changed: denoised and compared for a merge again."""
         self._changed_since_cleanup.add(oid)
         self._changed_since_merge_check.add(oid)
+        self._changed_since_settle.add(oid)
 
     def _denoise_due(self) -> list[int]:
         """The objects whose outliers this keyframe removes, in id order: the
@@ -399,7 +411,8 @@ class MappingEngine:
 
     def _cleanup(self, touched: set[int], due: list[int], merge: bool = False) -> set[int]:
         """Outlier removal on the `due` objects (`_denoise_due`); every `cleanup_interval`
-        keyframes (or when `merge`), merge of duplicates and pruning of transients. Both organisations run
+        keyframes (or when `merge`: the stream has closed, `settle`), merge of duplicates and
+        pruning of transients. Both organisations run
         this code. The merge compares only the pairs with an object changed since its last
         merge check: two objects that did not change since they were compared cannot have
         started to qualify, so nothing is compared twice for nothing.
@@ -413,7 +426,7 @@ class MappingEngine:
             obj = self.objects.get(oid)
             if obj is None:
                 continue
-            if _denoise(obj):
+            if _denoise(obj, settling=merge):
                 obj.version += 1
                 touched.add(oid)
                 self._changed_since_merge_check.add(oid)
@@ -466,17 +479,18 @@ class MappingEngine:
         return removed
 
     def settle(self) -> IntegrationStats:
-        """The map once its stream has closed: the objects changed since their last clean-up
-        denoised, and those changed since their last merge check compared for a merge (during
-        the walk clean-up visits an object only on its slot of the clean-up interval, so the
-        last keyframes' strays would stay for good; an object clean-up has seen since it last
-        changed is not visited again), the changes committed to the delta log. Returns what
-        changed (published_ids, removed_ids, seq)."""
+        """The map once its stream has closed: the objects changed since the map last settled
+        denoised with the whole object's support (`_denoise`), and those changed since their
+        last merge check compared for a merge (during the walk clean-up visits an object only
+        on its slot of the clean-up interval, so the last keyframes' strays would stay for
+        good; an object that did not change since the last settle is not visited again), the
+        changes committed to the delta log. Returns what changed (published_ids, removed_ids,
+        seq)."""
         stats = IntegrationStats(seq=self.log.seq, keyframe=self.keyframes)
         touched: set[int] = set()
-        removed = self._cleanup(
-            touched, sorted(self._changed_since_cleanup & self.objects.keys()), merge=True
-        )
+        due = (self._changed_since_settle | self._changed_since_cleanup) & self.objects.keys()
+        self._changed_since_settle = set()
+        removed = self._cleanup(touched, sorted(due), merge=True)
         stats.retracted_added.extend(sorted(removed))
         published = {oid for oid in touched if oid in self.objects and self.objects[oid].confirmed}
         for oid in published:

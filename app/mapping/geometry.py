@@ -566,6 +566,24 @@ def well_supported(support: np.ndarray) -> np.ndarray:
     return support >= threshold
 
 
+LOCAL_SUPPORT_SHARE = 0.2
+"""During the walk a point is kept when its support is at least this share of the best
+support among its SURFACE_NEIGHBOURS nearest points (`locally_supported`)."""
+
+
+def locally_supported(points: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """bool [N]: the points whose support (float [N]) reaches LOCAL_SUPPORT_SHARE of the
+    best among their SURFACE_NEIGHBOURS nearest points.
+
+    The walk's own rule: a part of the thing only a few views have shown so far (its
+    neighbours seen as rarely) stays until more views come, while a range-noise tail or a
+    mask's rim next to a surface many views agree on goes."""
+    if len(points) <= SURFACE_NEIGHBOURS:
+        return np.ones(len(points), bool)
+    _, nearest = cKDTree(points).query(points, k=SURFACE_NEIGHBOURS)
+    return support >= LOCAL_SUPPORT_SHARE * support[nearest].max(axis=1)
+
+
 SURFACE_NEIGHBOURS = 16
 """Points whose local plane a point is projected onto (`onto_local_surface`)."""
 PLANAR_SPREAD = 0.25

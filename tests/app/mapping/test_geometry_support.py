@@ -67,3 +67,16 @@ def test_a_pole_is_not_flattened_onto_a_plane():
     pole = np.stack([np.zeros(40), np.zeros(40), 0.03 * np.arange(40)], 1).astype(np.float32)
     pole += np.random.default_rng(3).normal(0, 0.002, pole.shape).astype(np.float32)
     np.testing.assert_array_equal(geo.onto_local_surface(pole), pole)
+
+
+def test_a_part_few_views_have_shown_stays_while_a_tail_beside_a_well_seen_surface_goes():
+    grid = np.stack(np.meshgrid(np.arange(20), np.arange(10)), -1).reshape(-1, 2) * 0.025
+    front = np.column_stack([grid, np.zeros(len(grid))])  # seen by 10 views
+    side = np.column_stack([np.full(len(grid), -0.3), grid[:, 0], grid[:, 1] + 0.05])
+    tail = front[::20] + [0.0, 0.0, 0.03]  # a range-noise tail one voxel off the front
+    points = np.concatenate([front, side, tail]).astype(np.float32)
+    support = np.concatenate([np.full(len(front), 10.0), np.ones(len(side)), np.ones(len(tail))])
+    kept = geo.locally_supported(points, support.astype(np.float32))
+    assert kept[: len(front) + len(side)].all()  # the side, seen once so far, stays
+    assert not kept[len(front) + len(side) :].any()
+    assert not geo.well_supported(support.astype(np.float32))[len(front) :].any()

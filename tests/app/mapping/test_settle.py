@@ -83,9 +83,34 @@ def test_a_settled_map_publishes_nothing_when_settled_again(encoder):
     assert engine.settle().seq == seq and engine.log.seq == seq
 
 
-def test_settling_leaves_an_object_clean_up_has_seen_since_it_changed(encoder):
-    """Settle visits only the objects changed since their last clean-up, not the whole map."""
+def test_settling_leaves_an_object_unchanged_since_the_map_last_settled(encoder):
+    """Settle visits only the objects changed since the map last settled, not the whole map."""
     stray = np.array([[0.6, 0.6, 0.0]], np.float32)
     engine = _engine_with(encoder, np.concatenate([_lamp(), stray]), changed=False)
     seq = engine.log.seq
     assert engine.settle().seq == seq and len(engine.objects[1].points) == len(_lamp()) + 1
+
+
+def test_settle_visits_only_the_objects_changed_since_the_map_last_settled(encoder, monkeypatch):
+    from analytic_world import Rect, render_rects
+
+    knobs = Knobs(
+        min_mapping_bbox_area=100, min_observations=2, cleanup_interval=2, transient_max_age=1000
+    )
+    engine = MappingEngine(encoder, knobs, backend=make_perception())
+    chair = Rect(1, "chair", -0.6, -0.3, -0.1, 0.3, 2.0)
+    table = Rect(2, "table", 1.0, -0.3, 1.5, 0.3, 2.0)
+    for _ in range(4):
+        engine.integrate(render_rects([chair, table]))
+    engine.settle()
+    engine.integrate(render_rects([table]))  # only the table is seen again
+    denoised: list[str] = []
+    outlier_free = geo.outlier_free
+
+    def counted(points, *args, **kwargs):
+        denoised.extend(o.label for o in engine.objects.values() if o.points is points)
+        return outlier_free(points, *args, **kwargs)
+
+    monkeypatch.setattr(geo, "outlier_free", counted)
+    engine.settle()
+    assert denoised == ["table"]
