@@ -46,17 +46,16 @@ RECENT_CHANGES = 256
 
 
 def _denoise(obj: MapObject, settling: bool = False) -> bool:
-    """Clean one object's geometry: the points few of its views agree on dropped, where the
-    support is known (during the walk, against their neighbours' support,
-    `geo.locally_supported`: a part few views have shown yet may still gather more; once its
-    stream has closed, against the whole object's, `geo.well_supported`), then the outliers
-    (`geo.outlier_free`), then, once its stream has closed, what is left moved onto its local
-    surface (`geo.onto_local_surface`). Returns whether its points changed."""
+    """Clean one object's geometry: once its stream has closed, the points few of its views
+    agree on dropped where the support is known (against their neighbours' support,
+    `geo.locally_supported`, and the whole object's, `geo.well_supported`); then the outliers
+    (`geo.outlier_free`); then, once its stream has closed, what is left moved onto its local
+    surface (`geo.onto_local_surface`). During the walk the support rules would cost F-mIoU
+    (a part few views have shown yet is still gathering them). Returns whether its points
+    changed."""
     points, support = obj.points, obj.support
-    if support is not None:
-        agreed = geo.locally_supported(points, support)
-        if settling:
-            agreed &= geo.well_supported(support)
+    if support is not None and settling:
+        agreed = geo.locally_supported(points, support) & geo.well_supported(support)
         if not agreed.all():
             points, support = points[agreed], support[agreed]
     kept = geo.outlier_free(points, OUTLIER_EPS_M)
