@@ -173,6 +173,9 @@ class QueryRater:
         self._text_owner = np.repeat(np.arange(len(texts)), [len(t) for t in texts])  # [T]
         self._text_embeddings = encoder.encode([t for ts in texts for t in ts])  # [T, dim]
         self._name_embeddings = encoder.encode(self.vocabulary)  # [V, dim] unit rows
+        self._vocabulary_names = [
+            names_of(label, texts) for label, texts in zip(self.vocabulary, texts, strict=True)
+        ]
 
     def rate(
         self,
@@ -216,12 +219,51 @@ class QueryRater:
             given = label_texts if label_texts is not None else {}  # an empty Mapping is falsy
             texts = texts_of(label, given, self._vocabulary_texts)
             score = float(np.max(self.encoder.encode(texts) @ query))
-            rivals = scores[~alike[i]]
+            rivals = scores[~self._not_rivals(label, texts, alike[i])]
             best = float(rivals.max()) if len(rivals) else score
             by_label[label] = Standing(
                 (score - mean) / spread, (best - score) / spread, (name_scores[i] - mean) / spread
             )
         return [by_label[label] for label in labels]
+
+    def _not_rivals(self, label: str, texts: Sequence[str], alike: np.ndarray) -> np.ndarray:
+        """bool [V]: the background labels a query meaning `label` may score above it: the
+        alike (name cosine) and those sharing a name with it, unless another kind of the
+        same head noun ("table lamp" stays a rival of "floor lamp")."""
+        names = names_of(label, texts)
+        return np.array(
+            [
+                (alike[v] or bool(names & self._vocabulary_names[v]))
+                and not other_kind(label, other)
+                for v, other in enumerate(self.vocabulary)
+            ],
+            bool,
+        )
+
+
+def names_of(label: str, texts: Sequence[str]) -> frozenset[str]:
+    """What a label's texts call it (casefolded): the label and the texts that come before
+    its first description (label_knowledge serves names first; a description is a text of
+    more than NAME_MAX_WORDS words, and the kind after it is no name)."""
+    names = {label.casefold()}
+    for text in texts:
+        if len(text.split()) > NAME_MAX_WORDS:
+            break
+        names.add(text.casefold())
+    return frozenset(names)
+
+
+def other_kind(label: str, other: str) -> bool:
+    """Whether `other` names another kind of the thing `label` names by the same head noun:
+    the same last word and a word the label lacks ("table lamp" for "floor lamp" or "lamp";
+    not "lamp" for "table lamp", which names it less precisely)."""
+    words, other_words = label.casefold().split(), other.casefold().split()
+    return (
+        bool(words)
+        and bool(other_words)
+        and words[-1] == other_words[-1]
+        and not set(other_words) <= set(words)
+    )
 
 
 def texts_of(label: str, label_texts: LabelTexts, fallback: LabelTexts | None = None) -> list[str]:
@@ -230,6 +272,10 @@ def texts_of(label: str, label_texts: LabelTexts, fallback: LabelTexts | None = 
     if given is None and fallback is not None:
         given = fallback.get(label)
     return [label, *(t for t in given or () if t != label)]
+
+
+NAME_MAX_WORDS = 3
+"""A label text of at most this many words, before the first longer one, is a name of it."""
 
 
 def relevance_of(score: float) -> float:
