@@ -13,26 +13,33 @@ query's scores over the background, so they do not depend on the encoder's cosin
 
 - `z`: how far the hit's label (over its texts) stands out from the background. A real
   query singles out a few labels; a nonsense query scores them all alike.
-- `gap`: how far the hit's label is behind the best background label not *alike* it (label
-  names at cosine >= alike_cosine): "keys" on a map without keys finds a keyboard, but the
-  label "keys" scores far above it; "the bedside table" names a nightstand, and the
-  background's own "bedside table" is alike it, so it does not count against it.
+- `gap`: how far the hit's label is behind the best background label it does not spare:
+  "keys" on a map without keys finds a keyboard, but the label "keys" scores far above it.
+  A label spares the background labels *alike* it (names at cosine >= alike_cosine) and
+  those sharing one of its names (the texts before its first description: WordNet serves
+  "picture" as a name of a painting), but never another kind of its head noun ("desk lamp"
+  for a floor lamp, `other_kind`).
 - `z_name`: how far the label's name alone stands out (a name the query says outright).
 
-A hit's relevance is a ramp of a calibrated linear score of the three, w . (z, gap, z_name)
+A label that another kind of its head noun outranks ("the desk lamp": the background's desk
+lamp scores above a floor lamp's "lamp") is never a confident match; otherwise a hit's
+relevance is a ramp of a calibrated linear score of the three, w . (z, gap, z_name)
 + bias, crossing CONFIDENT where the score is 0: `relevance >= 0.5` and "confident match"
 are one test. The weights, bias and alike_cosine are fitted per text tower by `python -m
 bench.relevance --calibrate` on the synthetic categories' names and paraphrases (never on the
 held-out wordings of bench/data/wordings/) and shipped in `match_rules.json`, keyed by the
-session's `embedding.model`. Server (SQ) and device (LQ) both rate their hits here with the
+session's `embedding.model`, with the tower's embeddings of the background's texts
+(`background_embeddings/`, so no end embeds them at start). Server (SQ) and device (LQ) both rate their hits here with the
 same label texts (the server serves them with the session's labels), so both answer alike.
 """
 
 from __future__ import annotations
 
 import functools
+import io
 import json
 import logging
+import re
 import threading
 import weakref
 from collections.abc import Mapping, Sequence
@@ -115,6 +122,45 @@ def background_texts() -> dict[str, tuple[str, ...]]:
     return {k: tuple(v) for k, v in _read_resource(BACKGROUND_TEXTS_RESOURCE).items()}
 
 
+BACKGROUND_EMBEDDINGS_DIR = "background_embeddings"
+"""Folder of this package with each text tower's embeddings of the background's texts
+(`background_embeddings_name`), written by `python -m bench.relevance --calibrate` so no end
+embeds them at start."""
+
+
+def background_text_list() -> list[str]:
+    """The background's texts in the order their embeddings are shipped: each label's texts
+    (`texts_of`, the label first), label by label, each text once."""
+    shipped = background_texts()
+    return list(
+        dict.fromkeys(t for label in background_vocabulary() for t in texts_of(label, shipped))
+    )
+
+
+def background_embeddings_name(model_id: str) -> str:
+    """The file of a tower's shipped background embeddings (its model id, made a file name)."""
+    return re.sub(r"[^A-Za-z0-9._-]", "_", model_id) + ".npz"
+
+
+def shipped_embeddings(
+    model_id: str, texts: Sequence[str], dim: int
+) -> dict[str, np.ndarray] | None:
+    """{text: float32 [dim]} of the tower's shipped embeddings when they are of exactly these
+    texts at this dimension; None (and a warning when a file is there but stale) otherwise:
+    the rater then embeds them itself."""
+    resource = resources.files("app.answering").joinpath(
+        BACKGROUND_EMBEDDINGS_DIR, background_embeddings_name(model_id)
+    )
+    if not resource.is_file():
+        return None
+    with np.load(io.BytesIO(resource.read_bytes()), allow_pickle=False) as shipped:
+        shipped_texts, rows = shipped["texts"].tolist(), shipped["embeddings"]
+    if shipped_texts != list(texts) or rows.shape != (len(texts), dim):
+        log.warning("shipped background embeddings of %r are stale: embedding them", model_id)
+        return None
+    return dict(zip(shipped_texts, rows.astype(np.float32), strict=True))
+
+
 def _read_resource(name: str) -> dict:
     resource = resources.files("app.answering").joinpath(name)
     if not resource.is_file():
@@ -148,6 +194,15 @@ class Standing(NamedTuple):
     z: float
     gap: float
     z_name: float
+    outranked_by_another_kind: bool = False
+    """A background label naming another kind of the same head noun scores above the label
+    ("the desk lamp" for a floor lamp): the query means that kind, never confidently this."""
+
+    def relevance(self, rule: MatchRule) -> float:
+        """The label's relevance under a rule: `relevance_of` its score, below CONFIDENT
+        when another kind outranks it."""
+        relevance = relevance_of(rule.score(self.z, self.gap, self.z_name))
+        return min(relevance, OUTRANKED_RELEVANCE) if self.outranked_by_another_kind else relevance
 
 
 class QueryRater:
@@ -171,8 +226,12 @@ class QueryRater:
         self._vocabulary_texts = vocabulary_texts
         texts = [texts_of(label, vocabulary_texts) for label in self.vocabulary]
         self._text_owner = np.repeat(np.arange(len(texts)), [len(t) for t in texts])  # [T]
-        self._text_embeddings = encoder.encode([t for ts in texts for t in ts])  # [T, dim]
-        self._name_embeddings = encoder.encode(self.vocabulary)  # [V, dim] unit rows
+        shipped = None
+        if vocabulary is None and vocabulary_texts is background_texts():
+            shipped = shipped_embeddings(encoder.model_id, background_text_list(), encoder.dim)
+        self._shipped = shipped or {}
+        self._text_embeddings = self._embed([t for ts in texts for t in ts])  # [T, dim]
+        self._name_embeddings = self._embed(self.vocabulary)  # [V, dim] unit rows
         self._vocabulary_names = [
             names_of(label, texts) for label, texts in zip(self.vocabulary, texts, strict=True)
         ]
@@ -190,7 +249,7 @@ class QueryRater:
         standings = self.standing(query_embedding, labels, label_texts)
         if standings is None:  # no labels, or every label alike: nothing stands out
             return Rating([0.0] * len(labels), False)
-        relevance = [relevance_of(self.rule.score(*s)) for s in standings]
+        relevance = [s.relevance(self.rule) for s in standings]
         return Rating(relevance, is_match(relevance))
 
     def standing(
@@ -211,34 +270,45 @@ class QueryRater:
             return None
         mean = float(scores.mean())
         distinct = list(dict.fromkeys(labels))
-        names = self.encoder.encode(distinct)  # [L, dim], from the encoder's cache
+        names = self._embed(distinct)  # [L, dim], from the encoder's cache
         alike = names @ self._name_embeddings.T >= self.rule.alike_cosine  # [L, V]
         name_scores = (names @ query).astype(np.float64)
         by_label: dict[str, Standing] = {}
         for i, label in enumerate(distinct):
             given = label_texts if label_texts is not None else {}  # an empty Mapping is falsy
             texts = texts_of(label, given, self._vocabulary_texts)
-            score = float(np.max(self.encoder.encode(texts) @ query))
-            rivals = scores[~self._not_rivals(label, texts, alike[i])]
+            score = float(np.max(self._embed(texts) @ query))
+            spared, kinds = self._spared(label, texts, alike[i])
+            rivals = scores[~spared]
             best = float(rivals.max()) if len(rivals) else score
             by_label[label] = Standing(
-                (score - mean) / spread, (best - score) / spread, (name_scores[i] - mean) / spread
+                (score - mean) / spread,
+                (best - score) / spread,
+                (name_scores[i] - mean) / spread,
+                bool(kinds.any()) and float(scores[kinds].max()) > score,
             )
         return [by_label[label] for label in labels]
 
-    def _not_rivals(self, label: str, texts: Sequence[str], alike: np.ndarray) -> np.ndarray:
-        """bool [V]: the background labels a query meaning `label` may score above it: the
-        alike (name cosine) and those sharing a name with it, unless another kind of the
-        same head noun ("table lamp" stays a rival of "floor lamp")."""
+    def _embed(self, texts: Sequence[str]) -> np.ndarray:
+        """float32 [n, dim] unit rows: the shipped rows of background texts, the encoder's for
+        the others (so a background label's texts weigh the same as a hit and as a rival)."""
+        missing = [t for t in texts if t not in self._shipped]
+        encoded = dict(zip(missing, self.encoder.encode(missing), strict=True)) if missing else {}
+        if not texts:
+            return np.zeros((0, self.encoder.dim), np.float32)
+        return np.stack([self._shipped[t] if t in self._shipped else encoded[t] for t in texts])
+
+    def _spared(
+        self, label: str, texts: Sequence[str], alike: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(bool [V], bool [V]): the background labels a query meaning `label` may score
+        above it (the alike by name cosine and those sharing a name with it, unless another
+        kind of the same head noun: "desk lamp" stays a rival of "floor lamp"), and the
+        other kinds of its head noun."""
         names = names_of(label, texts)
-        return np.array(
-            [
-                (alike[v] or bool(names & self._vocabulary_names[v]))
-                and not other_kind(label, other)
-                for v, other in enumerate(self.vocabulary)
-            ],
-            bool,
-        )
+        kinds = np.array([other_kind(label, other) for other in self.vocabulary], bool)
+        shares = np.array([bool(names & n) for n in self._vocabulary_names], bool)
+        return (alike | shares) & ~kinds, kinds
 
 
 def names_of(label: str, texts: Sequence[str]) -> frozenset[str]:
@@ -274,6 +344,8 @@ def texts_of(label: str, label_texts: LabelTexts, fallback: LabelTexts | None = 
     return [label, *(t for t in given or () if t != label)]
 
 
+OUTRANKED_RELEVANCE = 0.45
+"""Most relevance of a label outranked by another kind of its head noun (below CONFIDENT)."""
 NAME_MAX_WORDS = 3
 """A label text of at most this many words, before the first longer one, is a name of it."""
 
