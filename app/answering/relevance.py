@@ -21,9 +21,7 @@ query's scores over the background, so they do not depend on the encoder's cosin
   for a floor lamp, `other_kind`).
 - `z_name`: how far the label's name alone stands out (a name the query says outright).
 
-A label that another kind of its head noun outranks ("the desk lamp": the background's desk
-lamp scores above a floor lamp's "lamp") is never a confident match; otherwise a hit's
-relevance is a ramp of a calibrated linear score of the three, w . (z, gap, z_name)
+A hit's relevance is a ramp of a calibrated linear score of the three, w . (z, gap, z_name)
 + bias, crossing CONFIDENT where the score is 0: `relevance >= 0.5` and "confident match"
 are one test. The weights, bias and alike_cosine are fitted per text tower by `python -m
 bench.relevance --calibrate` on the synthetic categories' names and paraphrases (never on the
@@ -194,15 +192,10 @@ class Standing(NamedTuple):
     z: float
     gap: float
     z_name: float
-    outranked_by_another_kind: bool = False
-    """A background label naming another kind of the same head noun scores above the label
-    ("the desk lamp" for a floor lamp): the query means that kind, never confidently this."""
 
     def relevance(self, rule: MatchRule) -> float:
-        """The label's relevance under a rule: `relevance_of` its score, below CONFIDENT
-        when another kind outranks it."""
-        relevance = relevance_of(rule.score(self.z, self.gap, self.z_name))
-        return min(relevance, OUTRANKED_RELEVANCE) if self.outranked_by_another_kind else relevance
+        """The label's relevance under a rule (`relevance_of` its score)."""
+        return relevance_of(rule.score(self.z, self.gap, self.z_name))
 
 
 class QueryRater:
@@ -278,14 +271,12 @@ class QueryRater:
             given = label_texts if label_texts is not None else {}  # an empty Mapping is falsy
             texts = texts_of(label, given, self._vocabulary_texts)
             score = float(np.max(self._embed(texts) @ query))
-            spared, kinds = self._spared(label, texts, alike[i])
-            rivals = scores[~spared]
+            rivals = scores[~self._spared(label, texts, alike[i])]
             best = float(rivals.max()) if len(rivals) else score
             by_label[label] = Standing(
                 (score - mean) / spread,
                 (best - score) / spread,
                 (name_scores[i] - mean) / spread,
-                bool(kinds.any()) and float(scores[kinds].max()) > score,
             )
         return [by_label[label] for label in labels]
 
@@ -298,17 +289,14 @@ class QueryRater:
             return np.zeros((0, self.encoder.dim), np.float32)
         return np.stack([self._shipped[t] if t in self._shipped else encoded[t] for t in texts])
 
-    def _spared(
-        self, label: str, texts: Sequence[str], alike: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(bool [V], bool [V]): the background labels a query meaning `label` may score
-        above it (the alike by name cosine and those sharing a name with it, unless another
-        kind of the same head noun: "desk lamp" stays a rival of "floor lamp"), and the
-        other kinds of its head noun."""
+    def _spared(self, label: str, texts: Sequence[str], alike: np.ndarray) -> np.ndarray:
+        """bool [V]: the background labels a query meaning `label` may score above it: the
+        alike by name cosine and those sharing a name with it, unless another kind of the
+        same head noun ("desk lamp" stays a rival of "floor lamp")."""
         names = names_of(label, texts)
         kinds = np.array([other_kind(label, other) for other in self.vocabulary], bool)
         shares = np.array([bool(names & n) for n in self._vocabulary_names], bool)
-        return (alike | shares) & ~kinds, kinds
+        return (alike | shares) & ~kinds
 
 
 def names_of(label: str, texts: Sequence[str]) -> frozenset[str]:
@@ -344,8 +332,6 @@ def texts_of(label: str, label_texts: LabelTexts, fallback: LabelTexts | None = 
     return [label, *(t for t in given or () if t != label)]
 
 
-OUTRANKED_RELEVANCE = 0.45
-"""Most relevance of a label outranked by another kind of its head noun (below CONFIDENT)."""
 NAME_MAX_WORDS = 3
 """A label text of at most this many words, before the first longer one, is a name of it."""
 
