@@ -166,23 +166,20 @@ def calibrate(encoder: TextEncoder, maps: int, objects: int) -> tuple[MatchRule,
     """The rule for this tower fitted on the training wordings: per alike_cosine, a logistic
     regression of "right top-1 label" against "a top-5 label of an absent category" on
     (z, gap, z_name), its bias then moved to the most right answers with match whose false
-    matches stay within FALSE_MATCH_TARGET. Of the alike_cosines, the strictest (fewest
-    labels spared from the gap) whose right answers are within one standard error of the
-    best: the grid's differences are a few answers, and sparing fewer rivals generalises."""
+    matches stay within FALSE_MATCH_TARGET; the alike_cosine with the most right answers."""
     vocabulary_texts = {label: label_texts(label) for label in background_vocabulary()}
-    fitted: list[tuple[float, MatchRule, dict]] = []
+    best: tuple[float, MatchRule, dict] | None = None
     for alike in ALIKE_COSINES:
         rater = QueryRater(
             encoder, vocabulary_texts=vocabulary_texts, rule=MatchRule(alike_cosine=alike)
         )
         asked = ask(encoder, rater, training_wordings(), [], maps, objects)
-        positives = [a.standings[0][:3] for a in asked if a.kind == "right"]
-        negatives = [s[:3] for a in asked if a.kind == "absent" for s in a.standings]
+        positives = [a.standings[0] for a in asked if a.kind == "right"]
+        negatives = [s for a in asked if a.kind == "absent" for s in a.standings]
         x = np.array(positives + negatives, np.float64)
         y = np.r_[np.ones(len(positives)), np.zeros(len(negatives))]
         w = _logistic(x, y)
         rule = MatchRule(w_z=w[0], w_gap=w[1], w_name=w[2], bias=w[3], alike_cosine=alike)
-        best: tuple[float, MatchRule, dict] | None = None
         for shift in np.arange(-4.0, 4.0, 0.05):
             moved = replace(rule, bias=round(float(rule.bias + shift), 4))
             got = figures(asked, moved)
@@ -190,15 +187,9 @@ def calibrate(encoder: TextEncoder, maps: int, objects: int) -> tuple[MatchRule,
                 best is None or got["right_answers_match"] > best[0]
             ):
                 best = (got["right_answers_match"], moved, got)
-        if best is not None:
-            fitted.append(best)
-    if not fitted:
+    if best is None:
         raise RuntimeError("no rule keeps the training false matches within the target")
-    top, _, got = max(fitted, key=lambda f: f[0])
-    standard_error = float(np.sqrt(top * (1 - top) / max(got["right_answers"], 1)))
-    near = [f for f in fitted if f[0] >= top - standard_error]
-    chosen = max(near, key=lambda f: f[1].alike_cosine)
-    return chosen[1], chosen[2]
+    return best[1], best[2]
 
 
 def _logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3, steps: int = 50) -> list[float]:

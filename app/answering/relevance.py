@@ -13,12 +13,10 @@ query's scores over the background, so they do not depend on the encoder's cosin
 
 - `z`: how far the hit's label (over its texts) stands out from the background. A real
   query singles out a few labels; a nonsense query scores them all alike.
-- `gap`: how far the hit's label is behind the best background label it does not spare:
-  "keys" on a map without keys finds a keyboard, but the label "keys" scores far above it.
-  A label spares the background labels *alike* it (names at cosine >= alike_cosine) and
-  those sharing one of its names (the texts before its first description: WordNet serves
-  "picture" as a name of a painting), but never another kind of its head noun ("desk lamp"
-  for a floor lamp, `other_kind`).
+- `gap`: how far the hit's label is behind the best background label not *alike* it (label
+  names at cosine >= alike_cosine): "keys" on a map without keys finds a keyboard, but the
+  label "keys" scores far above it; "the bedside table" names a nightstand, and the
+  background's own "bedside table" is alike it, so it does not count against it.
 - `z_name`: how far the label's name alone stands out (a name the query says outright).
 
 A hit's relevance is a ramp of a calibrated linear score of the three, w . (z, gap, z_name)
@@ -27,8 +25,9 @@ are one test. The weights, bias and alike_cosine are fitted per text tower by `p
 bench.relevance --calibrate` on the synthetic categories' names and paraphrases (never on the
 held-out wordings of bench/data/wordings/) and shipped in `match_rules.json`, keyed by the
 session's `embedding.model`, with the tower's embeddings of the background's texts
-(`background_embeddings/`, so no end embeds them at start). Server (SQ) and device (LQ) both rate their hits here with the
-same label texts (the server serves them with the session's labels), so both answer alike.
+(`background_embeddings/`, so no end embeds them at start). Server (SQ) and device (LQ)
+both rate their hits here with the same label texts (the server serves them with the
+session's labels), so both answer alike.
 """
 
 from __future__ import annotations
@@ -225,9 +224,6 @@ class QueryRater:
         self._shipped = shipped or {}
         self._text_embeddings = self._embed([t for ts in texts for t in ts])  # [T, dim]
         self._name_embeddings = self._embed(self.vocabulary)  # [V, dim] unit rows
-        self._vocabulary_names = [
-            names_of(label, texts) for label, texts in zip(self.vocabulary, texts, strict=True)
-        ]
 
     def rate(
         self,
@@ -271,7 +267,7 @@ class QueryRater:
             given = label_texts if label_texts is not None else {}  # an empty Mapping is falsy
             texts = texts_of(label, given, self._vocabulary_texts)
             score = float(np.max(self._embed(texts) @ query))
-            rivals = scores[~self._spared(label, texts, alike[i])]
+            rivals = scores[~alike[i]]
             best = float(rivals.max()) if len(rivals) else score
             by_label[label] = Standing(
                 (score - mean) / spread,
@@ -289,40 +285,6 @@ class QueryRater:
             return np.zeros((0, self.encoder.dim), np.float32)
         return np.stack([self._shipped[t] if t in self._shipped else encoded[t] for t in texts])
 
-    def _spared(self, label: str, texts: Sequence[str], alike: np.ndarray) -> np.ndarray:
-        """bool [V]: the background labels a query meaning `label` may score above it: the
-        alike by name cosine and those sharing a name with it, unless another kind of the
-        same head noun ("desk lamp" stays a rival of "floor lamp")."""
-        names = names_of(label, texts)
-        kinds = np.array([other_kind(label, other) for other in self.vocabulary], bool)
-        shares = np.array([bool(names & n) for n in self._vocabulary_names], bool)
-        return (alike | shares) & ~kinds
-
-
-def names_of(label: str, texts: Sequence[str]) -> frozenset[str]:
-    """What a label's texts call it (casefolded): the label and the texts that come before
-    its first description (label_knowledge serves names first; a description is a text of
-    more than NAME_MAX_WORDS words, and the kind after it is no name)."""
-    names = {label.casefold()}
-    for text in texts:
-        if len(text.split()) > NAME_MAX_WORDS:
-            break
-        names.add(text.casefold())
-    return frozenset(names)
-
-
-def other_kind(label: str, other: str) -> bool:
-    """Whether `other` names another kind of the thing `label` names by the same head noun:
-    the same last word and a word the label lacks ("table lamp" for "floor lamp" or "lamp";
-    not "lamp" for "table lamp", which names it less precisely)."""
-    words, other_words = label.casefold().split(), other.casefold().split()
-    return (
-        bool(words)
-        and bool(other_words)
-        and words[-1] == other_words[-1]
-        and not set(other_words) <= set(words)
-    )
-
 
 def texts_of(label: str, label_texts: LabelTexts, fallback: LabelTexts | None = None) -> list[str]:
     """A label's texts from `label_texts` (else from `fallback`), the label itself first."""
@@ -330,10 +292,6 @@ def texts_of(label: str, label_texts: LabelTexts, fallback: LabelTexts | None = 
     if given is None and fallback is not None:
         given = fallback.get(label)
     return [label, *(t for t in given or () if t != label)]
-
-
-NAME_MAX_WORDS = 3
-"""A label text of at most this many words, before the first longer one, is a name of it."""
 
 
 def relevance_of(score: float) -> float:
