@@ -33,14 +33,17 @@ import numpy as np
 
 from app.answering.label_knowledge import label_texts
 from app.answering.relevance import (
+    BACKGROUND_EMBEDDINGS_DIR,
     BACKGROUND_TEXTS_RESOURCE,
     CONFIDENT,
     RULES_RESOURCE,
     MatchRule,
     QueryRater,
     Standing,
+    background_embeddings_name,
+    background_text_list,
+    background_texts,
     background_vocabulary,
-    relevance_of,
 )
 from app.semantics import TextEncoder, get_text_encoder
 from bench.common import machine, write_outputs
@@ -137,7 +140,7 @@ def figures(asked: list[Asked], rule: MatchRule) -> dict:
     """Right answers with match, recall and false matches of these answers under `rule`."""
 
     def match(a: Asked) -> bool:
-        return any(relevance_of(rule.score(*s)) >= CONFIDENT for s in a.standings)
+        return any(s.relevance(rule) >= CONFIDENT for s in a.standings)
 
     def share(kinds: tuple[str, ...]) -> tuple[float, int]:
         chosen = [match(a) for a in asked if a.kind in kinds]
@@ -203,9 +206,10 @@ def _logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3, steps: int = 50) -
     return [round(float(v), 4) for v in w]
 
 
-def write_calibration(model_id: str, rule: MatchRule, training: dict) -> Path:
-    """The rule into the package's record (other towers' records kept) and the background's
-    label texts beside it."""
+def write_calibration(encoder: TextEncoder, rule: MatchRule, training: dict) -> Path:
+    """The rule into the package's record (other towers' records kept), the background's
+    label texts beside it and the tower's embeddings of them (float16, with the texts)."""
+    model_id = encoder.model_id
     package = Path(__file__).resolve().parents[1] / "app" / "answering"
     path = package / RULES_RESOURCE
     record = json.loads(path.read_text("utf-8")) if path.is_file() else {"towers": {}}
@@ -219,6 +223,22 @@ def write_calibration(model_id: str, rule: MatchRule, training: dict) -> Path:
     texts = {label: list(label_texts(label)) for label in background_vocabulary()}
     (package / BACKGROUND_TEXTS_RESOURCE).write_text(
         json.dumps(texts, indent=0, sort_keys=True) + "\n", "utf-8"
+    )
+    background_texts.cache_clear()
+    write_background_embeddings(encoder)
+    return path
+
+
+def write_background_embeddings(encoder: TextEncoder) -> Path:
+    """The tower's embeddings of the package's background texts (float16, with the texts
+    they embed), which every end reads instead of embedding them at start."""
+    package = Path(__file__).resolve().parents[1] / "app" / "answering"
+    shipped = background_text_list()
+    folder = package / BACKGROUND_EMBEDDINGS_DIR
+    folder.mkdir(exist_ok=True)
+    path = folder / background_embeddings_name(encoder.model_id)
+    np.savez_compressed(
+        path, texts=np.array(shipped), embeddings=encoder.encode(shipped).astype(np.float16)
     )
     return path
 
@@ -238,7 +258,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.calibrate:
         rule, training = calibrate(encoder, args.maps, args.objects)
         print(f"calibrated {encoder.model_id}: {rule}")
-        print(f"written to {write_calibration(encoder.model_id, rule, training)}")
+        print(f"written to {write_calibration(encoder, rule, training)}")
     rater = QueryRater(encoder)  # the shipped rule and background texts
     outside, negatives = outside_wordings()
     training = figures(

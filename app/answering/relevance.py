@@ -24,15 +24,19 @@ A hit's relevance is a ramp of a calibrated linear score of the three, w . (z, g
 are one test. The weights, bias and alike_cosine are fitted per text tower by `python -m
 bench.relevance --calibrate` on the synthetic categories' names and paraphrases (never on the
 held-out wordings of bench/data/wordings/) and shipped in `match_rules.json`, keyed by the
-session's `embedding.model`. Server (SQ) and device (LQ) both rate their hits here with the
-same label texts (the server serves them with the session's labels), so both answer alike.
+session's `embedding.model`, with the tower's embeddings of the background's texts
+(`background_embeddings/`, so no end embeds them at start). Server (SQ) and device (LQ)
+both rate their hits here with the same label texts (the server serves them with the
+session's labels), so both answer alike.
 """
 
 from __future__ import annotations
 
 import functools
+import io
 import json
 import logging
+import re
 import threading
 import weakref
 from collections.abc import Mapping, Sequence
@@ -115,6 +119,45 @@ def background_texts() -> dict[str, tuple[str, ...]]:
     return {k: tuple(v) for k, v in _read_resource(BACKGROUND_TEXTS_RESOURCE).items()}
 
 
+BACKGROUND_EMBEDDINGS_DIR = "background_embeddings"
+"""Folder of this package with each text tower's embeddings of the background's texts
+(`background_embeddings_name`), written by `python -m bench.relevance --calibrate` so no end
+embeds them at start."""
+
+
+def background_text_list() -> list[str]:
+    """The background's texts in the order their embeddings are shipped: each label's texts
+    (`texts_of`, the label first), label by label, each text once."""
+    shipped = background_texts()
+    return list(
+        dict.fromkeys(t for label in background_vocabulary() for t in texts_of(label, shipped))
+    )
+
+
+def background_embeddings_name(model_id: str) -> str:
+    """The file of a tower's shipped background embeddings (its model id, made a file name)."""
+    return re.sub(r"[^A-Za-z0-9._-]", "_", model_id) + ".npz"
+
+
+def shipped_embeddings(
+    model_id: str, texts: Sequence[str], dim: int
+) -> dict[str, np.ndarray] | None:
+    """{text: float32 [dim]} of the tower's shipped embeddings when they are of exactly these
+    texts at this dimension; None (and a warning when a file is there but stale) otherwise:
+    the rater then embeds them itself."""
+    resource = resources.files("app.answering").joinpath(
+        BACKGROUND_EMBEDDINGS_DIR, background_embeddings_name(model_id)
+    )
+    if not resource.is_file():
+        return None
+    with np.load(io.BytesIO(resource.read_bytes()), allow_pickle=False) as shipped:
+        shipped_texts, rows = shipped["texts"].tolist(), shipped["embeddings"]
+    if shipped_texts != list(texts) or rows.shape != (len(texts), dim):
+        log.warning("shipped background embeddings of %r are stale: embedding them", model_id)
+        return None
+    return dict(zip(shipped_texts, rows.astype(np.float32), strict=True))
+
+
 def _read_resource(name: str) -> dict:
     resource = resources.files("app.answering").joinpath(name)
     if not resource.is_file():
@@ -149,6 +192,10 @@ class Standing(NamedTuple):
     gap: float
     z_name: float
 
+    def relevance(self, rule: MatchRule) -> float:
+        """The label's relevance under a rule (`relevance_of` its score)."""
+        return relevance_of(rule.score(self.z, self.gap, self.z_name))
+
 
 class QueryRater:
     """Rates hits by their labels' texts against the background's, embedded once by
@@ -171,8 +218,12 @@ class QueryRater:
         self._vocabulary_texts = vocabulary_texts
         texts = [texts_of(label, vocabulary_texts) for label in self.vocabulary]
         self._text_owner = np.repeat(np.arange(len(texts)), [len(t) for t in texts])  # [T]
-        self._text_embeddings = encoder.encode([t for ts in texts for t in ts])  # [T, dim]
-        self._name_embeddings = encoder.encode(self.vocabulary)  # [V, dim] unit rows
+        shipped = None
+        if vocabulary is None and vocabulary_texts is background_texts():
+            shipped = shipped_embeddings(encoder.model_id, background_text_list(), encoder.dim)
+        self._shipped = shipped or {}
+        self._text_embeddings = self._embed([t for ts in texts for t in ts])  # [T, dim]
+        self._name_embeddings = self._embed(self.vocabulary)  # [V, dim] unit rows
 
     def rate(
         self,
@@ -187,7 +238,7 @@ class QueryRater:
         standings = self.standing(query_embedding, labels, label_texts)
         if standings is None:  # no labels, or every label alike: nothing stands out
             return Rating([0.0] * len(labels), False)
-        relevance = [relevance_of(self.rule.score(*s)) for s in standings]
+        relevance = [s.relevance(self.rule) for s in standings]
         return Rating(relevance, is_match(relevance))
 
     def standing(
@@ -208,20 +259,31 @@ class QueryRater:
             return None
         mean = float(scores.mean())
         distinct = list(dict.fromkeys(labels))
-        names = self.encoder.encode(distinct)  # [L, dim], from the encoder's cache
+        names = self._embed(distinct)  # [L, dim], from the encoder's cache
         alike = names @ self._name_embeddings.T >= self.rule.alike_cosine  # [L, V]
         name_scores = (names @ query).astype(np.float64)
         by_label: dict[str, Standing] = {}
         for i, label in enumerate(distinct):
             given = label_texts if label_texts is not None else {}  # an empty Mapping is falsy
             texts = texts_of(label, given, self._vocabulary_texts)
-            score = float(np.max(self.encoder.encode(texts) @ query))
+            score = float(np.max(self._embed(texts) @ query))
             rivals = scores[~alike[i]]
             best = float(rivals.max()) if len(rivals) else score
             by_label[label] = Standing(
-                (score - mean) / spread, (best - score) / spread, (name_scores[i] - mean) / spread
+                (score - mean) / spread,
+                (best - score) / spread,
+                (name_scores[i] - mean) / spread,
             )
         return [by_label[label] for label in labels]
+
+    def _embed(self, texts: Sequence[str]) -> np.ndarray:
+        """float32 [n, dim] unit rows: the shipped rows of background texts, the encoder's for
+        the others (so a background label's texts weigh the same as a hit and as a rival)."""
+        missing = [t for t in texts if t not in self._shipped]
+        encoded = dict(zip(missing, self.encoder.encode(missing), strict=True)) if missing else {}
+        if not texts:
+            return np.zeros((0, self.encoder.dim), np.float32)
+        return np.stack([self._shipped[t] if t in self._shipped else encoded[t] for t in texts])
 
 
 def texts_of(label: str, label_texts: LabelTexts, fallback: LabelTexts | None = None) -> list[str]:

@@ -33,8 +33,9 @@ log = logging.getLogger("semanticxr")
 
 
 def warm_up_rating(encoder: TextEncoder) -> None:
-    """Embed the query rater's background texts (~1 s) and read WordNet (~0.5 s) now, not
-    in the first query or the first keyframe's delta (which holds the session's lane)."""
+    """Make the query rater (the tower's background embeddings are read from the package,
+    ~0.1 s; a tower without them embeds the texts, ~20 s on a loaded machine) and read
+    WordNet (~0.5 s) now, not in the first query or the first keyframe's delta."""
     rater_for(encoder)
     label_texts("chair")
 
