@@ -1,6 +1,7 @@
 """The built wheel serves the pages whole: a server run from the wheel's files (not the
 checkout) answers /xr and every module the pages import, as JavaScript, under the same CSP;
-and it holds the top-level packages beside app/ (the synthetic world, the evaluation)."""
+and it holds the top-level packages beside app/ (the synthetic world, the evaluation) and
+the match rule's data files."""
 
 from __future__ import annotations
 
@@ -51,6 +52,10 @@ def test_a_server_installed_from_the_wheel_serves_the_real_device_page_whole(tmp
     for module in ("world/__init__.py", "world/render.py", "evaluation/__init__.py"):
         assert module in names, module
     assert "evaluation/walk.py" in names and "evaluation/relations.py" in names
+    # The match rule's data: the rule, the background texts and their shipped embeddings.
+    for data in ("match_rules.json", "background_texts.json"):
+        assert f"app/answering/{data}" in names, data
+    assert any(n.startswith("app/answering/background_embeddings/") for n in names)
     found = subprocess.run(
         [
             sys.executable,
