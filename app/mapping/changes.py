@@ -249,7 +249,11 @@ class ChangeDetector:
         old.refresh_stay()
         self._vacate(old, stats, keep=new.id)
         from_xyz, _ = old.place()
-        old.set_points(new.points.copy(), new.resolution_m)
+        old.set_points(
+            new.points.copy(),
+            new.resolution_m,
+            None if new.support is None else new.support.copy(),
+        )
         old.absorb_labels(new)
         old.n_obs += new.n_obs
         old.frames_seen += new.frames_seen
