@@ -14,7 +14,7 @@ import numpy as np
 from app.config import Knobs
 from app.mapping.deltas import Delta
 from app.mapping.engine import MappingEngine
-from app.mapping.geometry import cap_points_supported
+from app.mapping.geometry import cap_points
 from app.mapping.object import MapObject
 from app.protocol import ChangeEntry, DeltaMessage, UpsertEntry
 from app.protocol.limits import MAX_CHANGES_PER_DELTA
@@ -26,8 +26,7 @@ MIN_CAP_RESOLUTION_M = Knobs().voxel_size_m
 def client_points(obj: MapObject, max_points: int | None) -> np.ndarray:
     """float32 [<= max_points, 3] of the object as a device holds it (None: full resolution).
 
-    Each voxel of the cap keeps its best supported point (`MapObject.support`: the one
-    most views agreed on). Deterministic, and cached on the object until it changes.
+    Deterministic, and cached on the object until it changes.
     """
     key = (obj.version, max_points)
     cached = obj._client_cache
@@ -36,9 +35,7 @@ def client_points(obj: MapObject, max_points: int | None) -> np.ndarray:
     if max_points is None or len(obj.points) <= max_points:
         points = obj.points
     else:
-        points, _, _ = cap_points_supported(
-            obj.points, obj.support, max_points, max(obj.resolution_m, MIN_CAP_RESOLUTION_M)
-        )
+        points, _ = cap_points(obj.points, max_points, max(obj.resolution_m, MIN_CAP_RESOLUTION_M))
     obj._client_cache = (key, points)
     return points
 
