@@ -46,13 +46,14 @@ RECENT_CHANGES = 256
 
 
 def _denoise(obj: MapObject, settling: bool = False) -> bool:
-    """Clean one object's geometry: once its stream has closed, the points few of its views
-    agree on dropped where the support is known (against their neighbours' support,
-    `geo.locally_supported`, and the whole object's, `geo.well_supported`); then the outliers
-    (`geo.outlier_free`); then, once its stream has closed, what is left moved onto its local
-    surface (`geo.onto_local_surface`). During the walk the support rules would cost F-mIoU
-    (a part few views have shown yet is still gathering them). Returns whether its points
-    changed."""
+    """Clean one object's geometry; returns whether its points changed.
+
+    Always: outliers dropped (`geo.outlier_free`). When `settling` (its stream has closed),
+    first the points few of its views agree on are dropped where the support is known
+    (against their neighbours', `geo.locally_supported`, and the whole object's,
+    `geo.well_supported`), and last what is left is moved onto its local surface
+    (`geo.onto_local_surface`). During the walk both would cost F-mIoU: a part few views have
+    shown yet is still gathering them, and rims and edges would be pulled in."""
     points, support = obj.points, obj.support
     if support is not None and settling:
         agreed = geo.locally_supported(points, support) & geo.well_supported(support)
@@ -61,7 +62,7 @@ def _denoise(obj: MapObject, settling: bool = False) -> bool:
     kept = geo.outlier_free(points, OUTLIER_EPS_M)
     if not kept.all():
         points, support = points[kept], None if support is None else support[kept]
-    if settling:  # during the walk it would cost F-mIoU (rims and edges pulled in)
+    if settling:
         points = geo.onto_local_surface(points)
     if len(points) == len(obj.points) and np.abs(points - obj.points).max(initial=0) < 1e-3:
         return False  # under a millimetre: a clean object stays as it is
