@@ -465,7 +465,7 @@ async def _run(args: argparse.Namespace, source: FrameSource, recordings: list[R
             )
         print(progress.line(), file=sys.stderr, flush=True)
         with contextlib.suppress(ApiError):  # what the server counted and warned of, if reachable
-            session = await client.fetch_session(args.server, sid, token, ssl_context=args.tls_ca)
+            session = await _after_settle(client, args, sid, token)
             print(
                 f"[device] the server counted {frames_words(session)}", file=sys.stderr, flush=True
             )
@@ -527,6 +527,19 @@ async def _run(args: argparse.Namespace, source: FrameSource, recordings: list[R
         )
         return 1
     return 0
+
+
+async def _after_settle(client, args: argparse.Namespace, sid: str, token: str | None):
+    """The session's stats once the server has settled the map after our stream closed (its
+    `streams` back to 0; a server that does not count them is read at once), waiting at most
+    SYNC_TIMEOUT_S: a query asked before the settle is published would be answered by a map
+    the server no longer holds."""
+    deadline = time.monotonic() + SYNC_TIMEOUT_S
+    while True:
+        session = await client.fetch_session(args.server, sid, token, ssl_context=args.tls_ca)
+        if not session.streams or time.monotonic() >= deadline:
+            return session
+        await asyncio.sleep(0.05)
 
 
 def _load_encoder_in_background(load: Callable[[], TextEncoder]) -> asyncio.Future[TextEncoder]:

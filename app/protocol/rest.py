@@ -248,6 +248,10 @@ class SessionStats(Record):
     decode + perception + mapping + delta."""
     update_seq: int
     """Sequence number of the newest map change."""
+    streams: Annotated[int | None, Field(exclude_if=_none)] = None
+    """Extension: frame streams open, each counted until its close has settled the map and
+    published the result, so a device that closed its stream waits for 0 to read the settled
+    `update_seq` (None from a server that does not count them; then left out)."""
     subscribers: int
     embedding: EmbeddingInfo
     knobs: KnobsBody  # type: ignore[valid-type]

@@ -118,10 +118,17 @@ def test_with_models_dir_the_device_answers_locally_with_the_sessions_text_tower
     (answer,) = summary["queries"]
     assert answer["mode"] == "LQ" and answer["results"]
     assert NOTICE not in capsys.readouterr().err
-    # The same space as the server's: the device's best match is the server's best match.
-    best = server_answer(server.url, summary["session_id"], "a chair")[0]
-    assert answer["results"][0]["id"] == best["id"]
-    assert answer["results"][0]["score"] == pytest.approx(best["score"], abs=0.01)
+    # The same space as the server's: each of the device's hits scores what the server gives
+    # the same object, to within the int8 copy's rounding. (Random tiny towers rate many
+    # objects within a thousandth of each other, so the order of near ties may differ.)
+    served = {
+        hit["id"]: hit["score"]
+        for hit in server_answer(server.url, summary["session_id"], "a chair", k=100)
+    }
+    best = max(served.values())
+    for hit in answer["results"]:
+        assert hit["score"] == pytest.approx(served[hit["id"]], abs=0.01)
+    assert served[answer["results"][0]["id"]] >= best - 0.01
 
 
 def test_without_models_dir_the_device_says_so_once_and_asks_the_server(

@@ -217,6 +217,7 @@ async def _stream_frames(ws: WebSocket, manager: SessionManager, session: Sessio
 
     closing: list[asyncio.Future] = []
     session.on_close.add(close_now)
+    session.streams += 1
     bad_in_a_row = 0
     try:
         while not session.closed:
@@ -281,6 +282,7 @@ async def _stream_frames(ws: WebSocket, manager: SessionManager, session: Sessio
         session.on_close.discard(close_now)
         await manager.settle(session)  # the device stopped: its map settles once
         session.flush()  # the device stopped: its last changes go out now
+        session.streams -= 1  # settled and published: a device waiting on `streams` goes on
         manager.save_counters_soon(session)  # and its frame count is saved
     if not closing:
         await _close_if_gone(ws, session)

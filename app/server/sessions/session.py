@@ -63,6 +63,8 @@ class Session:
     dropped: int = 0
     latencies_ms: deque = field(default_factory=lambda: deque(maxlen=2000))
     subscribers: int = 0
+    streams: int = 0
+    """Frame stream sockets open, each until its close has settled and published the map."""
     lane: KeyframeLane = field(default_factory=KeyframeLane)
     """Its lane of the keyframe pipeline; readers of the map take `lane.lock`."""
     _published: asyncio.Event = field(default_factory=asyncio.Event)
@@ -207,6 +209,7 @@ class Session:
                 p95=float(np.percentile(lat, 95)) if lat is not None else None,
             ),
             update_seq=seq,
+            streams=self.streams,
             subscribers=self.subscribers,
             embedding=EmbeddingInfo(
                 model=self.engine.encoder.model_id, dim=self.engine.encoder.dim

@@ -35,6 +35,10 @@ def _mug_box(server, sid: str) -> list[float]:
     return mug["bbox"]
 
 
+def _streams(server, sid: str) -> int:
+    return httpx.get(f"{server.url}/v1/sessions/{sid}", timeout=10).json()["streams"]
+
+
 def _frame(rects: list[Rect], seq: int) -> dict:
     """A v1 frame; a detection whose mask has two parts is listed once."""
     message = frame_message(rects, seq)
@@ -57,11 +61,14 @@ def test_a_closed_stream_settles_its_map(live_server):
             for m in frames:
                 replies.append((await send_and_collect(ws, [m]))[0])
             assert all(r["type"] == "ack" for r in replies), replies
+            assert _streams(server, sid) == 1
             return _mug_box(server, sid)[3]  # x1 while streaming
 
     x1_streaming = asyncio.run(stream_then_close())
     assert x1_streaming > 0.75  # the stray is in the mug's box while the device streams
     deadline = time.monotonic() + 30
-    while _mug_box(server, sid)[3] > 0.1 and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert _mug_box(server, sid)[3] < 0.1  # settled: the mug's own box
+    while _streams(server, sid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    # No stream counted: the close has settled the map, and what a reader sees is settled.
+    assert _streams(server, sid) == 0
+    assert _mug_box(server, sid)[3] < 0.1  # the mug's own box
