@@ -4,9 +4,12 @@
 // words as the dashboard (static/app.js) and the viewer (viewer/scene.py, viewer/app.py)
 // say it.
 //
-// The page has no text encoder yet, so its local answer is by label words only: the objects
-// whose label shares a word with the question, best first. It has no calibrated relevance
-// (`relevance` is null) and no relations; `note` says so.
+// Offline, a session with a static text tower answers plain questions as the server does
+// (offline.mjs: the tower's ranking of the local map, rated by the match rule: same hits, same
+// order, same `match`) and says that a question about how things stand needs the server
+// (`needs_server`). A MiniLM session has no encoder on the page: its local answer is by label
+// words only, the objects whose label shares a word with the question, best first, with no
+// calibrated relevance (`relevance` is null) and no relations; `note` says which it is.
 
 import { agoWords, CONFIDENT_DEGREE, CONFIDENT_RELEVANCE, relationWords } from "../common/words.mjs";
 import { ApiError, request } from "./api.mjs";
@@ -20,6 +23,7 @@ const UNREACHABLE_STATUS = new Set([502, 503, 504]); // a gateway or shard that 
  * Ask the map. Resolves to an answer:
  *
  *   {text, match, source: "server" | "local", note: string | null, now_t?, latency_ms?,
+ *    needs_server?: true (offline, a question about how things stand), ranked_by?,
  *    results: [{id, label, score, relevance, bbox [6], centroid [3],
  *               points: Float32Array (N*3, metres) | null, relation, place?, state?,
  *               last_seen_t?}]}
@@ -30,12 +34,13 @@ const UNREACHABLE_STATUS = new Set([502, 503, 504]); // a gateway or shard that 
  * anchor's geometry filled in from the hits or the follower's objects where known (the
  * floor, id 0, has none). When the network is down or the server does not answer within
  * `timeoutMs` (or answers 502/503/504), the answer is `answerByLabelWords` of the follower's
- * objects (`source: "local"`). Any other refusal (403, 422) throws the ApiError.
+ * objects (`source: "local"`), or, given `offline` (an OfflineAnswerer of the session's static
+ * tower, offline.mjs), its answer. Any other refusal (403, 422) throws the ApiError.
  *
  * from: where the asker stands, [x, y, z] world metres (or {x, y, z}), for questions seen from
  * the asker ("the lamp closest to me"); sent as `from=x,y,z`, as the Python device sends it.
  */
-export async function ask(text, { sid, follower = null, k = 5, from = null, timeoutMs = ASK_TIMEOUT_MS } = {}) {
+export async function ask(text, { sid, follower = null, offline = null, k = 5, from = null, timeoutMs = ASK_TIMEOUT_MS } = {}) {
   const objects = follower ? follower.objects : new Map();
   const params = { text, k, points: "true" };
   if (from !== null) params.from = fromParam(from);
@@ -45,7 +50,8 @@ export async function ask(text, { sid, follower = null, k = 5, from = null, time
     body = await request("GET", `/v1/sessions/${encodeURIComponent(sid)}/query`, { sid, params, signal });
   } catch (err) {
     if (err instanceof ApiError && !UNREACHABLE_STATUS.has(err.status)) throw err;
-    return answerByLabelWords(text, objects, k); // network down, timed out, or no server behind
+    // network down, timed out, or no server behind
+    return offline ? offline.answer(text, objects, k) : answerByLabelWords(text, objects, k);
   }
   return answerFromServer(body, objects);
 }
@@ -229,13 +235,17 @@ function whereWhen(hit, nowT) {
  * The answer as one sentence for the page to show:
  *   "mug — on the desk (0.93)"                      a relational match
  *   "laptop (0.88) — on the dining table, 10 min ago" a plain match, where and when
- *   "mug (by label, offline)"                        a local match
+ *   "mug (0.93) (offline)"                           a local match by the static tower
+ *   "mug (by label, offline)"                        a local match by label words
+ *   "“the mug on the desk” asks how things stand: that needs the server (...)"  offline
  *   "no match for “keys” — closest: mug (0.12)"      no confident match: said as such
  *   "no match for “keys” (offline: no label held shares a word)"
  */
 export function answerWords(answer) {
+  if (answer.needs_server) return `“${answer.text}” asks how things stand: that needs the server (offline, ask for a thing by name)`;
+  if (answer.source === "local" && answer.ranked_by) return `${answerWords({ ...answer, source: "server" })} (offline)`;
   const best = answer.results[0];
-  const local = answer.source === "local";
+  const local = answer.source === "local"; // by label words
   if (!answer.match || !best) {
     const said = `no match for “${answer.text}”`;
     if (local) return `${said} (offline: no label held shares a word)`;
@@ -254,8 +264,8 @@ export function answerWords(answer) {
 /**
  * The hits to draw in the room, best first: none for `match: false` (the page says "no
  * match" instead of drawing a weak guess); for a match, the best hit and the other confident
- * ones (strength >= CONFIDENT_RELEVANCE: the other mugs on desks), or, locally, the others
- * that share as many label words as the best. A relational answer's anchors are not hits.
+ * ones (strength >= CONFIDENT_RELEVANCE: the other mugs on desks), or, by label words, the
+ * others that share as many label words as the best. A relational answer's anchors are not hits.
  */
 export function shownHits(answer) {
   if (!answer || !answer.match || answer.results.length === 0) return [];
@@ -264,7 +274,7 @@ export function shownHits(answer) {
   const words = (hit) => labelWords(hit.label).filter((w) => labelWords(answer.text).includes(w)).length;
   const others = rest.filter((hit) => {
     if (anchorIds.has(hit.id)) return false;
-    if (answer.source === "local") return words(hit) === words(best);
+    if (typeof best.relevance !== "number") return words(hit) === words(best); // by label words
     return hitStrength(hit) >= CONFIDENT_RELEVANCE;
   });
   return [best, ...others];

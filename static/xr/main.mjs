@@ -10,6 +10,7 @@ import { Capture } from "./capture.mjs";
 import { AnswerRenderer } from "./draw.mjs";
 import { FrameSampler, isKeyframe } from "./keyframes.mjs";
 import { FrameStream } from "./stream.mjs";
+import { OfflineAnswerer } from "./offline.mjs";
 import { MapFollower } from "./updates.mjs";
 import { wireVoice } from "./voice.mjs";
 
@@ -42,6 +43,8 @@ const state = {
   record: null, // GET /v1/sessions/{sid}
   xr: null, // the running AR: {session, gl, space, capture, stream, ...}
   follower: null,
+  offline: null, // an OfflineAnswerer of the session's static text tower, once loaded
+  offlineState: "none", // "none" (no static tower), "loading", "ready" or the error's words
   answer: null,
   costs: [], // main-thread ms the page spent in each XR frame that captured, collected or sent
   runtimeCosts: [], // of those frames, ms inside the runtime's getCameraImage / getDepthInformation
@@ -120,6 +123,9 @@ window.semanticxr = {
   get answer() {
     return state.answer;
   },
+  get offline() {
+    return state.offlineState;
+  },
 };
 
 // ------------------------------------------------------------------ sessions
@@ -144,6 +150,8 @@ async function listSessions() {
 async function chooseSession(sid) {
   state.sid = sid || null;
   state.record = null;
+  state.offline = null;
+  state.offlineState = "none";
   state.voice.setSession(state.sid);
   $("#start-ar").disabled = true;
   if (!sid) {
@@ -164,6 +172,26 @@ async function chooseSession(sid) {
   $("#session-info").textContent = lines.join(" ");
   $("#start-ar").disabled = !state.xrSupported;
   startFollowing(sid);
+  prepareOffline(sid, r);
+}
+
+/** With a static text tower, load it (once per browser: cached by hash) and the match rule,
+ * so a plain question is answered as the server would when the server is out of reach. */
+function prepareOffline(sid, record) {
+  if (!record.embedding || !String(record.embedding.model).startsWith("static-")) return;
+  state.offlineState = "loading";
+  OfflineAnswerer.forRecord(record).then(
+    (answerer) => {
+      if (state.sid !== sid) return;
+      state.offline = answerer;
+      state.offlineState = "ready";
+    },
+    (error) => {
+      if (state.sid !== sid) return;
+      state.offlineState = `failed: ${error.message}`;
+      $("#session-info").textContent += ` Offline answers by label words only: the text tower did not load (${error.message}).`;
+    },
+  );
 }
 
 async function createSession(name) {
@@ -419,7 +447,7 @@ function askerPosition() {
 
 async function onAsk(text) {
   if (!state.sid || !text) return;
-  const answer = await ask(text, { sid: state.sid, follower: state.follower, k: 5, from: askerPosition() });
+  const answer = await ask(text, { sid: state.sid, follower: state.follower, offline: state.offline, k: 5, from: askerPosition() });
   showHeard(null);
   showAnswer(answer);
 }
@@ -442,7 +470,7 @@ async function onAskAloud(audio) {
 // Recognised on the device: asked as typed text is (from the page's copy when offline).
 async function onRecognised({ transcript, confidence }) {
   if (!state.sid) return;
-  const answer = await ask(transcript, { sid: state.sid, follower: state.follower, k: 5, from: askerPosition() });
+  const answer = await ask(transcript, { sid: state.sid, follower: state.follower, offline: state.offline, k: 5, from: askerPosition() });
   showHeard(heardWords({ transcript, confidence }, "device"));
   showAnswer({ ...answer, transcript, confidence, asr_ms: null, recognised: "device" });
 }

@@ -19,6 +19,10 @@ export const UPSERT_KEYS = Object.freeze(["id", "version", "label", "embedding",
 
 /** First wait before opening a dropped socket again, then doubled up to RETRY_MAX_MS. */
 export const RETRY_FIRST_MS = 500;
+/** An upsert's optional `label_texts`: at most this many, each at most MAX_LABEL_CHARS long
+ * (app/protocol/limits.py MAX_LABEL_TEXTS, MAX_LABEL_CHARS). */
+export const MAX_LABEL_TEXTS = 16;
+export const MAX_LABEL_CHARS = 200;
 export const RETRY_MAX_MS = 8000;
 
 /** A delta the follower cannot apply; `field` names what is wrong (as app/protocol's DeltaError). */
@@ -114,6 +118,16 @@ function objectOf(raw, field, dim) {
     embedding,
     n_obs: raw.n_obs,
   };
+  if (raw.label_texts != null) {
+    // The label's texts the server rates it by (its synonyms, what it is); none for a label
+    // of the shipped background, whose texts every end holds, and from an older server.
+    const texts = raw.label_texts;
+    const fits = (t) => typeof t === "string" && (t.length <= MAX_LABEL_CHARS || [...t].length <= MAX_LABEL_CHARS); // code points, as Python counts
+    if (!Array.isArray(texts) || texts.length > MAX_LABEL_TEXTS || !texts.every(fits)) {
+      throw new DeltaError(`${field}.label_texts`, `expected at most ${MAX_LABEL_TEXTS} strings of at most ${MAX_LABEL_CHARS} characters`);
+    }
+    object.label_texts = texts.slice();
+  }
   for (const key of ["first_seen_t", "last_seen_t"]) {
     if (raw[key] == null) continue; // an older server sends none
     if (!isTime(raw[key])) throw new DeltaError(`${field}.${key}`, "expected a finite number");
@@ -126,7 +140,7 @@ function objectOf(raw, field, dim) {
  * A decoded `delta` message (msgpack map, binary fields as Uint8Array) as
  * {seq, full, upserts: [object], removed: [id], changes: [...]}, each object as the follower
  * holds it: {id, version, label, bbox [6], centroid [3], points Float32Array (N*3, metres),
- * embedding Float32Array (dim), n_obs, first_seen_t?, last_seen_t?}. DeltaError naming the
+ * embedding Float32Array (dim), n_obs, first_seen_t?, last_seen_t?, label_texts?}. DeltaError naming the
  * first wrong field; no side effects. dim: the embedding dimension held so far, or null.
  */
 export function parseDelta(message, dim = null) {

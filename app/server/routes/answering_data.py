@@ -1,0 +1,103 @@
+"""What a page needs to answer a plain question offline as the server does:
+`GET /v1/answering/{model_id}`, data only (no user data, no session: no credential needed).
+
+- `rule`: the text tower's match rule (app.answering.relevance.rule_for: its calibration, or
+  the rule the server itself falls back to for a tower without one);
+- `background`: the background labels in `background_vocabulary()` order, each with its
+  texts as `texts_of` gives them with the shipped `background_texts()` (the label first);
+- `background_embeddings`: the tower's shipped embeddings of the background's texts when the
+  server's rater reads them (`texts` in `background_text_list()` order, `dtype` float16 or
+  float32, `dim`, the little-endian rows base64), else null: the page then embeds the texts
+  with the tower itself, as the server does;
+- `relational`: the question reader's relation phrases and superlatives
+  (app.relations.grammar.question_phrases). A question holding none of them, word for word,
+  is plain to the reader (it reads a relation only at one of its phrases, a superlative only
+  at one of its words), so a page without the reader can tell the questions it may answer
+  alone from those that need the server.
+"""
+
+from __future__ import annotations
+
+import base64
+import functools
+import io
+from importlib import resources
+
+import numpy as np
+from fastapi import APIRouter
+from fastapi import Path as PathParam
+from fastapi.responses import JSONResponse
+
+from app.answering.relevance import (
+    BACKGROUND_EMBEDDINGS_DIR,
+    background_embeddings_name,
+    background_text_list,
+    background_texts,
+    background_vocabulary,
+    rule_for,
+    texts_of,
+)
+from app.relations.grammar import question_phrases
+
+MAX_MODEL_ID_CHARS = 128
+"""Longest model id asked for (a tower's `embedding.model`)."""
+
+router = APIRouter(prefix="/v1")
+
+
+@router.get(
+    "/answering/{model_id:path}",
+    summary="A text tower's match rule and background, to rate answers offline",
+    responses={422: {"description": "model_id empty or longer than 128 characters"}},
+)
+def answering_data(
+    model_id: str = PathParam(
+        ...,
+        min_length=1,
+        max_length=MAX_MODEL_ID_CHARS,
+        description="the text tower's `embedding.model`, as a session record names it",
+    ),
+) -> JSONResponse:
+    return JSONResponse(_answering_data(model_id), headers={"Cache-Control": "no-cache"})
+
+
+@functools.lru_cache(maxsize=8)
+def _answering_data(model_id: str) -> dict:
+    rule = rule_for(model_id)
+    shipped = background_texts()
+    phrases = question_phrases()
+    return {
+        "model": model_id,
+        "rule": {
+            "w_z": rule.w_z,
+            "w_gap": rule.w_gap,
+            "w_name": rule.w_name,
+            "bias": rule.bias,
+            "alike_cosine": rule.alike_cosine,
+        },
+        "background": [[label, texts_of(label, shipped)] for label in background_vocabulary()],
+        "background_embeddings": _shipped_rows(model_id),
+        "relational": {"relations": phrases["relations"], "superlatives": phrases["superlatives"]},
+    }
+
+
+def _shipped_rows(model_id: str) -> dict | None:
+    """The tower's shipped background embeddings as the rater reads them (of exactly
+    `background_text_list()`), else None."""
+    resource = resources.files("app.answering").joinpath(
+        BACKGROUND_EMBEDDINGS_DIR, background_embeddings_name(model_id)
+    )
+    if not resource.is_file():
+        return None
+    with np.load(io.BytesIO(resource.read_bytes()), allow_pickle=False) as npz:
+        texts, rows = npz["texts"].tolist(), npz["embeddings"]
+    if texts != background_text_list() or rows.ndim != 2 or len(rows) != len(texts):
+        return None  # stale: the rater embeds the texts itself, and so does the page
+    dtype = "float16" if rows.dtype == np.float16 else "float32"
+    data = np.ascontiguousarray(rows, "<f2" if dtype == "float16" else "<f4").tobytes()
+    return {
+        "texts": texts,
+        "dtype": dtype,
+        "dim": int(rows.shape[1]),
+        "rows": base64.b64encode(data).decode("ascii"),
+    }
