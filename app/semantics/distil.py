@@ -114,7 +114,9 @@ def distil_static_tower(
     vocab = _vocab_of(static.tokenizer)
     unk = static.tokenizer.model.unk_token
     if corpus > 0:
-        table = table @ _fitted_map(table, vocab, unk, corpus, teacher_encoder, model_path, progress)
+        table = table @ _fitted_map(
+            table, vocab, unk, corpus, teacher_encoder, model_path, progress
+        )
     tower = StaticTower.build(vocab, table, teacher=teacher, unk=unk)
     progress(f"static tower {tower.model_id}: {len(vocab)} tokens x {tower.dim}")
     return tower.to_bytes()
@@ -209,6 +211,42 @@ class TowerStore:
             tower = self.put(data)
             marker.write_text(tower.sha256, "ascii")
             return tower
+
+
+TOWER_DIR_ENV = "SEMANTICXR_TOWER_DIR"
+
+
+def default_tower_dir() -> Path:
+    """Where the command line keeps static towers: $SEMANTICXR_TOWER_DIR, else
+    ~/.cache/semanticxr/towers."""
+    return Path(os.environ.get(TOWER_DIR_ENV) or Path.home() / ".cache" / "semanticxr" / "towers")
+
+
+def load_static_tower(path: str | Path | None = None, progress: Progress = log.info) -> StaticTower:
+    """The tower in file `path`, else the default directory's MiniLM tower (distilled there on
+    first use: minutes)."""
+    if path is not None:
+        return StaticTower.from_bytes(Path(path).read_bytes())
+    return TowerStore(default_tower_dir()).for_teacher(
+        DEFAULT_MODEL_ID, build=lambda teacher: distil_static_tower(teacher, progress=progress)
+    )
+
+
+def text_tower(name: str, static_path: str | Path | None = None) -> TextEncoder:
+    """A process's text encoder by tower name: "minilm" (the packaged MiniLM) or "static"
+    (`load_static_tower(static_path)`, progress on stderr)."""
+    from app.semantics import get_text_encoder
+    from app.semantics.static import StaticEncoder
+
+    if name == "minilm":
+        return get_text_encoder()
+    if name == "static":
+        import sys
+
+        return StaticEncoder(
+            load_static_tower(static_path, lambda line: print(line, file=sys.stderr, flush=True))
+        )
+    raise ValueError(f"text tower must be minilm or static, got {name!r}")
 
 
 def _file_name(teacher: str) -> str:
