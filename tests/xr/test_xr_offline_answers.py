@@ -10,14 +10,20 @@ is that both ends answer alike, not how well; no distillation runs here.
 
 from __future__ import annotations
 
+import base64
+import dataclasses
+
 import httpx
+import msgpack
 import numpy as np
 import pytest
 from answers_page import open_answers_page
 from relation_scene import SCENE, map_export
 
+from app.protocol.delta import DeltaMessage, UpsertEntry
 from app.relations.grammar import is_relational, parse
 from app.semantics.static import StaticTower
+from app.server.settings import ServerSettings
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -133,6 +139,8 @@ def asked_offline(page, text: str) -> dict:
 def test_offline_the_page_answers_plain_questions_as_the_server(
     live_server, context, page, tower, tmp_path
 ):
+    if "static_tower" not in {f.name for f in dataclasses.fields(ServerSettings)}:
+        pytest.skip("this server cannot serve a static tower yet (serve --static-tower)")
     tower_file = tmp_path / "random.tower"
     tower_file.write_bytes(tower.to_bytes())
     server = live_server(static_tower=str(tower_file))
@@ -261,3 +269,26 @@ def question_sets() -> list[str]:
         "Where’s the mug NEXT TO the sofa?", "the on switch", "turn on the lamp",
     }  # fmt: skip
     return sorted(texts)
+
+
+def test_the_follower_keeps_each_upserts_label_texts_and_refuses_bad_ones(live_server, page):
+    open_answers_page(page, live_server().url)
+
+    def upsert(oid: int, label: str, texts=None) -> UpsertEntry:
+        point = np.zeros((1, 3), np.float32)
+        box = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return UpsertEntry(oid, 1, label, np.full(4, 0.5), point, box, 3, label_texts=texts)
+
+    good = DeltaMessage(
+        1, True, [upsert(1, "rucksack", ("rucksack", "backpack")), upsert(2, "mug")]
+    )
+    bad = good.pack()
+    bad["upserts"][0]["label_texts"] = ["x" * 201]
+    messages = [msgpack.packb(good.pack()), msgpack.packb(bad)]
+    kept, refused = page.evaluate(
+        "m => window.xr.applyAll(m)", [base64.b64encode(m).decode() for m in messages]
+    )
+    rucksack, mug = kept["held"]
+    assert rucksack["label_texts"] == ["rucksack", "backpack"]
+    assert "label_texts" not in mug  # a background label: every end holds its texts
+    assert refused["error"]["field"] == "upserts[0].label_texts"

@@ -24,9 +24,9 @@ import io
 from importlib import resources
 
 import numpy as np
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 from fastapi import Path as PathParam
-from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 
 from app.answering.relevance import (
     BACKGROUND_EMBEDDINGS_DIR,
@@ -37,6 +37,7 @@ from app.answering.relevance import (
     rule_for,
     texts_of,
 )
+from app.protocol.rest import UnprocessableBody
 from app.relations.grammar import question_phrases
 
 MAX_MODEL_ID_CHARS = 128
@@ -45,20 +46,62 @@ MAX_MODEL_ID_CHARS = 128
 router = APIRouter(prefix="/v1")
 
 
+class Rule(BaseModel):
+    """app.answering.relevance.MatchRule: score = w_z z + w_gap gap + w_name z_name + bias."""
+
+    w_z: float
+    w_gap: float
+    w_name: float
+    bias: float
+    alike_cosine: float
+
+
+class ShippedRows(BaseModel):
+    texts: list[str]
+    """The background's texts, in `background_text_list()` order."""
+    dtype: str
+    """float16 or float32."""
+    dim: int
+    rows: str
+    """The rows [len(texts), dim], little-endian, base64."""
+
+
+class Relational(BaseModel):
+    relations: list[str]
+    """The reader's relation phrases ("on", "next to", "to my left", ...)."""
+    superlatives: list[str]
+    """Its superlative words ("closest", "biggest", ...)."""
+
+
+class AnsweringData(BaseModel):
+    model: str
+    rule: Rule
+    background: list[tuple[str, list[str]]]
+    """[label, [text, ...]] per background label, the label its first text."""
+    background_embeddings: ShippedRows | None
+    relational: Relational
+
+
 @router.get(
     "/answering/{model_id:path}",
-    summary="A text tower's match rule and background, to rate answers offline",
-    responses={422: {"description": "model_id empty or longer than 128 characters"}},
+    summary="A text tower's match rule and background, to rate answers offline (public)",
+    response_model=AnsweringData,
+    openapi_extra={"security": []},
+    responses={
+        422: {"model": UnprocessableBody, "description": "model_id empty or over 128 characters"}
+    },
 )
 def answering_data(
+    response: Response,
     model_id: str = PathParam(
         ...,
         min_length=1,
         max_length=MAX_MODEL_ID_CHARS,
         description="the text tower's `embedding.model`, as a session record names it",
     ),
-) -> JSONResponse:
-    return JSONResponse(_answering_data(model_id), headers={"Cache-Control": "no-cache"})
+) -> dict:
+    response.headers["Cache-Control"] = "no-cache"
+    return _answering_data(model_id)
 
 
 @functools.lru_cache(maxsize=8)
