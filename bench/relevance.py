@@ -50,8 +50,8 @@ from app.answering.relevance import (
     background_texts,
     background_vocabulary,
 )
+from app.answering.towers import text_tower
 from app.semantics import TextEncoder
-from app.semantics.distil import text_tower
 from app.semantics.static import is_static_model_id
 from bench.common import machine, write_outputs
 from world.categories import CATEGORIES, is_background
@@ -126,7 +126,7 @@ def ask(
     out = []
     for _ in range(maps):
         present = rng.sample(categories, objects)
-        present_embeddings = encoder.encode(present)
+        present_embeddings = encoder.encode_labels(present)
         for text in asked_texts:
             category = queries.get(text)
             order = np.argsort(-(present_embeddings @ embeddings[text]))[:5]
@@ -292,7 +292,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     held_out = figures(ask(encoder, rater, outside, negatives, args.maps, args.objects), rater.rule)
     no_keys = [c for c in _categories() if c != "keys"]
-    no_keys_embeddings = encoder.encode(no_keys)
+    no_keys_embeddings = encoder.encode_labels(no_keys)
     fixed = {}
     for text in MUST_MATCH + MUST_NOT_MATCH:
         embedding = encoder.encode_query(text)

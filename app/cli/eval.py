@@ -144,7 +144,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _encoder(args: argparse.Namespace):
-    from app.semantics.distil import text_tower
+    from app.answering.towers import text_tower
 
     return text_tower(args.text_tower, args.static_tower)
 

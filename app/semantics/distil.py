@@ -232,22 +232,5 @@ def load_static_tower(path: str | Path | None = None, progress: Progress = log.i
     )
 
 
-def text_tower(name: str, static_path: str | Path | None = None) -> TextEncoder:
-    """A process's text encoder by tower name: "minilm" (the packaged MiniLM) or "static"
-    (`load_static_tower(static_path)`, progress on stderr)."""
-    from app.semantics import get_text_encoder
-    from app.semantics.static import StaticEncoder
-
-    if name == "minilm":
-        return get_text_encoder()
-    if name == "static":
-        import sys
-
-        return StaticEncoder(
-            load_static_tower(static_path, lambda line: print(line, file=sys.stderr, flush=True))
-        )
-    raise ValueError(f"text tower must be minilm or static, got {name!r}")
-
-
 def _file_name(teacher: str) -> str:
     return "".join(c if c.isalnum() or c in "._-" else "_" for c in teacher)

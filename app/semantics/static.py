@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import unicodedata
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import msgpack
@@ -300,13 +301,51 @@ class StaticTower:
 
 
 class StaticEncoder(TextEncoder):
-    """A TextEncoder over a StaticTower: the same encodings as every other end holding it."""
+    """A TextEncoder over a StaticTower: the same encodings as every other end holding it.
 
-    def __init__(self, tower: StaticTower, cache_size: int = 4096):
+    label_texts: a label's texts (its synonyms, definition and kind: app.answering
+    .label_knowledge), given on the end that embeds labels for a map (the server, the evals):
+    a label's embedding is then the unit sum of its name's and the mean of its other texts'
+    (`encode_labels`). A sum of word rows knows a name only by its words; the texts say what
+    the thing is, so descriptions find it (training paraphrases 90.3 -> 93.3 % top-1, held-out
+    81.2 -> 85.0 %: docs/evaluation.md "Text towers"). Questions are embedded plain.
+    """
+
+    def __init__(
+        self,
+        tower: StaticTower,
+        cache_size: int = 4096,
+        label_texts: Callable[[str], Sequence[str]] | None = None,
+    ):
         super().__init__(cache_size)
         self.tower = tower
         self.model_id = tower.model_id
         self.dim = tower.dim
+        self._label_texts = label_texts
+        self._labels: dict[str, np.ndarray] = {}
+
+    def encode_labels(self, labels: list[str] | tuple[str, ...]) -> np.ndarray:
+        if self._label_texts is None:
+            return self.encode(labels)
+        rows = []
+        for label in labels:
+            row = self._labels.get(label)
+            if row is None:
+                row = self._label_row(label)
+                with self._lock:
+                    if len(self._labels) >= self._cache_size:
+                        self._labels.clear()
+                    self._labels[label] = row
+            rows.append(row)
+        return np.stack(rows) if rows else np.zeros((0, self.dim), np.float32)
+
+    def _label_row(self, label: str) -> np.ndarray:
+        name = self.tower.embed(label).astype(np.float64)
+        others = [t for t in self._label_texts(label) if t != label]
+        if others:
+            name = name + np.mean([self.tower.embed(t) for t in others], axis=0)
+        norm = np.linalg.norm(name)
+        return (name / norm if norm > 0 else name).astype(np.float32)
 
     def _encode_uncached(self, texts: list[str]) -> np.ndarray:
         if not texts:
