@@ -17,6 +17,13 @@ parses them (tower.mjs). Questions are the categories' paraphrases, cycled; each
 MiniLM vocabulary with random rows at 256 dimensions (the same size and the same work as a
 distilled one: what is timed does not depend on the values).
 
+--compare (needs a server that serves static towers: `serve --static-tower`): LQ = SQ on a
+map of one object per synthetic category (world.categories), a real server on loopback
+answering online (SQ, k=10) and the page offline (LQ, the tower fetched from the server by
+hash): every category name and paraphrase and every outside wording; how many the page
+answers (the rest it leaves to the server as possibly relational), and of those how many
+have the same ids in the same order, the same top-1 and the same `match`.
+
 Targets (issue 37): LQ p50 <= 10 ms at 10,000 objects; the tower's download <= 10 MB
 compressed (gzip, as a server or proxy would send it; the raw size is reported too).
 """
@@ -147,12 +154,126 @@ def page_run(server_url: str, tower_bytes: bytes, message: bytes, queries: list[
     return result
 
 
+COMPARE_K = 10
+
+PAGE_OFFLINE = """async ([record, questions, k]) => {
+  const { OfflineAnswerer } = await import("/static/xr/offline.mjs");
+  window.offline = await OfflineAnswerer.forRecord(record);
+  return true;
+}"""
+
+PAGE_ASK_ALL = """async ([questions, k]) => {
+  const out = {};
+  for (const q of questions) {
+    const answer = await window.xr.answers.ask(q, { sid: window.follower.sid,
+      follower: window.follower, offline: window.offline, k });
+    out[q] = { ids: answer.results.map((h) => h.id), match: answer.match,
+      needs: Boolean(answer.needs_server), source: answer.source,
+      relevance: answer.results.map((h) => h.relevance) };
+  }
+  return out;
+}"""
+
+
+def agreement(tower_file: str) -> dict:
+    """LQ = SQ with the tower of `tower_file` (module docstring, --compare)."""
+    import json
+    import tempfile
+
+    import httpx
+    from answers_page import open_answers_page
+    from relation_scene import block, map_export
+
+    from app.relations.grammar import is_relational, parse
+    from app.semantics import get_text_encoder
+    from app.semantics.static import StaticTower
+    from app.server.runner import ServerThread
+    from app.server.settings import ServerSettings
+    from world.categories import CATEGORIES
+
+    tower = StaticTower.from_bytes(Path(tower_file).read_bytes())
+    labels = sorted(CATEGORIES)
+    room = {
+        i + 1: (label, block(i % 10, i // 10, 0, 0.5, 0.5, 0.5, seed=i))
+        for i, label in enumerate(labels)
+    }
+    outside = Path(__file__).parent / "data" / "wordings" / "outside.json"
+    questions = {p for c in CATEGORIES.values() for p in c.paraphrases} | set(labels)
+    questions |= {w for ws in json.loads(outside.read_text("utf-8")).values() for w in ws}
+    questions = sorted(questions)
+    embedding = {"model": tower.model_id, "dim": tower.dim, "sha256": tower.sha256}
+    with tempfile.TemporaryDirectory() as data_dir:
+        settings = ServerSettings(
+            host="127.0.0.1", port=0, data_dir=data_dir, static_tower=tower_file
+        )
+        server = ServerThread(settings, get_text_encoder()).start()
+        try:
+            export = map_export(room, "categories", text_tower="static", embedding=embedding)
+            created = httpx.post(f"{server.url}/v1/sessions/import", json=export, timeout=120)
+            created.raise_for_status()
+            sid = created.json()["session_id"]
+            record = httpx.get(f"{server.url}/v1/sessions/{sid}", timeout=30).json()
+            sq = {}
+            for q in questions:
+                params = {"text": q, "k": COMPARE_K, "points": "false"}
+                sq[q] = httpx.get(f"{server.url}/v1/sessions/{sid}/query", params=params).json()
+            with launch_chromium() as browser:
+                context = browser.new_context(permissions=["local-network-access"])
+                page = context.new_page()
+                page.set_default_timeout(600_000)
+                open_answers_page(page, server.url)
+                page.evaluate("([sid]) => window.xr.follow(sid, null)", [sid])
+                page.wait_for_function(
+                    "seq => window.follower.connected && window.follower.lastSeq === seq",
+                    arg=record["update_seq"],
+                )
+                page.evaluate(PAGE_OFFLINE, [record, questions, COMPARE_K])
+                context.set_offline(True)
+                lq = page.evaluate(PAGE_ASK_ALL, [questions, COMPARE_K])
+                context.close()
+        finally:
+            server.stop()
+    plain = [q for q in questions if not lq[q]["needs"]]
+    read_relational = [q for q in questions if is_relational(parse(q))]
+    same_ids = [q for q in plain if lq[q]["ids"] == [h["id"] for h in sq[q]["results"]]]
+    same_top1 = [q for q in plain if lq[q]["ids"][:1] == [h["id"] for h in sq[q]["results"][:1]]]
+    same_match = [q for q in plain if lq[q]["match"] == sq[q]["match"]]
+    relevance_diff = max(
+        abs(mine - h["relevance"])
+        for q in plain
+        for mine, h in zip(lq[q]["relevance"], sq[q]["results"], strict=False)
+        if lq[q]["ids"] == [x["id"] for x in sq[q]["results"]]
+    )
+    return {
+        "tower": tower.model_id,
+        "objects": len(room),
+        "questions": len(questions),
+        "read_relational_by_server": len(read_relational),
+        "left_to_server_offline": len(questions) - len(plain),
+        "missed_relational": sum(1 for q in read_relational if q in plain),
+        "answered_offline": len(plain),
+        "same_ids_in_order": len(same_ids),
+        "same_top1": len(same_top1),
+        "same_match": len(same_match),
+        "max_relevance_diff": relevance_diff,
+        "k": COMPARE_K,
+        "differing": [
+            {"text": q, "lq": lq[q]["ids"], "sq": [h["id"] for h in sq[q]["results"]]}
+            for q in plain
+            if q not in same_ids
+        ],
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = bench_parser(__doc__)
     parser.add_argument("--objects", default="1000,10000", help="map sizes, comma-separated")
     parser.add_argument("--queries", type=int, default=300, help="answers timed per size")
     parser.add_argument("--tower", default=None, help="a tower file (default: random rows)")
     parser.add_argument("--out", default="out", help="folder for bench_page_local_query.json")
+    parser.add_argument(
+        "--compare", action="store_true", help="also LQ = SQ against a real server (docstring)"
+    )
     args = parser.parse_args(argv)
 
     from app.semantics.static import StaticEncoder, StaticTower
@@ -209,7 +330,35 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             server.stop()
 
+    compared = None
+    if args.compare:
+        import tempfile
+
+        with tempfile.NamedTemporaryFile(suffix=".tower") as file:
+            file.write(tower_bytes)
+            file.flush()
+            print("  LQ = SQ: the page offline against the server online", flush=True)
+            compared = agreement(file.name)
+        c = compared
+        print(
+            f"    {c['questions']} questions: {c['answered_offline']} answered offline "
+            f"({c['left_to_server_offline']} left to the server; the reader reads "
+            f"{c['read_relational_by_server']} as relational, {c['missed_relational']} missed); "
+            f"same ids in order (k={c['k']}) {c['same_ids_in_order']}, same top-1 "
+            f"{c['same_top1']}, same match {c['same_match']}; max relevance diff "
+            f"{c['max_relevance_diff']:.1e}"
+        )
+
     checks = []
+    if compared is not None:
+        checks.append(
+            check(
+                "LQ top-1 and match = SQ's (share of plain questions)",
+                min(c["same_top1"], c["same_match"]) / c["answered_offline"],
+                ">=",
+                1.0,
+            )
+        )
     if 10000 in results:
         checks.append(
             check(
@@ -233,6 +382,7 @@ def main(argv: list[str] | None = None) -> int:
         },
         "queries": len(queries),
         "sizes": {str(n): r for n, r in results.items()},
+        "lq_equals_sq": compared,
         "checks": checks,
     }
     path = write_outputs(args.out, "bench_page_local_query", document)
