@@ -8,10 +8,10 @@
 // A question about how things stand ("the mug on the desk", "the biggest lamp") needs the
 // server's question reader and relations; the page does not guess a plain answer to it. The
 // test is sound without the reader: the reader finds a relation only at one of its relation
-// phrases and a superlative only at one of its superlative words (the server lists both in
-// the answering data), so a question holding none of them, word for word, reads as plain
-// there too. One that holds one (even as an idiom, "something to sit on") is left to the
-// server: the page says so.
+// phrases (one that takes an anchor only with a word after it) and a superlative only at one
+// of its superlative words (the server lists them in the answering data), so a question
+// holding none of them so, word for word, reads as plain there too. One that holds one (even
+// as an idiom, "where I wash the dishes by hand") is left to the server: the page says so.
 
 import { request } from "./api.mjs";
 import { QueryRater } from "./relevance.mjs";
@@ -42,19 +42,27 @@ export function questionWords(text) {
   return lowered.match(/[\p{L}\p{N}]+/gu) || [];
 }
 
-/** The test of `mayBeRelational` from the answering data's `relational` phrases. */
-export function relationalTest({ relations, superlatives }) {
-  const phrases = relations.map((phrase) => questionWords(phrase));
+/** The test of `mayBeRelational` from the answering data's `relational` phrases: a
+ * superlative word anywhere, a phrase about the asker anywhere, or a phrase taking an anchor
+ * with a word after it. */
+export function relationalTest({ anchored, from_asker: fromAsker, superlatives }) {
   const byFirst = new Map();
-  for (const words of phrases) {
-    if (!byFirst.has(words[0])) byFirst.set(words[0], []);
-    byFirst.get(words[0]).push(words);
+  for (const [phrases, needsAnchor] of [[anchored, true], [fromAsker, false]]) {
+    for (const phrase of phrases) {
+      const words = questionWords(phrase);
+      if (!byFirst.has(words[0])) byFirst.set(words[0], []);
+      byFirst.get(words[0]).push({ words, needsAnchor });
+    }
   }
   const extremes = new Set(superlatives);
   return (text) => {
     const words = questionWords(text);
     return words.some(
-      (word, i) => extremes.has(word) || (byFirst.get(word) || []).some((phrase) => phrase.every((w, j) => words[i + j] === w)),
+      (word, i) =>
+        extremes.has(word) ||
+        (byFirst.get(word) || []).some(
+          ({ words: phrase, needsAnchor }) => phrase.every((w, j) => words[i + j] === w) && (!needsAnchor || i + phrase.length < words.length),
+        ),
     );
   };
 }

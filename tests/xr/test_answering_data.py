@@ -42,10 +42,11 @@ def test_the_answering_data_is_the_servers_rule_background_and_reader(live_serve
     shipped = background_texts()
     assert data["background"] == [[lb, texts_of(lb, shipped)] for lb in background_vocabulary()]
     phrases = question_phrases()
-    assert data["relational"] == {
-        "relations": phrases["relations"],
-        "superlatives": phrases["superlatives"],
-    }
+    relational = data["relational"]
+    assert set(relational["anchored"]) | set(relational["from_asker"]) == set(phrases["relations"])
+    assert {"on", "next to", "in front of"} <= set(relational["anchored"])
+    assert {"on my left", "nearby", "in front"} <= set(relational["from_asker"])
+    assert relational["superlatives"] == phrases["superlatives"]
     # MiniLM's shipped background embeddings, as the rater reads them (float16 -> float32)
     rows = data["background_embeddings"]
     assert rows["texts"] == background_text_list() and rows["dtype"] == "float16"

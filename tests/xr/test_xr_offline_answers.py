@@ -242,7 +242,7 @@ def test_the_relational_test_never_misses_what_the_reader_reads_as_relational(li
     assert not missed, missed[:10]
     assert sum(read) > 100  # relational questions to miss
     plain = [f for r, f in zip(read, flags, strict=True) if not r]
-    assert sum(not f for f in plain) > 0.5 * len(plain)  # most plain ones answered offline
+    assert sum(not f for f in plain) > 0.9 * len(plain)  # most plain ones answered offline
 
 
 def question_sets() -> list[str]:
@@ -267,6 +267,8 @@ def question_sets() -> list[str]:
         "the mug that I left on the desk", "where didn't I put the keys on the left-hand side",
         "what's in between the sofa and the table", "the lamp that's closest to me",
         "Where’s the mug NEXT TO the sofa?", "the on switch", "turn on the lamp",
+        "something to sit on please", "the mug on my left", "the lamp behind", "a chair nearby",
+        "the mug on the", "the cup in front", "keys that I didn't leave on the table",
     }  # fmt: skip
     return sorted(texts)
 

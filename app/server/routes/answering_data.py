@@ -9,11 +9,13 @@
   server's rater reads them (`texts` in `background_text_list()` order, `dtype` float16 or
   float32, `dim`, the little-endian rows base64), else null: the page then embeds the texts
   with the tower itself, as the server does;
-- `relational`: the question reader's relation phrases and superlatives
-  (app.relations.grammar.question_phrases). A question holding none of them, word for word,
-  is plain to the reader (it reads a relation only at one of its phrases, a superlative only
-  at one of its words), so a page without the reader can tell the questions it may answer
-  alone from those that need the server.
+- `relational`: the question reader's relation phrases, those that take an anchor after them
+  ("on", "next to") and those about the asker ("on my left", "nearby"), and its superlative
+  words (app.relations.grammar). The reader reads a relation only at one of its phrases, an
+  anchored one only with a word after it (its anchor), and a superlative only at one of its
+  words; so a question in which none of them stands so, word for word, is plain to the
+  reader, and a page without the reader can tell the questions it may answer alone from
+  those that need the server.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from app.answering.relevance import (
     texts_of,
 )
 from app.protocol.rest import UnprocessableBody
-from app.relations.grammar import question_phrases
+from app.relations import grammar
 
 MAX_MODEL_ID_CHARS = 128
 """Longest model id asked for (a tower's `embedding.model`)."""
@@ -67,8 +69,10 @@ class ShippedRows(BaseModel):
 
 
 class Relational(BaseModel):
-    relations: list[str]
-    """The reader's relation phrases ("on", "next to", "to my left", ...)."""
+    anchored: list[str]
+    """The reader's relation phrases that take an anchor ("on", "next to", "in front of")."""
+    from_asker: list[str]
+    """Its phrases about the asker, with no anchor after them ("on my left", "nearby")."""
     superlatives: list[str]
     """Its superlative words ("closest", "biggest", ...)."""
 
@@ -108,7 +112,7 @@ def answering_data(
 def _answering_data(model_id: str) -> dict:
     rule = rule_for(model_id)
     shipped = background_texts()
-    phrases = question_phrases()
+    phrases = grammar.question_phrases()
     return {
         "model": model_id,
         "rule": {
@@ -120,8 +124,18 @@ def _answering_data(model_id: str) -> dict:
         },
         "background": [[label, texts_of(label, shipped)] for label in background_vocabulary()],
         "background_embeddings": _shipped_rows(model_id),
-        "relational": {"relations": phrases["relations"], "superlatives": phrases["superlatives"]},
+        "relational": {
+            "anchored": _phrases(grammar._RELATIONS),
+            "from_asker": _phrases(grammar._RELATIONS_FROM_ASKER),
+            "superlatives": phrases["superlatives"],
+        },
     }
+
+
+def _phrases(table: dict[str, tuple[tuple[str, ...], ...]]) -> list[str]:
+    """A relation table of the reader (its private tables: this route and the grammar go
+    together), phrase by phrase, each once."""
+    return list(dict.fromkeys(" ".join(p) for phrases in table.values() for p in phrases))
 
 
 def _shipped_rows(model_id: str) -> dict | None:
