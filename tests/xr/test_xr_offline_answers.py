@@ -18,7 +18,10 @@ import msgpack
 import numpy as np
 import pytest
 from answers_page import open_answers_page
+from fake_xr_browser import open_with_fake_xr, wait_until
 from relation_scene import SCENE, map_export
+from scene_feed import SceneFeed
+from xr_device import Phone
 
 from app.protocol.delta import DeltaMessage, UpsertEntry
 from app.relations.grammar import is_relational, parse
@@ -201,6 +204,44 @@ def test_offline_the_page_answers_plain_questions_as_the_server(
             lq["words"]
             == f"“{text}” asks how things stand: that needs the server (offline, ask for a thing by name)"
         )
+
+
+def test_the_xr_page_loads_the_tower_of_its_session_and_answers_a_typed_question_offline(
+    live_server, xr_page, tower, tmp_path
+):
+    """/xr itself (main.mjs): a static session's tower and answering data load once the
+    session is chosen; with the network cut, a typed question is answered from the page's
+    copy, in words, as the server would rate it."""
+    if "static_tower" not in {f.name for f in dataclasses.fields(ServerSettings)}:
+        pytest.skip("this server cannot serve a static tower yet (serve --static-tower)")
+    tower_file = tmp_path / "random.tower"
+    tower_file.write_bytes(tower.to_bytes())
+    server = live_server(static_tower=str(tower_file))
+    embedding = {"model": tower.model_id, "dim": tower.dim, "sha256": tower.sha256}
+    export = map_export(SCENE, "office", text_tower="static", embedding=embedding)
+    created = httpx.post(f"{server.url}/v1/sessions/import", json=export, timeout=60).json()
+    sid, token = created["session_id"], created["token"]
+    requested: list[str] = []
+    xr_page.on("request", lambda request: requested.append(request.url))
+    open_with_fake_xr(
+        xr_page, f"{server.url}/xr#session={sid}&token={token}", SceneFeed(Phone(), n_frames=2)
+    )
+    wait_until(xr_page, "() => window.semanticxr.offline === 'ready'")
+    wait_until(xr_page, f"() => window.semanticxr.objects === {len(SCENE)}")
+    assert f"{server.url}/v1/text-towers/{tower.sha256}" in requested
+    sq = served(server, sid, "where is my mug")
+    xr_page.context.set_offline(True)
+    xr_page.fill("#ask-text", "where is my mug")
+    xr_page.press("#ask-text", "Enter")
+    wait_until(xr_page, "() => (window.semanticxr.answer || {}).source === 'local'")
+    answer = xr_page.evaluate("window.semanticxr.answer")
+    assert answer["ranked_by"] == tower.model_id and answer["match"] == sq["match"]
+    assert answer["results"][0]["label"] == sq["results"][0]["label"] == "mug"
+    assert xr_page.inner_text("#answer").endswith("(offline)")
+    xr_page.fill("#ask-text", "the mug on the desk")
+    xr_page.press("#ask-text", "Enter")
+    wait_until(xr_page, "() => window.semanticxr.answer.needs_server === true")
+    assert "needs the server" in xr_page.inner_text("#answer")
 
 
 def test_offline_a_minilm_session_answers_by_label_words(live_server, context, page):
