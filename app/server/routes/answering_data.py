@@ -39,7 +39,7 @@ from app.answering.relevance import (
     rule_for,
     texts_of,
 )
-from app.protocol.rest import UnprocessableBody
+from app.protocol.rest import ErrorBody, UnprocessableBody
 from app.relations import grammar
 
 MAX_MODEL_ID_CHARS = 128
@@ -92,7 +92,11 @@ class AnsweringData(BaseModel):
     response_model=AnsweringData,
     openapi_extra={"security": []},
     responses={
-        422: {"model": UnprocessableBody, "description": "model_id empty or over 128 characters"}
+        404: {
+            "model": ErrorBody,
+            "description": "no such path: a model_id with a line break (no tower has one)",
+        },
+        422: {"model": UnprocessableBody, "description": "model_id empty or over 128 characters"},
     },
 )
 def answering_data(
