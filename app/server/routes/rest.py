@@ -33,6 +33,7 @@ from app.server.auth import (
 )
 from app.server.routes.depends import Manager
 from app.server.sessions import ResidentSessionsBusy, Session, SessionManager, StoredSessionsFull
+from app.server.sessions.engines import embedding_info
 from app.store import StoreUnavailableError
 
 
@@ -154,11 +155,10 @@ def _finite(name: str, value: float | None) -> float | None:
 
 def _created(session: Session, token: str) -> protocol.SessionCreated:
     """The 201 answer of a new session (created or imported): the only time its token shows."""
-    encoder = session.engine.encoder
     return protocol.SessionCreated(
         session_id=session.id,
         token=token,
-        embedding=protocol.EmbeddingInfo(model=encoder.model_id, dim=encoder.dim),
+        embedding=embedding_info(session.engine.encoder, session.record),
         knobs=knobs_to_dict(session.knobs),
     )
 
@@ -173,12 +173,17 @@ def _created(session: Session, token: str) -> protocol.SessionCreated:
     | _errors(
         _400="the body is not JSON",
         _422="an unknown knob, a knob value of the wrong type or out of range, a "
-        "perception backend the server did not load, or an `up` that is not an axis",
+        "perception backend the server did not load, an `up` that is not an axis, or a "
+        "`text_tower` that is not minilm or static (static: detections sessions only)",
     ),
 )
 def create_session(body: protocol.CreateSession, manager: Manager) -> protocol.SessionCreated:
+    """A static `text_tower` waits for the server's static tower, distilled on the first
+    need (minutes, once), unless the server was started with --static-tower."""
     session, token = created_or_refused(
-        lambda: manager.create(body.name, body.mode, body.knobs, body.perception, body.up)
+        lambda: manager.create(
+            body.name, body.mode, body.knobs, body.perception, body.up, body.text_tower
+        )
     )
     return _created(session, token)
 
@@ -517,7 +522,6 @@ def export_map(
     with session_in_use(manager, request, sid) as session:
         # Taken under the map lock; points are replaced, never edited.
         objects, removed_objects, changes = manager.export_contents(session)
-        encoder = session.engine.encoder
         header = {
             "format": protocol.rest.EXPORT_FORMAT,
             "version": protocol.rest.EXPORT_VERSION,
@@ -525,10 +529,12 @@ def export_map(
                 "name": session.record.name,
                 "mode": session.engine.mode,
                 "knobs": knobs_to_dict(session.knobs),
-                "embedding": {"model": encoder.model_id, "dim": encoder.dim},
+                "embedding": embedding_info(session.engine.encoder, session.record).to_json(),
                 "perception": session.record.perception,
             },
         }
+        if session.record.text_tower != "minilm":  # minilm goes unsaid, as before the field
+            header["session"]["text_tower"] = session.record.text_tower
         if session.record.up is not None:  # set or inferred; the default goes unsaid
             header["session"] |= {"up": session.up_axis, "up_source": session.up_source}
     filename = f"semanticxr-{sid}.{format}"

@@ -212,7 +212,9 @@ class Session:
             streams=self.streams,
             subscribers=self.subscribers,
             embedding=EmbeddingInfo(
-                model=self.engine.encoder.model_id, dim=self.engine.encoder.dim
+                model=self.engine.encoder.model_id,
+                dim=self.engine.encoder.dim,
+                sha256=self.record.tower_sha256 if self.record.text_tower == "static" else None,
             ),
             knobs=knobs_to_dict(self.knobs),
             warnings=list(self.warnings),
