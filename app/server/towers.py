@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from concurrent.futures import Future
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -58,8 +59,17 @@ class TowerService:
     get, distilled once on first need), `tower(sha)` / `encoder(sha)` (a stored tower by
     hash, for a session created with it), `file_bytes(sha)` (what the route serves)."""
 
-    def __init__(self, directory: str | Path, teacher: str, static_tower: str | None = None):
+    def __init__(
+        self,
+        directory: str | Path,
+        teacher: str,
+        static_tower: str | None = None,
+        build: Callable[[str, Callable[[str], None]], bytes] | None = None,
+    ):
+        """build(teacher, progress) -> tower file: how a tower is distilled (default
+        `distil_static_tower`)."""
         self.directory = Path(directory)
+        self._build = build
         self.teacher = teacher
         """The model id of the server's text tower, the one static towers are distilled from."""
         self._store: TowerStore | None = None
@@ -102,17 +112,20 @@ class TowerService:
         return distilling.result()
 
     def _distil(self, future: Future[StaticTower]) -> None:
-        from app.semantics.distil import distil_static_tower
-
         def build(teacher: str) -> bytes:
             log.info(
                 "distilling a static text tower from %s (once; minutes; kept in %s)",
                 teacher,
                 self.directory,
             )
-            return distil_static_tower(
-                teacher, progress=lambda message: log.info("distilling: %s", message)
-            )
+            if self._build is not None:
+                return self._build(teacher, progress)
+            from app.semantics.distil import distil_static_tower
+
+            return distil_static_tower(teacher, progress=progress)
+
+        def progress(message: str) -> None:
+            log.info("distilling: %s", message)
 
         try:
             tower = self.store.for_teacher(self.teacher, build=build)
