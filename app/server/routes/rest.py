@@ -10,6 +10,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, Response
+from fastapi import Path as FastApiPath
 from fastapi.responses import StreamingResponse
 
 from app import protocol
@@ -35,6 +36,9 @@ from app.server.routes.depends import Manager
 from app.server.sessions import ResidentSessionsBusy, Session, SessionManager, StoredSessionsFull
 from app.server.sessions.engines import embedding_info
 from app.store import StoreUnavailableError
+
+MAX_INT64 = 2**63 - 1
+"""The largest id or seq a store keeps (a 64-bit integer): past it a parameter is a 422."""
 
 
 def _errors(**codes: str) -> dict[int | str, dict[str, Any]]:
@@ -275,7 +279,10 @@ def list_objects(
     },
 )
 def object_history(
-    sid: str, object_id: int, request: Request, manager: Manager
+    sid: str,
+    request: Request,
+    manager: Manager,
+    object_id: int = FastApiPath(ge=-MAX_INT64 - 1, le=MAX_INT64, description="the object's id"),
 ) -> protocol.ObjectHistory:
     with session_in_use(manager, request, sid) as session:
         obj = manager.find_object(session, object_id)
@@ -304,7 +311,10 @@ def list_changes(
     since_t: float | None = Query(None, description="from this frame `t` on (seconds)"),
     until_t: float | None = Query(None, description="up to this frame `t` (seconds)"),
     since_seq: int | None = Query(
-        None, ge=0, description="committed after this update seq (t may go backwards)"
+        None,
+        ge=0,
+        le=MAX_INT64,
+        description="committed after this update seq (t may go backwards)",
     ),
     kind: Literal["added", "moved", "removed"] | None = Query(None, description="one kind"),
     limit: int = Query(1000, ge=1, le=10_000, description="the newest this many"),
