@@ -198,7 +198,8 @@ def static_tower_loader(
         )
 
     def load_static() -> TextEncoder:
-        from app.semantics.static import StaticEncoder, StaticTower, TowerError
+        from app.answering.towers import map_static_encoder
+        from app.semantics.static import StaticTower, TowerError
 
         data = _read_cached_tower(cached, sha256)
         if data is None:
@@ -219,7 +220,7 @@ def static_tower_loader(
             raise EncoderMismatchError(
                 f"refusing local queries: the text tower {sha256} is not a static tower: {exc}"
             ) from None
-        encoder = StaticEncoder(tower)
+        encoder = map_static_encoder(tower)  # labels as the server embeds them
         check_encoder(encoder, embedding)
         _write_cached_tower(cached, data)
         return encoder

@@ -180,7 +180,7 @@ class TowerService:
                 f"with --static-tower FILE holding that tower (no other tower can read the "
                 f"session's map)"
             )
-        from app.semantics.static import StaticEncoder
+        from app.answering.towers import map_static_encoder
 
-        with self._lock:
-            return self._encoders.setdefault(sha256, StaticEncoder(tower))
+        with self._lock:  # labels with their texts, as every map-making end embeds them
+            return self._encoders.setdefault(sha256, map_static_encoder(tower))

@@ -201,7 +201,7 @@ class Lifecycle:
                 )
             records = [*export.objects, *removed_records]
             without = [o.label for o in records if o.embedding is None]
-            by_label = dict(zip(without, engine.encoder.encode(without), strict=True))
+            by_label = dict(zip(without, engine.encoder.encode_labels(without), strict=True))
             objects, removed = [], []
             for name, state, group, into in (
                 ("objects", "present", export.objects, objects),

@@ -169,7 +169,7 @@ def test_plain_and_relational_questions_export_and_import_work_with_the_static_t
         # scored with the tower's own embeddings: the label's cosine to the question
         question = tower.encode_query("the sofa")
         for hit in hits:
-            label = tower.encode([hit["label"]])[0]
+            label = tower.encode_labels([hit["label"]])[0]
             assert hit["score"] == pytest.approx(float(question @ label), abs=1e-4)
         related = http.get(
             f"/v1/sessions/{sid}/query", params={"text": "the mug on the shelf", "k": 3}
@@ -202,9 +202,10 @@ def test_plain_and_relational_questions_export_and_import_work_with_the_static_t
 
 
 def StaticEncoderOf(path: Path):  # noqa: N802 (reads as the encoder it returns)
-    from app.semantics.static import StaticEncoder
+    """The tower in `path` as the server embeds a map with it (labels with their texts)."""
+    from app.answering.towers import map_static_encoder
 
-    return StaticEncoder(StaticTower.from_bytes(path.read_bytes()))
+    return map_static_encoder(StaticTower.from_bytes(path.read_bytes()))
 
 
 def test_a_restart_loads_a_static_session_with_the_tower_it_was_created_with(
