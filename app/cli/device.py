@@ -13,7 +13,8 @@ Local queries need the session's text encoder (the model the session announces i
 `embedding`): MiniLM is packaged; CLIP's text tower (sessions on `--perception models`)
 comes from `--models-dir DIR`, the folder the server's `--models-dir` holds (text tower
 only); a static tower (`--create --text-tower static`) is downloaded from the server by
-its hash once and kept in `--tower-cache DIR`. Without it the device says once that local queries are off and asks the server.
+its hash once and kept in `--tower-cache DIR`. Without one the device says once that local
+queries are off and asks the server.
 Exit status: 0 when streaming worked and every query got an answer, 1 when a query (typed or
 spoken) got none, 2 on a set-up error (a missing --ask-audio file or one of unknown type among
 them), 130 on Ctrl-C.

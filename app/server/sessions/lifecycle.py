@@ -106,9 +106,8 @@ class Lifecycle:
                 f"perception {perception!r} is not loaded on this server; choose one of "
                 f"{', '.join(self.engines.backends)} (a server loads backends with --perception)"
             )
-        self._check_room_to_store()  # before a first static session waits for its tower
+        self._check_room_to_store()  # before making room in memory (or a tower) for nothing
         tower_sha256 = self.engines.tower_of_new_session(text_tower, perception)
-        self._check_room_to_store()  # before making room in memory for nothing
         token = secrets.token_urlsafe(24)
         sid = uuid.uuid4().hex[:16]
         now = time.time()
