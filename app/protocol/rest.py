@@ -372,6 +372,10 @@ class QueryResult(Record):
     now_t: float | None = None
     """Extension (living map): the session's newest frame `t` (device clock), what "last
     seen ... ago" counts from; null before the first keyframe."""
+    ranked_by: Annotated[str | None, Field(exclude_if=_none)] = None
+    """Extension (text towers): the `embedding.model` of the tower that ranked and rated the
+    hits: the session's own, or with `rerank=true` on a static session the tower it was
+    distilled from (None from a server that does not say; then left out)."""
 
 
 class SpokenQueryResult(QueryResult):

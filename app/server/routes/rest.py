@@ -14,6 +14,7 @@ from fastapi import Path as FastApiPath
 from fastapi.responses import StreamingResponse
 
 from app import protocol
+from app.answering.rerank import RERANK_POOL
 from app.answering.things import RelationalHit
 from app.answering.things import is_match as is_relational_match
 from app.config import KnobError, knobs_to_dict
@@ -25,6 +26,8 @@ from app.mapping.publish import client_points
 from app.mapping.validation import MAX_WORLD_M
 from app.perception import UnknownBackendError
 from app.protocol.rest import MapExport
+from app.semantics import TextEncoder
+from app.semantics.static import is_static_model_id
 from app.server.auth import (
     authorize_session,
     bearer,
@@ -382,10 +385,17 @@ def query(
     points: QueryPoints = True,
     include: QueryInclude = None,
     from_: QueryFrom = None,
+    rerank: bool = Query(
+        False,
+        description="on a static-tower session: re-rank the static tower's best "
+        f"{RERANK_POOL} with the tower it was distilled from (MiniLM), which then rates them "
+        "too (`ranked_by` says which tower ranked the answer); no effect on other sessions",
+    ),
 ) -> protocol.QueryResult:
     asker = checked_query_options(manager, k, from_)
     with session_in_use(manager, request, sid) as session:
-        return answer_query(manager, session, text, k, points, include, asker)
+        teacher = manager.encoder if rerank else None
+        return answer_query(manager, session, text, k, points, include, asker, teacher)
 
 
 def answer_query(
@@ -396,20 +406,30 @@ def answer_query(
     points: bool,
     include: str | None,
     asker: np.ndarray | None,
+    teacher: TextEncoder | None = None,
 ) -> protocol.QueryResult:
     """The answer to `text` from a session in use: relational when the question says how
-    things stand, plain otherwise (or with include=removed); `latency_ms` is its own."""
+    things stand, plain otherwise (or with include=removed); `latency_ms` is its own.
+    teacher: on a static-tower session, the tower it was distilled from re-ranks and rates
+    (`Session.reranked_query`; relational questions are answered with it whole)."""
     t0 = time.perf_counter()
+    if teacher is not None and not is_static_model_id(session.engine.encoder.model_id):
+        teacher = None  # a session of the teacher itself: nothing to re-rank
+    ranked_by = (teacher or session.engine.encoder).model_id
     # A question about how things stand is answered from the relation index; a plain one
     # (or one whose anchors the map lacks) as always, as is any with include=removed.
-    related = session.relational_query(text, k, asker) if include is None else None
+    related = session.relational_query(text, k, asker, teacher) if include is None else None
     if related is not None:
         result = _relational_result(session, text, *related, points)
         result.latency_ms = (time.perf_counter() - t0) * 1e3
+        result.ranked_by = ranked_by
         manager.metrics.query_latency.observe(result.latency_ms / 1e3)
         return result
     removed = manager.removed_objects(session) if include == "removed" else None
-    hits, rating = session.rated_query(text, k, removed)
+    if teacher is not None:
+        hits, rating = session.reranked_query(text, k, teacher, removed)
+    else:
+        hits, rating = session.rated_query(text, k, removed)
     now_t = session.engine.last_t
     places = _places_of(session, [h.object.centroid for h in hits], [h.object.id for h in hits])
     max_points = session.knobs.max_object_points_client
@@ -431,7 +451,12 @@ def answer_query(
     latency_ms = (time.perf_counter() - t0) * 1e3
     manager.metrics.query_latency.observe(latency_ms / 1e3)
     return protocol.QueryResult(
-        text=text, match=rating.match, results=results, latency_ms=latency_ms, now_t=now_t
+        text=text,
+        match=rating.match,
+        results=results,
+        latency_ms=latency_ms,
+        now_t=now_t,
+        ranked_by=ranked_by,
     )
 
 

@@ -253,3 +253,38 @@ def test_a_tower_file_from_another_teacher_stops_the_server_from_starting(tmp_pa
     path.write_bytes(b"not a tower")
     with pytest.raises(TowerFileError, match="not a static text tower"):
         read_tower_file(path, DEFAULT_MODEL_ID)
+
+
+def test_rerank_answers_a_static_session_with_its_teacher_and_says_so(server, tower_file, encoder):
+    tower = StaticEncoderOf(tower_file)
+    with client(server) as http:
+        sid = http.post("/v1/sessions/import", json=static_export("room")).json()["session_id"]
+        own = http.get(f"/v1/sessions/{sid}/query", params={"text": "somewhere to sit"}).json()
+        assert own["ranked_by"] == tower.model_id
+        again = http.get(
+            f"/v1/sessions/{sid}/query", params={"text": "somewhere to sit", "rerank": "true"}
+        ).json()
+        assert again["ranked_by"] == DEFAULT_MODEL_ID
+        # the teacher's ranking: its cosine of the question with each hit's label, best first
+        question = encoder.encode_query("somewhere to sit")
+        scores = [hit["score"] for hit in again["results"]]
+        assert scores == sorted(scores, reverse=True)
+        for hit in again["results"]:
+            expected = float(encoder.encode([hit["label"]])[0] @ question)
+            assert hit["score"] == pytest.approx(expected, abs=1e-5)
+        assert again["results"][0]["label"] in ("sofa", "chair")  # the tiny tower knows no seat
+        related = http.get(
+            f"/v1/sessions/{sid}/query",
+            params={"text": "the mug on the shelf", "k": 3, "rerank": "true"},
+        ).json()
+        assert related["ranked_by"] == DEFAULT_MODEL_ID
+        assert (
+            related["results"][0]["id"] == 11 and related["results"][0]["relation"]["kind"] == "on"
+        )
+        # a MiniLM session is its own teacher: nothing to re-rank
+        minilm = http.post("/v1/sessions/import", json=map_export(SCENE, "plain")).json()
+        plain = http.get(
+            f"/v1/sessions/{minilm['session_id']}/query",
+            params={"text": "the sofa", "rerank": "true"},
+        ).json()
+        assert plain["ranked_by"] == DEFAULT_MODEL_ID
