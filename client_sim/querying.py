@@ -26,8 +26,9 @@ session record's `up`, learnt while online; Z until it says). Each relational hi
 relational one (best score >= app.answering.things.MATCH_MIN_SCORE) both ways.
 
 LQ needs the session's own text encoder: the model and dimension the session announces in
-`embedding` (MiniLM, packaged, or CLIP's text tower on the `models` backend, read from
-`--models-dir`; `session_encoder_loader`). An encoder that differs is refused
+`embedding` (MiniLM, packaged; a static tower, downloaded from the server by its hash and
+cached; or CLIP's text tower on the `models` backend, read from `--models-dir`;
+`session_encoder_loader`). An encoder that differs is refused
 (`EncoderMismatchError`): its scores against the map would be noise. Without one, local
 queries are off: every query goes to the server while it answers, whatever the RTT, and a
 query it cannot answer gets mode "none" and no results.
@@ -36,11 +37,14 @@ query it cannot answer gets mode "none" and no results.
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import math
+import os
 import ssl
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -56,10 +60,12 @@ from app.answering.relevance import (
 )
 from app.answering.things import is_match as is_relational_match
 from app.client import SessionApi
+from app.client.rest import ApiError, fetch_text_tower
 from app.mapping.places import up_vector
 from app.relations.bodies import Z_UP
 from app.relations.grammar import Reading
 from app.semantics import DEFAULT_MODEL_ID, TextEncoder
+from app.semantics.static import is_static_model_id, static_model_id
 from client_sim.local_map import LocalMap
 
 SQ, LQ, NONE = "SQ", "LQ", "none"
@@ -91,17 +97,36 @@ def check_encoder(encoder: TextEncoder, embedding: dict) -> None:
         )
 
 
-def session_encoder_loader(embedding: dict, models_dir: str | None) -> Callable[[], TextEncoder]:
+def default_tower_cache() -> Path:
+    """Where the device keeps the static text towers it downloaded, by hash:
+    $XDG_CACHE_HOME/semanticxr/towers, by default ~/.cache/semanticxr/towers."""
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "semanticxr" / "towers"
+
+
+def session_encoder_loader(
+    embedding: dict,
+    models_dir: str | None,
+    *,
+    server_url: str | None = None,
+    ssl_context: ssl.SSLContext | None = None,
+    tower_cache: str | os.PathLike[str] | None = None,
+) -> Callable[[], TextEncoder]:
     """A function that loads the session's text encoder (seconds: run it off the loop) and
     checks it against the announcement. Quick checks first, here:
 
     - the default MiniLM: packaged, always available;
+    - a static tower ("static-<sha16>" with `embedding.sha256`): from `tower_cache` (default
+      `default_tower_cache()`), else downloaded from `server_url` by its hash and cached
+      (`static_tower_loader`); LocalQueriesOff with neither;
     - another model (CLIP's text tower on the `models` backend): from `models_dir`, found as
       the server finds it (the folder whose model id is the announced one); LocalQueriesOff
       without `models_dir` or when it holds no text tower, EncoderMismatchError when it holds
       a different one.
     """
     model = embedding["model"]
+    if is_static_model_id(model):
+        return static_tower_loader(embedding, server_url, ssl_context, tower_cache)
     if model == DEFAULT_MODEL_ID:
 
         def load_default() -> TextEncoder:
@@ -142,6 +167,96 @@ def session_encoder_loader(embedding: dict, models_dir: str | None) -> Callable[
         return encoder
 
     return load_tower
+
+
+def static_tower_loader(
+    embedding: dict,
+    server_url: str | None,
+    ssl_context: ssl.SSLContext | None = None,
+    tower_cache: str | os.PathLike[str] | None = None,
+) -> Callable[[], TextEncoder]:
+    """`session_encoder_loader` for a static tower: a function that reads the tower of the
+    announced hash from the cache, or downloads it from the server (`GET
+    /v1/text-towers/{sha256}`, at most MAX_TOWER_BYTES) and caches it, then checks that the
+    bytes hash to `embedding.sha256` and that the tower is the announced model and dimension
+    (EncoderMismatchError otherwise; ConnectionError when the download fails). Raises at once
+    EncoderMismatchError when the announcement's hash does not name its model, and
+    LocalQueriesOff when the tower is neither cached nor downloadable."""
+    model, sha256 = embedding["model"], embedding.get("sha256")
+    if not isinstance(sha256, str) or not _is_sha256(sha256) or static_model_id(sha256) != model:
+        raise EncoderMismatchError(
+            f"refusing local queries: the session embeds with the static tower {model}, but "
+            f"announces its sha256 as {sha256!r}, which does not name it (64 lowercase hex "
+            f"digits starting with the model id's)"
+        )
+    cache = Path(tower_cache) if tower_cache is not None else default_tower_cache()
+    cached = cache / f"{sha256}.tower"
+    if server_url is None and not cached.is_file():
+        raise LocalQueriesOff(
+            f"the session embeds with the static tower {model}, which is not in {cache}, and "
+            f"no server to download it from was given"
+        )
+
+    def load_static() -> TextEncoder:
+        from app.answering.towers import map_static_encoder
+        from app.semantics.static import StaticTower, TowerError
+
+        data = _read_cached_tower(cached, sha256)
+        if data is None:
+            assert server_url is not None  # checked above (a bad cached copy: downloaded again)
+            try:
+                data = fetch_text_tower(server_url, sha256, ssl_context=ssl_context)
+            except ApiError as exc:
+                raise ConnectionError(f"cannot download the session's text tower: {exc}") from None
+            got = hashlib.sha256(data).hexdigest()
+            if got != sha256:
+                raise EncoderMismatchError(
+                    f"refusing local queries: the server sent a text tower whose sha256 is "
+                    f"{got}, not the {sha256} the session embeds with"
+                )
+        try:
+            tower = StaticTower.from_bytes(data)
+        except TowerError as exc:
+            raise EncoderMismatchError(
+                f"refusing local queries: the text tower {sha256} is not a static tower: {exc}"
+            ) from None
+        encoder = map_static_encoder(tower)  # labels as the server embeds them
+        check_encoder(encoder, embedding)
+        _write_cached_tower(cached, data)
+        return encoder
+
+    return load_static
+
+
+def _is_sha256(text: str) -> bool:
+    return len(text) == 64 and all(c in "0123456789abcdef" for c in text)
+
+
+def _read_cached_tower(path: Path, sha256: str) -> bytes | None:
+    """The cached tower file of that hash; None when absent, unreadable or not of that hash
+    (a damaged copy is removed: it is downloaded again)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    if hashlib.sha256(data).hexdigest() != sha256:
+        path.unlink(missing_ok=True)
+        return None
+    return data
+
+
+def _write_cached_tower(path: Path, data: bytes) -> None:
+    """Keep a checked tower in the cache (atomically: a reader never sees half a file); a
+    cache that cannot be written costs only a download next time."""
+    if path.is_file():
+        return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.name}.{os.getpid()}.part")
+        partial.write_bytes(data)
+        partial.replace(path)
+    except OSError:
+        pass
 
 
 def planned_mode(rtt_ms: float | None, threshold_ms: float) -> str:

@@ -14,11 +14,11 @@ import os
 import sys
 
 from app import __version__
-from app.cli import demo, device, eval, gateway, models, serve, sessions, viewer
+from app.cli import demo, device, eval, gateway, models, serve, sessions, towers, viewer
 from app.config import KnobError
 from app.server.settings import SettingsError
 
-COMMANDS = (eval, serve, gateway, device, demo, viewer, sessions, models)
+COMMANDS = (eval, serve, gateway, device, demo, viewer, sessions, models, towers)
 """In the order `--help` lists them."""
 
 

@@ -12,7 +12,9 @@ answers. Ctrl-C stops it cleanly (the summary is still written).
 Local queries need the session's text encoder (the model the session announces in
 `embedding`): MiniLM is packaged; CLIP's text tower (sessions on `--perception models`)
 comes from `--models-dir DIR`, the folder the server's `--models-dir` holds (text tower
-only). Without it the device says once that local queries are off and asks the server.
+only); a static tower (`--create --text-tower static`) is downloaded from the server by
+its hash once and kept in `--tower-cache DIR`. Without one the device says once that local
+queries are off and asks the server.
 Exit status: 0 when streaming worked and every query got an answer, 1 when a query (typed or
 spoken) got none, 2 on a set-up error (a missing --ask-audio file or one of unknown type among
 them), 130 on Ctrl-C.
@@ -88,6 +90,14 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--mode", default="semanticxr", choices=("semanticxr", "baseline"), help="of --create"
     )
     session.add_argument(
+        "--text-tower",
+        default="minilm",
+        choices=("minilm", "static"),
+        help="of --create: the session's text tower (static: a table distilled from MiniLM, "
+        "which the device downloads by hash and answers local queries with in well under a "
+        "millisecond; default minilm)",
+    )
+    session.add_argument(
         "--api-key",
         default=os.environ.get("SEMANTICXR_API_KEY"),
         help="server API key, needed by --create when set (default: env SEMANTICXR_API_KEY)",
@@ -153,6 +163,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="where the text tower of a `--perception models` session is (the server's "
         "--models-dir; only the text tower is loaded); without it such a session's queries "
         "go to the server",
+    )
+    parser.add_argument(
+        "--tower-cache",
+        metavar="DIR",
+        help="where the static text towers downloaded from servers are kept, by hash "
+        "(default ~/.cache/semanticxr/towers)",
     )
     parser.add_argument("--json", metavar="PATH", help="write a summary as JSON here")
     add_knob_flags(parser)
@@ -312,17 +328,19 @@ async def _join_session(
 ) -> tuple[str, str | None, SessionCreated | SessionStats]:
     """(session id, token, the session's `knobs` and `embedding`: the answer creating it, or its
     stats) for --create or --session."""
+    from app.client.rest import create_session
     from client_sim.streaming import DeviceClient
 
     changes = explicit_knobs(args)
     if args.create:
-        sid, token, answer = await DeviceClient.create_session(
+        sid, token, answer = await create_session(
             args.server,
             name=args.name,
             mode=args.mode,
             knobs=changes,
             api_key=args.api_key,
             ssl_context=args.tls_ca,
+            text_tower=args.text_tower,
         )
         print(f"[device] created session {sid} (token {token})", file=sys.stderr)
         return sid, token, parsed_answer(SessionCreated, answer, "POST /v1/sessions")
@@ -411,7 +429,14 @@ def _local_queries(
     from client_sim.querying import EncoderMismatchError, LocalQueriesOff, session_encoder_loader
 
     try:
-        return session_encoder_loader(embedding, args.models_dir), None
+        loader = session_encoder_loader(
+            embedding,
+            args.models_dir,
+            server_url=args.server,
+            ssl_context=args.tls_ca,
+            tower_cache=args.tower_cache,
+        )
+        return loader, None
     except LocalQueriesOff as exc:
         print(f"[device] local queries are off for this session: {exc}", file=sys.stderr)
         return None, str(exc)

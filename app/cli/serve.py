@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from app.server.app import create_app
     from app.server.runner import tls_ready, uvicorn_config
     from app.server.tls import TlsError
+    from app.server.towers import TowerFileError, read_tower_file
     from app.speech import AsrSettingError, check_asr
 
     settings = settings_from_args(args)
@@ -79,8 +80,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_asr(settings.asr)  # before any model loads: a missing Whisper stops us at once
         load_backends(settings)
+        if settings.static_tower is not None:  # a bad file stops us before the port binds
+            from app.semantics import DEFAULT_MODEL_ID
+
+            read_tower_file(settings.static_tower, DEFAULT_MODEL_ID)
         settings, certificate = tls_ready(settings)
-    except (MissingModelsError, TlsError, AsrSettingError) as exc:
+    except (MissingModelsError, TlsError, AsrSettingError, TowerFileError) as exc:
         print(f"semanticxr serve: {exc}", file=sys.stderr)
         return 2
     if certificate is None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import ssl
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -119,17 +120,25 @@ async def create_session(
     knobs: dict | None = None,
     api_key: str | None = None,
     ssl_context: ssl.SSLContext | None = None,
+    text_tower: str | None = None,
 ) -> tuple[str, str, dict]:
-    """POST /v1/sessions -> (session_id, token, the whole answer incl. embedding, knobs)."""
+    """POST /v1/sessions -> (session_id, token, the whole answer incl. embedding, knobs).
+    text_tower: "minilm" or "static" (None: the server's default, minilm); the first static
+    session of a server may wait minutes for its tower's distillation."""
     body: dict[str, Any] = {"mode": mode, "knobs": knobs or {}}
     if name is not None:
         body["name"] = name
+    if text_tower is not None:
+        body["text_tower"] = text_tower
     url = f"{http_base_url(server_url)}/v1/sessions"
-    async with http_client(api_key, ssl_context=ssl_context) as http:
-        answer = await request(http, "POST", url, expect=201, json=body)
+    timeout_s = REST_TIMEOUT_S if text_tower in (None, "minilm") else TOWER_DISTIL_TIMEOUT_S
+    async with http_client(api_key, ssl_context=ssl_context, timeout_s=timeout_s) as http:
+        answer = await request(http, "POST", url, expect=201, json=body, timeout_s=timeout_s)
     return answer["session_id"], answer["token"], answer
 
 
+TOWER_DISTIL_TIMEOUT_S = 900.0
+"""Longest wait for a static session's creation: a server's first one distils its tower."""
 EXPORT_TIMEOUT_S = 300.0
 """Longest wait for an export or import, whole (a map may be tens of megabytes)."""
 
@@ -227,6 +236,53 @@ async def import_map(
                     413,
                 ) from None
             raise
+
+
+MAX_TOWER_BYTES = 64 << 20
+"""Largest static text tower a client downloads (a 256-d int8 table of 30,522 tokens is
+about 8 MB)."""
+TOWER_TIMEOUT_S = 120.0
+"""Longest wait for a tower's download, whole."""
+
+
+def fetch_text_tower(
+    server_url: str,
+    sha256: str,
+    *,
+    ssl_context: ssl.SSLContext | None = None,
+    max_bytes: int = MAX_TOWER_BYTES,
+    timeout_s: float = TOWER_TIMEOUT_S,
+) -> bytes:
+    """GET /v1/text-towers/{sha256}: the tower file's bytes (blocking: call it from a
+    thread). ApiError naming the call when the server is unreachable or slow (over
+    `timeout_s` in all), answers another status than 200, or sends more than `max_bytes`
+    (refused as soon as its Content-Length or its bytes say so). The caller checks the hash."""
+    url = f"{http_base_url(server_url)}/v1/text-towers/{sha256}"
+    deadline = time.monotonic() + timeout_s
+    try:
+        with (
+            httpx.Client(
+                timeout=timeout_s, verify=ssl_context if ssl_context is not None else True
+            ) as http,
+            http.stream("GET", url) as response,
+        ):
+            if response.status_code != 200:
+                response.read()
+                _answer("GET", url, response, 200)  # raises, with the server's detail
+            length = response.headers.get("content-length")
+            if length is not None and length.isdigit() and int(length) > max_bytes:
+                raise ApiError(f"GET {url}: the tower is {length} bytes, over {max_bytes}")
+            chunks, size = [], 0
+            for chunk in response.iter_bytes():
+                size += len(chunk)
+                if size > max_bytes:
+                    raise ApiError(f"GET {url}: the tower is over {max_bytes} bytes")
+                if time.monotonic() > deadline:
+                    raise ApiError(f"GET {url}: the download took over {timeout_s:g} s")
+                chunks.append(chunk)
+    except httpx.HTTPError as exc:
+        raise ApiError(f"GET {url}: {type(exc).__name__}: {exc}") from exc
+    return b"".join(chunks)
 
 
 class SessionApi:

@@ -30,6 +30,11 @@ UpAxis = Literal["+x", "-x", "+y", "-y", "+z", "-z"]
 """Which way is up in the world frame: a world axis and its sense ("+z": our synthetic world,
 "+y": XR runtimes)."""
 UP_AXES: tuple[str, ...] = get_args(UpAxis)
+TextTower = Literal["minilm", "static"]
+"""A session's text tower: "minilm" (all-MiniLM-L6-v2, the default) or "static" (a static
+embedding table distilled from it, served by hash at `GET /v1/text-towers/{sha256}`)."""
+TEXT_TOWERS: tuple[str, ...] = get_args(TextTower)
+DEFAULT_TEXT_TOWER = "minilm"
 UpSource = Literal["set", "inferred", "default"]
 """Where a session's up comes from: set at creation, inferred from the device's poses, or
 the default (+z) while neither."""
@@ -147,6 +152,10 @@ class EmbeddingInfo(Record):
     """Encoder model id."""
     dim: int
     """Embedding dimension."""
+    sha256: Annotated[str | None, Field(exclude_if=lambda value: value is None)] = None
+    """Extension: the SHA-256 of a static text tower's file (64 hex digits), which the
+    device downloads from `GET /v1/text-towers/{sha256}`; None (left out of the body) for
+    every other encoder."""
 
 
 class CreateSession(Record):
@@ -164,6 +173,11 @@ class CreateSession(Record):
     up: UpAxis | None = None
     """Extension: which world axis is up ("+x", "-x", "+y", "-y", "+z" or "-z"), for the
     relations and places answers. Left out, the server infers it from the device's poses."""
+    text_tower: TextTower = DEFAULT_TEXT_TOWER
+    """Extension: the text tower labels and questions are embedded with: "minilm"
+    (all-MiniLM-L6-v2) or "static" (a static table distilled from it, which devices and the
+    page download by hash; `embedding` then names it). Only `detections` sessions have a
+    static tower so far."""
 
 
 class SessionCreated(Record):
@@ -358,6 +372,10 @@ class QueryResult(Record):
     now_t: float | None = None
     """Extension (living map): the session's newest frame `t` (device clock), what "last
     seen ... ago" counts from; null before the first keyframe."""
+    ranked_by: Annotated[str | None, Field(exclude_if=_none)] = None
+    """Extension (text towers): the `embedding.model` of the tower that ranked and rated the
+    hits: the session's own, or with `rerank=true` on a static session the tower it was
+    distilled from (None from a server that does not say; then left out)."""
 
 
 class SpokenQueryResult(QueryResult):
@@ -439,6 +457,8 @@ class ExportedSession(Record):
     session used the default); an import keeps it."""
     up_source: Annotated[Literal["set", "inferred"] | None, Field(exclude_if=_none)] = None
     """Extension: where `up` came from ("set" when absent); an import keeps it."""
+    text_tower: Annotated[TextTower | None, Field(exclude_if=_none)] = None
+    """Extension: the session's text tower (absent: "minilm"); an import keeps it."""
 
 
 MAX_EXPORTED_STAYS = 32

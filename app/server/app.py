@@ -22,7 +22,7 @@ from app.server.docs import install_docs
 from app.server.edges import HostOriginMiddleware
 from app.server.limits import BodyLimitMiddleware, SocketLimitMiddleware, body_limits
 from app.server.metrics import HttpMetricsMiddleware, Metrics, make_metrics
-from app.server.routes import answering_data, pages, rest, speech, ws
+from app.server.routes import answering_data, pages, rest, speech, towers, ws
 from app.server.routes.depends import Manager
 from app.server.sessions import SessionManager
 from app.server.settings import ServerSettings
@@ -191,6 +191,7 @@ def create_app(
 
     app.include_router(rest.router)
     app.include_router(speech.router)
+    app.include_router(towers.router)
     app.include_router(ws.router)
     app.include_router(pages.router)
     app.include_router(answering_data.router)

@@ -19,6 +19,7 @@ from app.server.sessions import (
     SessionManager,
     token_matches,
 )
+from app.server.towers import MissingTowerError
 from app.store import SessionHeld, StoreUnavailableError
 
 
@@ -84,6 +85,8 @@ def authorize_session(manager: SessionManager, sid: str, token: str | None) -> S
         raise
     except (ResidentSessionsBusy, StoreUnavailableError, SessionHeld) as exc:
         raise retry_later(exc) from None
+    except MissingTowerError as exc:  # lasts until the server holds the tower again
+        raise HTTPException(409, str(exc)) from None
 
 
 def retry_later(exc: ResidentSessionsBusy | StoreUnavailableError | SessionHeld) -> HTTPException:

@@ -49,7 +49,8 @@ def swagger_ui_assets() -> Path:
 def add_security(schema: dict[str, Any]) -> dict[str, Any]:
     """The OpenAPI document with SECURITY_SCHEMES and each operation's requirement: a
     session's token or the API key under /v1/sessions/{sid}; the API key elsewhere in /v1
-    and for /metrics; nothing for /healthz."""
+    and for /metrics; nothing for /healthz, nor for an operation that declares its own
+    (`openapi_extra={"security": []}`: public, e.g. a text tower by its hash)."""
     schema.setdefault("components", {})["securitySchemes"] = SECURITY_SCHEMES
     for path, operations in schema.get("paths", {}).items():
         if SESSION_PATH in path:
@@ -59,7 +60,7 @@ def add_security(schema: dict[str, Any]) -> dict[str, Any]:
         else:
             continue
         for operation in operations.values():
-            operation["security"] = security
+            operation.setdefault("security", security)
     return schema
 
 

@@ -49,6 +49,10 @@ class ServerSettings:
     """Perception backends loaded at start, comma-separated; sessions use the first unless they choose."""
     models_dir: str | None = None
     """Folder with one sub-folder per model for --perception models (load from it only, never the hub); default: Hugging Face ids."""
+    static_tower: str | None = None
+    """A static text tower file (`semanticxr towers distil --out FILE`) for the sessions
+    created with text_tower "static" (kept in DATA_DIR/towers); unset: the server distils
+    one from its text tower on first need (minutes, once) and keeps it there."""
     mapping_workers: int = 1
     """Threads that map keyframes, shared round-robin by the sessions with one waiting (each maps one at a time). Mapping holds the GIL: a second thread maps no faster and costs CPU (32 devices: 6.7 against 7.9 ms a frame, keyframe ack p95 893 against 975 ms); raise it for --perception models, whose networks release the GIL."""
     decode_workers: int = 1
@@ -191,6 +195,8 @@ class ServerSettings:
                 f"perception: unknown backend {', '.join(map(repr, unknown)) or repr('')}; "
                 f"available: {', '.join(BACKENDS)}"
             )
+        if self.static_tower is not None and not Path(self.static_tower).is_file():
+            raise SettingsError(f"static_tower: {self.static_tower} is not a file")
         if not self.asr_timeout_s > 0:
             raise SettingsError(f"asr_timeout_s must be over 0 seconds, got {self.asr_timeout_s}")
         try:

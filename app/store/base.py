@@ -137,6 +137,11 @@ class SessionRecord:
     inferred from the poses; None while neither (the default, +z, applies)."""
     up_source: str | None = None
     """With `up`: "set" (at creation) or "inferred" (from the poses); None without."""
+    text_tower: str = "minilm"
+    """The session's text tower: "minilm" (sessions from before it too) or "static"."""
+    tower_sha256: str | None = None
+    """With a "static" tower: the SHA-256 (64 lowercase hex digits) of the tower file the
+    session was created with, which it must be loaded with; None for "minilm"."""
 
     def __post_init__(self) -> None:
         if self.last_used_at is None:

@@ -58,7 +58,7 @@ UP_SOURCES = ("set", "inferred")
 SESSION_COLUMNS = (
     "session_id, name, mode, perception, knobs, token_hash, created_at, "
     "frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, last_pose, "
-    "sightings, owner, epoch, lease_until, up, up_source"
+    "sightings, owner, epoch, lease_until, up, up_source, text_tower, tower_sha256"
 )
 """The columns of `session_to_row` / `session_from_row`, in order."""
 N_SESSION_COLUMNS = len(SESSION_COLUMNS.split(","))
@@ -333,7 +333,33 @@ def session_to_row(rec: SessionRecord) -> tuple:
         checked_time("lease_until", rec.lease_until),
         up,
         up_source,
+        *checked_tower(rec.text_tower, rec.tower_sha256),
     )
+
+
+TEXT_TOWERS = ("minilm", "static")
+"""A session's text towers (app.protocol.rest.TEXT_TOWERS)."""
+
+
+def checked_tower(text_tower: str, sha256: str | None) -> tuple[str, str | None]:
+    """(text_tower, sha256) when the tower is one of TEXT_TOWERS and a static one names its
+    file's SHA-256 (64 lowercase hex digits; none for minilm); ValueError otherwise."""
+    if text_tower not in TEXT_TOWERS:
+        raise ValueError(f"text_tower must be one of {', '.join(TEXT_TOWERS)}; got {text_tower!r}")
+    if text_tower == "static":
+        if not isinstance(sha256, str) or not is_sha256(sha256):
+            raise ValueError(
+                f"a static text tower needs its file's sha256 (64 lowercase hex digits); "
+                f"got {sha256!r}"
+            )
+    elif sha256 is not None:
+        raise ValueError(f"tower_sha256 is only for a static text tower, not {text_tower!r}")
+    return text_tower, sha256
+
+
+def is_sha256(text: str) -> bool:
+    """Whether `text` is a SHA-256 as the store keeps it: 64 lowercase hex digits."""
+    return len(text) == 64 and all(c in "0123456789abcdef" for c in text)
 
 
 def checked_up(up: str, source: str | None) -> tuple[str, str]:
@@ -383,7 +409,7 @@ def session_from_row(row: tuple) -> SessionRecord:
     frames, keyframes, bytes_in, bytes_out, next_object_id, last_used_at, last_t, pose, *rest = (
         counters
     )
-    sightings, owner, epoch, lease_until, up, up_source = rest
+    sightings, owner, epoch, lease_until, up, up_source, text_tower, tower_sha256 = rest
     return SessionRecord(
         session_id=sid,
         name=name,
@@ -406,6 +432,8 @@ def session_from_row(row: tuple) -> SessionRecord:
         lease_until=lease_until,
         up=up,
         up_source=up_source,
+        text_tower=text_tower,
+        tower_sha256=tower_sha256,
     )
 
 

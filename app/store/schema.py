@@ -129,6 +129,23 @@ TABLES: tuple[Table, ...] = (
                 check="up_source IS NULL OR up_source IN ('set', 'inferred')",
                 row_check="(up IS NULL) = (up_source IS NULL)",
             ),
+            # 7: the text tower ("minilm", every session before it, or "static") and, for a
+            # static one, the SHA-256 of the tower file it was created with.
+            Column(
+                "text_tower",
+                "text",
+                not_null=True,
+                since=7,
+                default="'minilm'",
+                check="text_tower IN ('minilm', 'static')",
+            ),
+            Column(
+                "tower_sha256",
+                "text",
+                since=7,
+                check="tower_sha256 IS NULL OR length(tower_sha256) = 64",
+                row_check="(text_tower = 'static') = (tower_sha256 IS NOT NULL)",
+            ),
         ),
     ),
     Table(

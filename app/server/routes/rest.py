@@ -10,9 +10,11 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, Response
+from fastapi import Path as FastApiPath
 from fastapi.responses import StreamingResponse
 
 from app import protocol
+from app.answering.rerank import RERANK_POOL
 from app.answering.things import RelationalHit
 from app.answering.things import is_match as is_relational_match
 from app.config import KnobError, knobs_to_dict
@@ -24,6 +26,8 @@ from app.mapping.publish import client_points
 from app.mapping.validation import MAX_WORLD_M
 from app.perception import UnknownBackendError
 from app.protocol.rest import MapExport
+from app.semantics import TextEncoder
+from app.semantics.static import is_static_model_id
 from app.server.auth import (
     authorize_session,
     bearer,
@@ -33,7 +37,11 @@ from app.server.auth import (
 )
 from app.server.routes.depends import Manager
 from app.server.sessions import ResidentSessionsBusy, Session, SessionManager, StoredSessionsFull
+from app.server.sessions.engines import embedding_info
 from app.store import StoreUnavailableError
+
+MAX_INT64 = 2**63 - 1
+"""The largest id or seq a store keeps (a 64-bit integer): past it a parameter is a 422."""
 
 
 def _errors(**codes: str) -> dict[int | str, dict[str, Any]]:
@@ -154,11 +162,10 @@ def _finite(name: str, value: float | None) -> float | None:
 
 def _created(session: Session, token: str) -> protocol.SessionCreated:
     """The 201 answer of a new session (created or imported): the only time its token shows."""
-    encoder = session.engine.encoder
     return protocol.SessionCreated(
         session_id=session.id,
         token=token,
-        embedding=protocol.EmbeddingInfo(model=encoder.model_id, dim=encoder.dim),
+        embedding=embedding_info(session.engine.encoder, session.record),
         knobs=knobs_to_dict(session.knobs),
     )
 
@@ -173,12 +180,17 @@ def _created(session: Session, token: str) -> protocol.SessionCreated:
     | _errors(
         _400="the body is not JSON",
         _422="an unknown knob, a knob value of the wrong type or out of range, a "
-        "perception backend the server did not load, or an `up` that is not an axis",
+        "perception backend the server did not load, an `up` that is not an axis, or a "
+        "`text_tower` that is not minilm or static (static: detections sessions only)",
     ),
 )
 def create_session(body: protocol.CreateSession, manager: Manager) -> protocol.SessionCreated:
+    """A static `text_tower` waits for the server's static tower, distilled on the first
+    need (minutes, once), unless the server was started with --static-tower."""
     session, token = created_or_refused(
-        lambda: manager.create(body.name, body.mode, body.knobs, body.perception, body.up)
+        lambda: manager.create(
+            body.name, body.mode, body.knobs, body.perception, body.up, body.text_tower
+        )
     )
     return _created(session, token)
 
@@ -270,7 +282,10 @@ def list_objects(
     },
 )
 def object_history(
-    sid: str, object_id: int, request: Request, manager: Manager
+    sid: str,
+    request: Request,
+    manager: Manager,
+    object_id: int = FastApiPath(ge=-MAX_INT64 - 1, le=MAX_INT64, description="the object's id"),
 ) -> protocol.ObjectHistory:
     with session_in_use(manager, request, sid) as session:
         obj = manager.find_object(session, object_id)
@@ -299,7 +314,10 @@ def list_changes(
     since_t: float | None = Query(None, description="from this frame `t` on (seconds)"),
     until_t: float | None = Query(None, description="up to this frame `t` (seconds)"),
     since_seq: int | None = Query(
-        None, ge=0, description="committed after this update seq (t may go backwards)"
+        None,
+        ge=0,
+        le=MAX_INT64,
+        description="committed after this update seq (t may go backwards)",
     ),
     kind: Literal["added", "moved", "removed"] | None = Query(None, description="one kind"),
     limit: int = Query(1000, ge=1, le=10_000, description="the newest this many"),
@@ -367,10 +385,17 @@ def query(
     points: QueryPoints = True,
     include: QueryInclude = None,
     from_: QueryFrom = None,
+    rerank: bool = Query(
+        False,
+        description="on a static-tower session: re-rank the static tower's best "
+        f"{RERANK_POOL} with the tower it was distilled from (MiniLM), which then rates them "
+        "too (`ranked_by` says which tower ranked the answer); no effect on other sessions",
+    ),
 ) -> protocol.QueryResult:
     asker = checked_query_options(manager, k, from_)
     with session_in_use(manager, request, sid) as session:
-        return answer_query(manager, session, text, k, points, include, asker)
+        teacher = manager.encoder if rerank else None
+        return answer_query(manager, session, text, k, points, include, asker, teacher)
 
 
 def answer_query(
@@ -381,20 +406,30 @@ def answer_query(
     points: bool,
     include: str | None,
     asker: np.ndarray | None,
+    teacher: TextEncoder | None = None,
 ) -> protocol.QueryResult:
     """The answer to `text` from a session in use: relational when the question says how
-    things stand, plain otherwise (or with include=removed); `latency_ms` is its own."""
+    things stand, plain otherwise (or with include=removed); `latency_ms` is its own.
+    teacher: on a static-tower session, the tower it was distilled from re-ranks and rates
+    (`Session.reranked_query`; relational questions are answered with it whole)."""
     t0 = time.perf_counter()
+    if teacher is not None and not is_static_model_id(session.engine.encoder.model_id):
+        teacher = None  # a session of the teacher itself: nothing to re-rank
+    ranked_by = (teacher or session.engine.encoder).model_id
     # A question about how things stand is answered from the relation index; a plain one
     # (or one whose anchors the map lacks) as always, as is any with include=removed.
-    related = session.relational_query(text, k, asker) if include is None else None
+    related = session.relational_query(text, k, asker, teacher) if include is None else None
     if related is not None:
         result = _relational_result(session, text, *related, points)
         result.latency_ms = (time.perf_counter() - t0) * 1e3
+        result.ranked_by = ranked_by
         manager.metrics.query_latency.observe(result.latency_ms / 1e3)
         return result
     removed = manager.removed_objects(session) if include == "removed" else None
-    hits, rating = session.rated_query(text, k, removed)
+    if teacher is not None:
+        hits, rating = session.reranked_query(text, k, teacher, removed)
+    else:
+        hits, rating = session.rated_query(text, k, removed)
     now_t = session.engine.last_t
     places = _places_of(session, [h.object.centroid for h in hits], [h.object.id for h in hits])
     max_points = session.knobs.max_object_points_client
@@ -416,7 +451,12 @@ def answer_query(
     latency_ms = (time.perf_counter() - t0) * 1e3
     manager.metrics.query_latency.observe(latency_ms / 1e3)
     return protocol.QueryResult(
-        text=text, match=rating.match, results=results, latency_ms=latency_ms, now_t=now_t
+        text=text,
+        match=rating.match,
+        results=results,
+        latency_ms=latency_ms,
+        now_t=now_t,
+        ranked_by=ranked_by,
     )
 
 
@@ -517,7 +557,6 @@ def export_map(
     with session_in_use(manager, request, sid) as session:
         # Taken under the map lock; points are replaced, never edited.
         objects, removed_objects, changes = manager.export_contents(session)
-        encoder = session.engine.encoder
         header = {
             "format": protocol.rest.EXPORT_FORMAT,
             "version": protocol.rest.EXPORT_VERSION,
@@ -525,10 +564,12 @@ def export_map(
                 "name": session.record.name,
                 "mode": session.engine.mode,
                 "knobs": knobs_to_dict(session.knobs),
-                "embedding": {"model": encoder.model_id, "dim": encoder.dim},
+                "embedding": embedding_info(session.engine.encoder, session.record).to_json(),
                 "perception": session.record.perception,
             },
         }
+        if session.record.text_tower != "minilm":  # minilm goes unsaid, as before the field
+            header["session"]["text_tower"] = session.record.text_tower
         if session.record.up is not None:  # set or inferred; the default goes unsaid
             header["session"] |= {"up": session.up_axis, "up_source": session.up_source}
     filename = f"semanticxr-{sid}.{format}"

@@ -65,6 +65,7 @@ class Lifecycle:
         knob_changes: dict,
         perception: str | None = None,
         up: str | None = None,
+        text_tower: str = "minilm",
     ) -> tuple[Session, str]:
         """A new session and its token (the only time the token is shown), resident.
 
@@ -72,9 +73,15 @@ class Lifecycle:
         `perception` setting names); UnknownBackendError naming --perception otherwise.
         up: the world axis that is up ("+x", "-x", "+y", "-y", "+z", "-z"; InputError naming
         `up` otherwise); None: inferred from the poses (`Session.up_axis`).
+        text_tower: "minilm" or "static" (InputError naming `text_tower` otherwise, and for
+        static on a backend with its own text tower); a static session embeds with the
+        server's static tower (`Engines.tower_of_new_session`: the first one waits for its
+        distillation) and keeps that tower's hash for good.
         Raises StoredSessionsFull past max_sessions stored, and as `acquire` does when the
         resident budget has no room."""
-        session, token = self._create(name, mode, knob_changes, perception, up)
+        session, token = self._create(
+            name, mode, knob_changes, perception, up, text_tower=text_tower
+        )
         self.release(session)
         return session, token
 
@@ -86,6 +93,7 @@ class Lifecycle:
         perception: str | None,
         up: str | None = None,
         up_source: str = "set",
+        text_tower: str = "minilm",
     ) -> tuple[Session, str]:
         """`create`, the session left in use (release it); `up_source`: where a given `up`
         came from ("set", or "inferred" by the session an import comes from)."""
@@ -98,7 +106,8 @@ class Lifecycle:
                 f"perception {perception!r} is not loaded on this server; choose one of "
                 f"{', '.join(self.engines.backends)} (a server loads backends with --perception)"
             )
-        self._check_room_to_store()  # before making room in memory for nothing
+        self._check_room_to_store()  # before making room in memory (or a tower) for nothing
+        tower_sha256 = self.engines.tower_of_new_session(text_tower, perception)
         token = secrets.token_urlsafe(24)
         sid = uuid.uuid4().hex[:16]
         now = time.time()
@@ -113,6 +122,8 @@ class Lifecycle:
             last_used_at=now,
             up=up,
             up_source=None if up is None else up_source,
+            text_tower=text_tower,
+            tower_sha256=tower_sha256,
         )
 
         def make() -> Session:
@@ -162,10 +173,25 @@ class Lifecycle:
         _check_imported_history(export)
         perception = spec.perception if spec.perception in self.engines.backends else None
         session, token = self._create(
-            spec.name, spec.mode, spec.knobs, perception, spec.up, spec.up_source or "set"
+            spec.name,
+            spec.mode,
+            spec.knobs,
+            perception,
+            spec.up,
+            spec.up_source or "set",
+            text_tower=spec.text_tower or "minilm",
         )
         try:
             engine = session.engine
+            exported = spec.embedding.sha256
+            embedded = any(o.embedding for o in [*export.objects, *removed_records])
+            if embedded and exported is not None and exported != session.record.tower_sha256:
+                raise InputError(
+                    "session.embedding.sha256",
+                    f"the export was embedded with the static text tower {exported}, but this "
+                    f"server's static tower is {session.record.tower_sha256}; start it with "
+                    f"--static-tower FILE holding that tower to import it",
+                )
             if spec.embedding.dim != engine.encoder.dim:
                 raise InputError(
                     "session.embedding.dim",
@@ -174,7 +200,7 @@ class Lifecycle:
                 )
             records = [*export.objects, *removed_records]
             without = [o.label for o in records if o.embedding is None]
-            by_label = dict(zip(without, engine.encoder.encode(without), strict=True))
+            by_label = dict(zip(without, engine.encoder.encode_labels(without), strict=True))
             objects, removed = [], []
             for name, state, group, into in (
                 ("objects", "present", export.objects, objects),

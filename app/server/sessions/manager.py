@@ -203,9 +203,10 @@ class SessionManager:
         knob_changes: dict,
         perception: str | None = None,
         up: str | None = None,
+        text_tower: str = "minilm",
     ) -> tuple[Session, str]:
         """A new session and its token, resident (`Lifecycle.create`)."""
-        return self.lifecycle.create(name, mode, knob_changes, perception, up)
+        return self.lifecycle.create(name, mode, knob_changes, perception, up, text_tower)
 
     def import_session(self, export: MapExport) -> tuple[Session, str]:
         """A new session holding an export's objects and history (`Lifecycle.import_session`)."""

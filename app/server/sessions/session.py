@@ -20,6 +20,7 @@ import numpy as np
 from app.answering.ask import ask, relational_reading
 from app.answering.label_knowledge import SERVED_LABEL_TEXTS, served_texts
 from app.answering.relevance import Rating, rate_hits
+from app.answering.rerank import RERANK_POOL, rerank
 from app.answering.things import MapThing, RelationalHit
 from app.config import Knobs, knobs_to_dict
 from app.mapping.engine import MappingEngine, QueryHit
@@ -32,6 +33,7 @@ from app.protocol import FrameInput
 from app.protocol.frame import FRAME_PARTS
 from app.protocol.rest import UPDATES_BYTES, EmbeddingInfo, LatencySummary, SessionStats
 from app.relations.index import ObjectGeometry, RelationIndex
+from app.semantics import TextEncoder
 from app.server.sessions.lane import KeyframeLane
 from app.store import SessionRecord
 
@@ -212,7 +214,9 @@ class Session:
             streams=self.streams,
             subscribers=self.subscribers,
             embedding=EmbeddingInfo(
-                model=self.engine.encoder.model_id, dim=self.engine.encoder.dim
+                model=self.engine.encoder.model_id,
+                dim=self.engine.encoder.dim,
+                sha256=self.record.tower_sha256 if self.record.text_tower == "static" else None,
             ),
             knobs=knobs_to_dict(self.knobs),
             warnings=list(self.warnings),
@@ -250,8 +254,25 @@ class Session:
         labels = [h.object.label for h in hits]
         return hits, rate_hits(self.engine.encoder, embedding, labels, SERVED_LABEL_TEXTS)
 
+    def reranked_query(
+        self, text: str, k: int, teacher: TextEncoder, removed: list[MapObject] | None = None
+    ) -> tuple[list[QueryHit], Rating]:
+        """`rated_query`'s best RERANK_POOL ranked again and rated by `teacher`, the tower
+        the session's static tower was distilled from (app.answering.rerank); each hit's
+        score is the teacher's cosine of the question with its label."""
+        pool, _ = self.rated_query(text, max(k, RERANK_POOL), removed)
+        got = rerank(teacher, text, [h.object.label for h in pool], k, SERVED_LABEL_TEXTS)
+        hits = [
+            QueryHit(pool[i].object, score) for i, score in zip(got.order, got.scores, strict=True)
+        ]
+        return hits, got.rating
+
     def relational_query(
-        self, text: str, k: int, asker: np.ndarray | None = None
+        self,
+        text: str,
+        k: int,
+        asker: np.ndarray | None = None,
+        teacher: TextEncoder | None = None,
     ) -> tuple[list[RelationalHit], dict[int, MapObject]] | None:
         """The top-k hits of a question about how things stand ("the mug on the desk",
         app.answering.ask) and the objects they name by id; None for a question to answer
@@ -262,7 +283,10 @@ class Session:
         exactly the points a device's local map holds (its client-capped points as the wire
         and the local map store them: `held_points`), so a relation's degree is the same on
         the server and on the device: only objects whose version changed get new bodies,
-        and only their pairs are recomputed, when read; a new up axis starts it afresh."""
+        and only their pairs are recomputed, when read; a new up axis starts it afresh.
+
+        teacher: answer with this tower instead of the session's (`reranked_query`'s
+        teacher): the objects are its embeddings of their labels."""
         reading = relational_reading(text)
         if reading is None:
             return None
@@ -271,7 +295,15 @@ class Session:
             pose = self.engine.last_pose
         up = self.up
         viewer = asker if asker is not None or pose is None else np.asarray(pose)[:3, 3]
-        things = [MapThing(o.id, o.label, o.embedding) for o, _ in objects]
+        encoder = teacher or self.engine.encoder
+        if teacher is None:
+            things = [MapThing(o.id, o.label, o.embedding) for o, _ in objects]
+        else:
+            labels = [o.label for o, _ in objects]
+            rows = teacher.encode_labels(labels) if labels else []
+            things = [
+                MapThing(o.id, o.label, row) for (o, _), row in zip(objects, rows, strict=True)
+            ]
         max_points = self.knobs.max_object_points_client
 
         def held(o: MapObject) -> ObjectGeometry:
@@ -283,7 +315,7 @@ class Session:
                 reading,
                 things,
                 self._relations,
-                self.engine.encoder,
+                encoder,
                 viewer,
                 k,
                 SERVED_LABEL_TEXTS,

@@ -54,7 +54,9 @@ def test_health_metrics_and_openapi_describe_the_service(live_server):
         for method, op in methods.items():
             ok = next(v for k, v in op["responses"].items() if k.startswith("2"))
             if method != "delete" and path != "/metrics":
-                assert "schema" in ok.get("content", {}).get("application/json", {}), (method, path)
+                content = ok.get("content", {})
+                body = content.get("application/json", content.get("application/octet-stream"))
+                assert "schema" in (body or {}), (method, path)
     assert "min_observations" in spec["components"]["schemas"]["Knobs"]["properties"]
     # the Authorize button of /docs: the API key, or a session's token under a session
     assert set(spec["components"]["securitySchemes"]) == {"apiKey", "sessionToken"}

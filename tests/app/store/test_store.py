@@ -404,8 +404,16 @@ def test_the_database_is_created_in_wal_mode_with_its_parent_dirs(tmp_path):
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
 
+def back_to_version_6(db: sqlite3.Connection) -> None:
+    """Undo migration 6 -> 7 (the session's text tower)."""
+    for column in ("tower_sha256", "text_tower"):  # tower_sha256's check names text_tower
+        db.execute(f"ALTER TABLE sessions DROP COLUMN {column}")
+    db.execute("PRAGMA user_version = 6")
+
+
 def back_to_version_5(db: sqlite3.Connection) -> None:
-    """Undo migration 5 -> 6 (the session's up axis)."""
+    """Undo migration 5 -> 6 (the session's up axis) and after."""
+    back_to_version_6(db)
     for column in ("up_source", "up"):  # up_source's check names up: it goes first
         db.execute(f"ALTER TABLE sessions DROP COLUMN {column}")
     db.execute("PRAGMA user_version = 5")
@@ -452,7 +460,7 @@ def test_a_version_1_store_opens_with_its_sessions_on_the_detections_backend(tmp
     with SqliteStore(path) as store:
         assert [s.perception for s in store.list_sessions()] == ["detections", "models"]
     with sqlite3.connect(path) as db:
-        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 6
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 7
 
 
 def test_a_version_2_store_counts_its_sessions_as_used_at_the_upgrade(tmp_path):

@@ -453,7 +453,7 @@ def schema_version(store_url: str) -> int:
 
 
 def test_a_version_4_store_opens_with_its_sessions_unowned_and_takes_claims(store_url):
-    assert sqlite.SCHEMA_VERSION == postgres.SCHEMA_VERSION == 6
+    assert sqlite.SCHEMA_VERSION == postgres.SCHEMA_VERSION == 7
     make_version_4_store(store_url)
     with open_store(store_url) as store:
         rec = store.load_session("old")
@@ -472,7 +472,7 @@ def test_a_version_4_store_opens_with_its_sessions_unowned_and_takes_claims(stor
             )
         )
         store.heartbeat_shard("shard-a", "http://a", now=T0)
-    assert schema_version(store_url) == 6
+    assert schema_version(store_url) == 7
     with open_store(store_url) as store:
         assert store.done_ack("old", "s", 1) == b"ack"
         assert store.load_session("old").sightings == 1

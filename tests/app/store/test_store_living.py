@@ -111,7 +111,7 @@ def test_a_version_3_store_migrates_and_loads_its_objects_as_present_without_his
     np.testing.assert_array_equal(loaded.embedding, obj.embedding)  # the all-label mean
     assert (rec.last_t, rec.last_pose, rec.frames, rec.last_used_at) == (None, None, 9, 5.0)
     with sqlite3.connect(path) as db:
-        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 6
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 7
 
 
 def test_a_new_store_has_the_schema_an_upgraded_one_has(tmp_path):

@@ -118,9 +118,9 @@ def test_the_postgresql_urls_are_checked_without_a_server():
 # ---------------------------------------------------------------------- the schema
 def test_both_stores_keep_the_same_schema_version_and_a_new_database_records_it(fresh_pg_url):
     """A future migration lands in both stores, or this fails."""
-    assert postgres.SCHEMA_VERSION == sqlite.SCHEMA_VERSION == 6
+    assert postgres.SCHEMA_VERSION == sqlite.SCHEMA_VERSION == 7
     open_store(fresh_pg_url).close()
-    assert query(fresh_pg_url, "SELECT version FROM schema_version") == [(6,)]
+    assert query(fresh_pg_url, "SELECT version FROM schema_version") == [(7,)]
     tables = query(
         fresh_pg_url, "SELECT tablename FROM pg_tables WHERE schemaname = 'public' ORDER BY 1"
     )

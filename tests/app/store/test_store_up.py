@@ -93,7 +93,7 @@ def schema_version(store_url: str) -> int:
 
 
 def test_a_version_5_store_opens_with_its_sessions_on_the_default_up(store_url):
-    assert sqlite.SCHEMA_VERSION == postgres.SCHEMA_VERSION == 6
+    assert sqlite.SCHEMA_VERSION == postgres.SCHEMA_VERSION == 7
     make_version_5_store(store_url)
     with open_store(store_url) as store:
         rec = store.load_session("old")
@@ -108,7 +108,7 @@ def test_a_version_5_store_opens_with_its_sessions_on_the_default_up(store_url):
             KeyframeCommit("old", 3, [], [], {"keyframes": 4}, 1, inferred_up="+y")
         )
         store.create_session(record("new", up="-x", up_source="set"))
-    assert schema_version(store_url) == 6
+    assert schema_version(store_url) == 7
     with open_store(store_url) as store:
         assert [(r.session_id, r.up, r.up_source) for r in store.list_sessions()] == [
             ("old", "+y", "inferred"),
