@@ -1,9 +1,13 @@
 """How often a query's answer says "match" when it should, with the real MiniLM encoder; and
 the calibration of the match rule (app.answering.relevance) per text tower.
 
-    python -m bench.relevance [--maps 5] [--objects 20] [--out out/]
+    python -m bench.relevance [--tower minilm|static] [--maps 5] [--objects 20] [--out out/]
     python -m bench.relevance --calibrate      # fits the tower's rule, writes the package's
                                                # match_rules.json and background_texts.json
+
+`--tower static` measures the static tower distilled from MiniLM (app.semantics.static; the
+one in `--static-tower FILE`, else the one in the tower cache, distilled there on first use)
+and writes relevance_static.json.
 
 Maps of `--objects` random synthetic categories; queries are asked of every map, answered as
 the server does (top 5 by label, rated with the labels' WordNet texts). Two sets of wordings:
@@ -37,6 +41,7 @@ from app.answering.relevance import (
     BACKGROUND_TEXTS_RESOURCE,
     CONFIDENT,
     RULES_RESOURCE,
+    STATIC_RULE_KEY,
     MatchRule,
     QueryRater,
     Standing,
@@ -45,7 +50,9 @@ from app.answering.relevance import (
     background_texts,
     background_vocabulary,
 )
-from app.semantics import TextEncoder, get_text_encoder
+from app.answering.towers import text_tower
+from app.semantics import TextEncoder
+from app.semantics.static import is_static_model_id
 from bench.common import machine, write_outputs
 from world.categories import CATEGORIES, is_background
 
@@ -119,7 +126,7 @@ def ask(
     out = []
     for _ in range(maps):
         present = rng.sample(categories, objects)
-        present_embeddings = encoder.encode(present)
+        present_embeddings = encoder.encode_labels(present)
         for text in asked_texts:
             category = queries.get(text)
             order = np.argsort(-(present_embeddings @ embeddings[text]))[:5]
@@ -146,11 +153,13 @@ def figures(asked: list[Asked], rule: MatchRule) -> dict:
         chosen = [match(a) for a in asked if a.kind in kinds]
         return sum(chosen) / max(len(chosen), 1), len(chosen)
 
+    present = [a for a in asked if a.kind in ("right", "wrong_top")]
     right, n_right = share(("right",))
     recall, n_present = share(("right", "wrong_top"))
     false, n_false = share(("absent", "negative"))
     negatives, n_negatives = share(("negative",))
     return {
+        "top1": n_right / max(len(present), 1),
         "right_answers_match": right,
         "right_answers": n_right,
         "recall": recall,
@@ -213,19 +222,25 @@ def write_calibration(encoder: TextEncoder, rule: MatchRule, training: dict) -> 
     package = Path(__file__).resolve().parents[1] / "app" / "answering"
     path = package / RULES_RESOURCE
     record = json.loads(path.read_text("utf-8")) if path.is_file() else {"towers": {}}
-    record["towers"][model_id] = {
+    entry = {
         **asdict(rule),
         "calibrated_on": "world.categories names and paraphrases (python -m bench.relevance "
         "--calibrate)",
         "training": {k: round(v, 4) if isinstance(v, float) else v for k, v in training.items()},
     }
+    static = is_static_model_id(model_id)
+    # A static tower's rule also stands for its other distillations (another hash); it
+    # embeds the background in milliseconds, so none is shipped for it.
+    for key in (model_id, STATIC_RULE_KEY) if static else (model_id,):
+        record["towers"][key] = entry
     path.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", "utf-8")
     texts = {label: list(label_texts(label)) for label in background_vocabulary()}
     (package / BACKGROUND_TEXTS_RESOURCE).write_text(
         json.dumps(texts, indent=0, sort_keys=True) + "\n", "utf-8"
     )
     background_texts.cache_clear()
-    write_background_embeddings(encoder)
+    if not static:
+        write_background_embeddings(encoder)
     return path
 
 
@@ -253,8 +268,19 @@ def main(argv: list[str] | None = None) -> dict:
         action="store_true",
         help="fit this tower's match rule on the training wordings and write it to the package",
     )
+    parser.add_argument(
+        "--tower",
+        choices=("minilm", "static"),
+        default="minilm",
+        help="the text tower measured (default minilm)",
+    )
+    parser.add_argument(
+        "--static-tower",
+        metavar="FILE",
+        help="with --tower static: this tower file (default: the tower cache's)",
+    )
     args = parser.parse_args(argv)
-    encoder = get_text_encoder()
+    encoder = text_tower(args.tower, args.static_tower)
     if args.calibrate:
         rule, training = calibrate(encoder, args.maps, args.objects)
         print(f"calibrated {encoder.model_id}: {rule}")
@@ -266,7 +292,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     held_out = figures(ask(encoder, rater, outside, negatives, args.maps, args.objects), rater.rule)
     no_keys = [c for c in _categories() if c != "keys"]
-    no_keys_embeddings = encoder.encode(no_keys)
+    no_keys_embeddings = encoder.encode_labels(no_keys)
     fixed = {}
     for text in MUST_MATCH + MUST_NOT_MATCH:
         embedding = encoder.encode_query(text)
@@ -274,6 +300,7 @@ def main(argv: list[str] | None = None) -> dict:
         fixed[text] = rater.rate(embedding, top, {c: label_texts(c) for c in top}).match
     document = {
         "machine": machine(),
+        "tower": args.tower,
         "encoder": encoder.model_id,
         "rule": asdict(rater.rule),
         "maps": args.maps,
@@ -290,14 +317,14 @@ def main(argv: list[str] | None = None) -> dict:
     }
     for name, got in (("training", training), ("outside", held_out)):
         print(
-            f"{name:>8}: right answers match {got['right_answers_match']:.1%} over "
+            f"{name:>8}: top-1 {got['top1']:.1%}; right answers match {got['right_answers_match']:.1%} over "
             f"{got['right_answers']}; recall {got['recall']:.1%} over {got['queries_present']}; "
             f"false matches {got['false_match_rate']:.1%} over "
             f"{got['queries_absent_or_negative']} (negatives {got['negatives_false_match_rate']:.1%}"
             f" over {got['negatives']})"
         )
     print(f"fixed queries right: {document['fixed_queries_right']} {fixed}")
-    write_outputs(args.out, "relevance", document)
+    write_outputs(args.out, "relevance" if args.tower == "minilm" else "relevance_static", document)
     return document
 
 

@@ -359,7 +359,7 @@ def _perfect_view(scene, gt, encoder: TextEncoder, viewer: np.ndarray, max_point
         if not len(mine):
             continue
         points[obj.instance_id] = held_points(cap_points(mine, max_points, MIN_CAP_RESOLUTION_M)[0])
-        embedding = encoder.encode([obj.category])[0]
+        embedding = encoder.encode_labels([obj.category])[0]
         things.append(MapThing(obj.instance_id, obj.category, embedding))
     index = RelationIndex(Z_UP)
     index.update({t.id: ObjectGeometry(t.label, points[t.id]) for t in things})

@@ -47,6 +47,7 @@ from typing import NamedTuple
 import numpy as np
 
 from app.semantics import TextEncoder
+from app.semantics.static import is_static_model_id
 
 log = logging.getLogger(__name__)
 
@@ -98,12 +99,19 @@ BACKGROUND_TEXTS_RESOURCE = "background_texts.json"
 WordNet when calibrating, so every end holds the same without WordNet."""
 
 
+STATIC_RULE_KEY = "static"
+"""The record of static towers distilled from MiniLM: a distillation elsewhere (other float
+rounding, another hash) takes the rule calibrated here."""
+
+
 def rule_for(model_id: str) -> MatchRule:
-    """The calibrated rule of a text tower by its `embedding.model` name; for a tower without
-    a record, the first record's rule (its inputs are in standard deviations, so it carries
+    """The calibrated rule of a text tower by its `embedding.model` name (a static tower
+    without its own: STATIC_RULE_KEY's); for a tower without a record, the first record's rule (its inputs are in standard deviations, so it carries
     over roughly) and a warning, or MatchRule() when there is none."""
     towers = _read_resource(RULES_RESOURCE).get("towers", {})
     record = towers.get(model_id)
+    if record is None and is_static_model_id(model_id):
+        record = towers.get(STATIC_RULE_KEY)  # calibrated on another distillation of it
     if record is None:
         log.warning("no match calibration for text tower %r: another tower's rule", model_id)
         record = next(iter(towers.values()), {})

@@ -125,13 +125,31 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         help='JSON {"category": ["phrase", ...]} replacing the built-in paraphrases for '
         "query top-1 (categories of the scene missing from it are not asked)",
     )
+    parser.add_argument(
+        "--text-tower",
+        choices=("minilm", "static"),
+        default="minilm",
+        help="the text tower labels and questions are embedded with: the packaged MiniLM, or "
+        "the static tower distilled from it (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--static-tower",
+        metavar="FILE",
+        help="with --text-tower static: this tower file (default: the tower cache's, "
+        "distilled there on first use)",
+    )
     add_knob_flags(parser)
     parser.set_defaults(func=run)
     return parser
 
 
+def _encoder(args: argparse.Namespace):
+    from app.answering.towers import text_tower
+
+    return text_tower(args.text_tower, args.static_tower)
+
+
 def run(args: argparse.Namespace) -> int:
-    from app.semantics import get_text_encoder
     from evaluation import walk
 
     if args.scenario == "revisit":
@@ -167,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
         f"noise {cfg.noise}, modes {', '.join(cfg.modes)}",
         file=sys.stderr,
     )
-    report = walk.run(cfg, get_text_encoder())
+    report = walk.run(cfg, _encoder(args))
     print(report.table())
     if args.json:
         write_json(args.json, report.document)
@@ -175,7 +193,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_revisit_scenario(args: argparse.Namespace) -> int:
-    from app.semantics import get_text_encoder
     from evaluation import revisit
 
     cfg = revisit.RevisitConfig(
@@ -194,7 +211,7 @@ def run_revisit_scenario(args: argparse.Namespace) -> int:
         f"{cfg.walk_frames} frames at 5 fps {cfg.gap_s:g} s apart, modes {', '.join(cfg.modes)}",
         file=sys.stderr,
     )
-    report = revisit.run(cfg, get_text_encoder())
+    report = revisit.run(cfg, _encoder(args))
     if args.json:  # first: the hour of mapping is kept whatever printing does
         write_json(args.json, report.document)
     print(report.table())
@@ -202,7 +219,6 @@ def run_revisit_scenario(args: argparse.Namespace) -> int:
 
 
 def run_relations_scenario(args: argparse.Namespace) -> int:
-    from app.semantics import get_text_encoder
     from evaluation import relations
 
     seeds = args.seeds or DEFAULT_SEEDS["relations"]
@@ -219,7 +235,7 @@ def run_relations_scenario(args: argparse.Namespace) -> int:
         f"{cfg.width}x{cfg.height}, noise {cfg.noise}",
         file=sys.stderr,
     )
-    report = relations.run(cfg, get_text_encoder())
+    report = relations.run(cfg, _encoder(args))
     if args.json:
         write_json(args.json, report.document)
     print(report.table())
@@ -227,7 +243,6 @@ def run_relations_scenario(args: argparse.Namespace) -> int:
 
 
 def run_geometry_scenario(args: argparse.Namespace) -> int:
-    from app.semantics import get_text_encoder
     from evaluation import geometry
 
     cfg = geometry.GeometryConfig(
@@ -246,7 +261,7 @@ def run_geometry_scenario(args: argparse.Namespace) -> int:
         f"{cfg.width}x{cfg.height}, noise {cfg.noise}, modes {', '.join(cfg.modes)}",
         file=sys.stderr,
     )
-    report = geometry.run(cfg, get_text_encoder())
+    report = geometry.run(cfg, _encoder(args))
     if args.json:
         write_json(args.json, report.document)
     print(report.table())

@@ -199,7 +199,7 @@ class ChangeDetector:
         labels = sorted(set(view.labels.values()))
         if not objects or not labels:
             return own
-        alike = np.stack([o.embedding for o in objects]) @ self.map.encoder.encode(labels).T
+        alike = np.stack([o.embedding for o in objects]) @ self.map.encoder.encode_labels(labels).T
         for i, j in zip(*np.nonzero(alike >= self.map.knobs.association_min_semantic), strict=True):
             own[i].add(labels[j])
         return own

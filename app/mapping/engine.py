@@ -294,7 +294,7 @@ class MappingEngine:
         if not kept:
             return []
 
-        text_rows = self.encoder.encode([d.label for d in kept])
+        text_rows = self.encoder.encode_labels([d.label for d in kept])
         resolution_m = self.organisation.resolution_m(self.knobs)
         observations = []
         for det, pts, text_row in zip(kept, points, text_rows, strict=True):

