@@ -7,10 +7,11 @@ Storage (one row per object, rows dense in [0, n) thanks to swap-remove), 8-bit 
 bulk is (docs/evaluation.md "Targets": 50k objects of 200 points and 384-d embeddings within
 64 MB):
 
-- embeddings: ONE contiguous int8 matrix [capacity, dim] plus a float32 scale per row, so
-  `int8 row * scale` is exactly a unit vector and a score is a cosine; scored by torch's
-  weight-only int8 kernel, then the candidates within its error bound re-scored exactly in
-  float32 (client_sim.local_scan).
+- embeddings: ONE contiguous int8 matrix [capacity, dim padded to 16] plus a float32 scale
+  per row, so `int8 row * scale` is exactly a unit vector and a score is a cosine; scanned
+  by torch's weight-only int8 kernel into score buffers kept at the rows' capacity (nothing
+  map-sized allocated per query), the k-th best found by a partition, then the candidates
+  within the kernel's error bound re-scored exactly in float32 (client_sim.local_scan).
 - points: one `bytes` of uint8 [<= max_points_per_object, 3] per object (3 bytes a point):
   each axis quantised in 255 steps of the object's point box (lo, step: float32 columns;
   app.mapping.held, which the server imports too: it measures relations on these points), so
@@ -60,12 +61,7 @@ from app.semantics import TextEncoder
 from client_sim.local_bodies import BodyCache
 from client_sim.local_delta import ParsedDelta, cap_points, held_centroid, read_upserts
 from client_sim.local_rows import INDEX_BYTES_PER_OBJECT, LocalRows, entry_bytes
-from client_sim.local_scan import (
-    approximate_scores,
-    bfloat16_bits,
-    exact_scores,
-    row_cosines,
-)
+from client_sim.local_scan import bfloat16_bits, exact_scores, nearest_rows
 
 log = logging.getLogger(__name__)
 
@@ -361,7 +357,7 @@ class LocalMap:
         columns = self._store.columns
         columns["id"][target] = delta.ids[take]
         columns["version"][target] = delta.versions[take]
-        columns["embedding"][target] = delta.embeddings[take]
+        self._store.embeddings[target] = delta.embeddings[take]
         columns["scale"][target] = delta.scales[take]
         columns["scale_bf16"][target] = bfloat16_bits(delta.scales[take])
         columns["points_lo"][target] = delta.points_lo[take]
@@ -497,35 +493,30 @@ class LocalMap:
         if k < 1 or n == 0:
             return []
         query = query / max(float(np.linalg.norm(query)), 1e-12)
-        columns = self._store.columns
-        scores, error = approximate_scores(
-            columns["embedding"],
-            columns["scale"],
-            self._store.embeddings_t,
-            self._store.scales_bf16_t,
+        store = self._store
+        rows, scores = nearest_rows(
+            store.embeddings,
+            store.columns["scale"],
+            store.columns["id"],
+            store.embeddings_t,
+            store.scales_bf16_t,
             n,
             query,
+            k,
+            store.scratch,
         )
-        # Every row of the exact top k scores within 2 * error of the approximate k-th best,
-        # so re-scoring those rows exactly gives the exact ranking (ties broken by id).
-        kth = float(np.partition(scores, n - min(n, k))[n - min(n, k)])
-        candidates = np.flatnonzero(scores >= kth - 2 * error)
-        exact = exact_scores(columns["embedding"], columns["scale"], candidates, query)
-        best = np.lexsort((self._store.columns["id"][candidates], -exact))[:k]
-        hits = []
-        for i in best.tolist():
-            row = int(candidates[i])
-            hits.append(
-                LocalHit(
-                    id=int(self._store.columns["id"][row]),
-                    label=self._store.labels[row],
-                    score=float(exact[i]),
-                    bbox=[float(v) for v in self._store.columns["bbox"][row]],
-                    centroid=[float(v) for v in self._store.columns["centroid"][row]],
-                    last_seen_t=_seconds_or_none(float(self._store.columns["last_seen_t"][row])),
-                )
+        columns = store.columns
+        return [
+            LocalHit(
+                id=int(columns["id"][row]),
+                label=store.labels[row],
+                score=score,
+                bbox=columns["bbox"][row].tolist(),
+                centroid=columns["centroid"][row].tolist(),
+                last_seen_t=_seconds_or_none(float(columns["last_seen_t"][row])),
             )
-        return hits
+            for row, score in zip(rows.tolist(), scores.tolist(), strict=True)
+        ]
 
     def relational_query(
         self,
@@ -575,8 +566,8 @@ class LocalMap:
             ids=columns["id"][rows],
             labels=labels,
             label_of=label_of[rows],
-            cosines=lambda positions, query: row_cosines(
-                columns["embedding"], columns["scale"], rows[positions], query
+            cosines=lambda positions, query: exact_scores(
+                self._store.embeddings, columns["scale"], rows[positions], query
             ),
         )
         return ask(reading, things, relations, encoder, position, k, self._label_texts)

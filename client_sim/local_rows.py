@@ -18,6 +18,8 @@ import sys
 import numpy as np
 import torch
 
+from client_sim.local_scan import ScanScratch, padded_dim
+
 INDEX_BYTES_PER_OBJECT = 12
 """The id -> row index: an int64 id and an int32 row per object."""
 
@@ -39,9 +41,12 @@ def entry_bytes(data: bytes) -> int:
 class LocalRows:
     """The columns, point bytes and labels of n held objects, and their id -> row index.
 
-    columns:       name -> numpy column [capacity, ...]; rows [0, n) are held
+    columns:       name -> numpy column [capacity, ...]; rows [0, n) are held; the int8
+                   "embedding" is padded_dim(dim) wide (zero columns past dim: the kernel's)
+    embeddings:    the embeddings' first dim columns (a view of columns["embedding"])
     embeddings_t:  zero-copy torch view of columns["embedding"] (the int8 kernel reads it)
     scales_bf16_t: zero-copy bfloat16 torch view of columns["scale_bf16"]
+    scratch:       what a query writes, at the columns' capacity (client_sim.local_scan)
     labels:        interned label of each row; points: uint8 [N, 3] point bytes of each row
     points_nbytes: sum of `entry_bytes` over `points`
     index_ids:     held ids, ascending; index_rows: their rows
@@ -51,6 +56,8 @@ class LocalRows:
         self.dim = dim
         self.n = 0
         self.columns: dict[str, np.ndarray] = {}
+        self.embeddings = np.empty((0, dim), np.int8)
+        self.scratch = ScanScratch(0)
         self.embeddings_t = torch.empty(0)
         self.scales_bf16_t = torch.empty(0)
         self.reallocate(0)
@@ -67,22 +74,23 @@ class LocalRows:
         return self.columns["id"].shape[0]
 
     def row_bytes(self) -> int:
-        """Bytes of one row across all columns (embedding + metadata)."""
-        return sum(
+        """Bytes of one row across all columns (embedding + metadata) and the query scratch."""
+        return ScanScratch.BYTES_PER_ROW + sum(
             column.itemsize * math.prod(column.shape[1:]) for column in self.columns.values()
         )
 
     def nbytes(self) -> int:
-        """The columns at their capacity, the id index and the point bytes with headers."""
+        """The columns and the query scratch at their capacity, the id index and the point
+        bytes with headers."""
         columns = sum(column.nbytes for column in self.columns.values())
         index = self.index_ids.nbytes + self.index_rows.nbytes
-        return columns + index + self.points_nbytes
+        return columns + self.scratch.nbytes + index + self.points_nbytes
 
     # --- columns --------------------------------------------------------------------------
 
     def allocate(self, capacity: int) -> dict[str, np.ndarray]:
         return {
-            "embedding": np.zeros((capacity, self.dim), np.int8),
+            "embedding": np.zeros((capacity, padded_dim(self.dim)), np.int8),
             "scale": np.zeros(capacity, np.float32),
             "scale_bf16": np.zeros(capacity, np.uint16),  # the kernel's copy, bfloat16 bits
             "points_lo": np.zeros((capacity, 3), np.float32),
@@ -108,6 +116,9 @@ class LocalRows:
 
     def _set_columns(self, columns: dict[str, np.ndarray]) -> None:
         self.columns = columns
+        self.embeddings = columns["embedding"][:, : self.dim]
+        if self.scratch.capacity != len(columns["id"]):
+            self.scratch = ScanScratch(len(columns["id"]))
         # from_numpy shares the buffer: queries read the int8 matrix in place, no copy.
         self.embeddings_t = torch.from_numpy(columns["embedding"])
         self.scales_bf16_t = torch.from_numpy(columns["scale_bf16"]).view(torch.bfloat16)

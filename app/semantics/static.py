@@ -28,8 +28,9 @@ from __future__ import annotations
 
 import hashlib
 import unicodedata
+from array import array
+from bisect import bisect_left
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 
 import msgpack
 import numpy as np
@@ -135,33 +136,74 @@ def basic_words(text: str) -> list[str]:
 # --- the tower -------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True, eq=False)
+class _TokenIndex:
+    """token -> id over a vocabulary held as one UTF-8 blob: a sorted array of the tokens'
+    hashes and their ids (~12 bytes a token against ~100 for a dict of str), each hit checked
+    against the token's own bytes, so a hash collision never maps a word to another token."""
+
+    def __init__(self, vocab: Sequence[str]):
+        encoded = [token.encode("utf-8") for token in vocab]
+        self.blob = b"".join(encoded)
+        self.offsets = np.zeros(len(encoded) + 1, np.int64)
+        np.cumsum([len(e) for e in encoded], out=self.offsets[1:])
+        hashes = np.array([hash(token) for token in vocab], np.int64)
+        order = np.argsort(hashes, kind="stable")
+        self.hashes = array("q", hashes[order].tolist())
+        self.ids = array("l", order.tolist())
+
+    def __len__(self) -> int:
+        return len(self.offsets) - 1
+
+    def token(self, i: int) -> str:
+        return self.blob[self.offsets[i] : self.offsets[i + 1]].decode("utf-8")
+
+    def get(self, token: str) -> int | None:
+        wanted = hash(token)
+        at = bisect_left(self.hashes, wanted)
+        encoded = None
+        while at < len(self.hashes) and self.hashes[at] == wanted:
+            i = self.ids[at]
+            encoded = encoded or token.encode("utf-8")
+            if self.blob[self.offsets[i] : self.offsets[i + 1]] == encoded:
+                return i
+            at += 1
+        return None
+
+
 class StaticTower:
-    """A static text tower: a WordPiece vocabulary and one int8 row per token."""
+    """A static text tower: a WordPiece vocabulary and one int8 row per token.
 
-    teacher: str
-    """The `embedding.model` of the tower it was distilled from."""
-    vocab: tuple[str, ...]
-    rows: np.ndarray
-    """int8 [len(vocab), dim], one scale for all."""
-    unk: str = "[UNK]"
-    prefix: str = "##"
-    max_word_chars: int = 100
-    _index: dict[str, int] = field(init=False, repr=False)
-    _bytes: bytes = field(init=False, repr=False)
+    It keeps only what encoding needs (the int8 table, the vocabulary as one blob and a
+    hashed index: ~8 MB for 29.5k x 256), not the file: `to_bytes()` packs it again, to the
+    same bytes."""
 
-    def __post_init__(self) -> None:
-        if self.rows.dtype != np.int8 or self.rows.ndim != 2:
-            raise TowerError(
-                f"rows: must be int8 [vocab, dim], got {self.rows.dtype} {self.rows.shape}"
-            )
-        if len(self.vocab) != len(self.rows):
-            raise TowerError(f"rows: {len(self.rows)} rows for a vocab of {len(self.vocab)}")
-        index = {token: i for i, token in enumerate(self.vocab)}
-        if len(index) != len(self.vocab):
+    def __init__(
+        self,
+        teacher: str,
+        vocab: Sequence[str],
+        rows: np.ndarray,
+        unk: str = "[UNK]",
+        prefix: str = "##",
+        max_word_chars: int = 100,
+    ):
+        self.teacher = teacher
+        """The `embedding.model` of the tower it was distilled from."""
+        self.rows = rows
+        """int8 [len(vocab), dim], one scale for all."""
+        self.unk, self.prefix, self.max_word_chars = unk, prefix, max_word_chars
+        if rows.dtype != np.int8 or rows.ndim != 2:
+            raise TowerError(f"rows: must be int8 [vocab, dim], got {rows.dtype} {rows.shape}")
+        if len(vocab) != len(rows):
+            raise TowerError(f"rows: {len(rows)} rows for a vocab of {len(vocab)}")
+        if len(set(vocab)) != len(vocab):
             raise TowerError("vocab: a token is listed twice")
-        object.__setattr__(self, "_index", index)
-        object.__setattr__(self, "_bytes", self._pack())
+        self._index = _TokenIndex(vocab)
+        self._unk_id = self._index.get(unk)
+        self._sha256 = sha256_hex(self._pack(vocab))
+
+    @property
+    def vocab(self) -> tuple[str, ...]:
+        return tuple(self._index.token(i) for i in range(len(self._index)))
 
     @property
     def dim(self) -> int:
@@ -169,7 +211,7 @@ class StaticTower:
 
     @property
     def sha256(self) -> str:
-        return sha256_hex(self._bytes)
+        return self._sha256
 
     @property
     def model_id(self) -> str:
@@ -177,18 +219,18 @@ class StaticTower:
 
     @property
     def unk_id(self) -> int | None:
-        return self._index.get(self.unk)
+        return self._unk_id
 
     # --- the file ---
 
-    def _pack(self) -> bytes:
+    def _pack(self, vocab: Sequence[str]) -> bytes:
         return msgpack.packb(
             {
                 "format": TOWER_FORMAT,
                 "version": TOWER_VERSION,
                 "teacher": self.teacher,
                 "dim": self.dim,
-                "vocab": list(self.vocab),
+                "vocab": list(vocab),
                 "unk": self.unk,
                 "prefix": self.prefix,
                 "max_word_chars": self.max_word_chars,
@@ -199,7 +241,7 @@ class StaticTower:
 
     def to_bytes(self) -> bytes:
         """The tower file: canonical bytes (the same tower always packs the same)."""
-        return self._bytes
+        return self._pack(self.vocab)
 
     @classmethod
     def from_bytes(cls, data: bytes) -> StaticTower:
@@ -236,8 +278,8 @@ class StaticTower:
         if isinstance(max_chars, bool) or not isinstance(max_chars, int) or max_chars < 1:
             raise TowerError(f"max_word_chars: must be a positive integer, got {max_chars!r}")
         table = np.frombuffer(rows, np.int8).reshape(len(vocab), dim)
-        tower = cls(teacher, tuple(vocab), table, unk, prefix, max_chars)
-        if tower.to_bytes() != data:
+        tower = cls(teacher, vocab, table, unk, prefix, max_chars)
+        if tower.sha256 != sha256_hex(data):
             raise TowerError("tower file: not in canonical form (written by other code?)")
         return tower
 
