@@ -118,7 +118,10 @@ def basic_words(text: str) -> list[str]:
         ch
         for ch in unicodedata.normalize("NFD", "".join(cleaned))
         if unicodedata.category(ch) != "Mn"
-    ).lower()
+    )
+    # One character at a time, as HF does (a whole string's lower() makes a word's final
+    # capital sigma a final sigma, another token).
+    stripped = "".join(ch.lower() for ch in stripped)
     words: list[str] = []
     for chunk in stripped.split(" "):
         start = 0

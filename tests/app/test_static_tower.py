@@ -31,6 +31,7 @@ TEXTS = [
     "tabs\tand\nnew lines\r\nand  double  spaces",
     "zero\u200bwidth and soft\u00adhyphen",
     "İstanbul ǅemal ß ﬁ ligature",
+    "ΟΔΟΣ ΟΔΟΣ. ΑΣ Β",
     "",
     "   ",
     "x" * 150,

@@ -163,11 +163,6 @@ def test_a_final_sigma_is_lowercased_one_character_at_a_time_as_hfs_tokenizer_do
         assert page["ids"] == hf_ids(minilm_dir, tower, text), repr(text)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="app/semantics/static.py lowercases with str.lower(), which makes a final Σ ς; HF "
-    "(and the page) make it σ: the server's ids differ from the page's on such words",
-)
 def test_python_lowercases_a_final_sigma_as_hfs_tokenizer_does(tower, minilm_dir):
     for text in ["ΟΔΟΣ ΟΔΟΣ.", "ΑΣ Β"]:
         assert tower.token_ids(text) == hf_ids(minilm_dir, tower, text), repr(text)
