@@ -14,26 +14,8 @@
 // as an idiom, "where I wash the dishes by hand") is left to the server: the page says so.
 
 import { request } from "./api.mjs";
-import { QueryRater } from "./relevance.mjs";
+import { dot, QueryRater } from "./relevance.mjs";
 import { isStaticModelId, loadTower } from "./tower.mjs";
-
-/** The float32 cosine of two unit Float32Arrays: summed in float64 by four accumulators
- * (independent adds: about twice as fast as one chain), rounded once. */
-export function dot(a, b, dim, aOffset = 0) {
-  let s0 = 0;
-  let s1 = 0;
-  let s2 = 0;
-  let s3 = 0;
-  let i = 0;
-  for (; i + 3 < dim; i += 4) {
-    s0 += a[aOffset + i] * b[i];
-    s1 += a[aOffset + i + 1] * b[i + 1];
-    s2 += a[aOffset + i + 2] * b[i + 2];
-    s3 += a[aOffset + i + 3] * b[i + 3];
-  }
-  for (; i < dim; i += 1) s0 += a[aOffset + i] * b[i];
-  return Math.fround(s0 + s1 + (s2 + s3));
-}
 
 /** The words of a question as the relational test reads them: lower case, runs of letters and
  * digits (finer than the reader's words: "left-hand" is "left", "hand"), "n't" spelt "not". */
