@@ -302,6 +302,9 @@ class QueryAnswer:
     """A spoken question: the recogniser's confidence in the transcript, where it gives one."""
     asr_ms: float | None = None
     """A spoken question: the server's time recognising it (within `latency_ms`)."""
+    ranked_by: str | None = None
+    """The `embedding.model` of the text tower that ranked the hits: the server's answer's
+    (SQ; MiniLM when it re-ranked a static session's), the device's own (LQ); None: unknown."""
 
     @property
     def match(self) -> bool:
@@ -341,6 +344,7 @@ class QueryRouter:
         local_off_reason: str = "no text encoder on this device",
         up: str | None = None,
         ssl_context: ssl.SSLContext | None = None,
+        rerank: bool = False,
     ):
         if encoder is not None and embedding is not None:
             check_encoder(encoder, embedding)
@@ -353,6 +357,9 @@ class QueryRouter:
         self.threshold_ms = float(threshold_ms)
         self.rtt_ms = rtt_ms
         self.server_timeout_s = float(server_timeout_s)
+        self.rerank = rerank
+        """Ask the server to re-rank a static tower's answer with MiniLM (SQ only: the
+        answer's `ranked_by` then differs from LQ's)."""
         self.up: str | None = up
         """The session's up axis as the router knows it ("+z", ...; None: not known, Z)."""
         self._up_settled = up is not None  # given by the caller: taken as settled
@@ -438,7 +445,9 @@ class QueryRouter:
         # Parsed by the protocol (QueryHit): last_seen_t None, state "present" from an older
         # server. The asker stands where the device is: questions seen from them ("closest
         # to me") are answered from where LQ would answer them.
-        answer = await self.api.query_result(text, k, from_xyz=self.local_map.user_position)
+        answer = await self.api.query_result(
+            text, k, from_xyz=self.local_map.user_position, rerank=self.rerank
+        )
         now_s = time.perf_counter()
         if relational_reading(text) is not None:
             await self._read_up()  # LQ will need it once the network is gone
@@ -451,6 +460,7 @@ class QueryRouter:
             total_ms=(time.perf_counter() - start_s) * 1e3,
             rtt_ms=rtt,
             verdict=answer["match"],
+            ranked_by=answer.get("ranked_by"),
         )
 
     async def _read_up(self) -> None:
@@ -535,6 +545,7 @@ class QueryRouter:
             reason=reason,
             total_ms=(now_s - start_s) * 1e3,
             rtt_ms=rtt,
+            ranked_by=self.encoder.model_id,
         )
 
     async def _local_relational_query(
@@ -589,6 +600,7 @@ class QueryRouter:
             total_ms=(now_s - start_s) * 1e3,
             rtt_ms=rtt,
             verdict=is_relational_match(hits),
+            ranked_by=self.encoder.model_id,
         )
 
 

@@ -170,6 +170,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="where the static text towers downloaded from servers are kept, by hash "
         "(default ~/.cache/semanticxr/towers)",
     )
+    parser.add_argument(
+        "--rerank",
+        action="store_true",
+        help="on a static-tower session, ask the server to re-rank its answers with MiniLM "
+        "(server queries only; local answers stay the static tower's)",
+    )
     parser.add_argument("--json", metavar="PATH", help="write a summary as JSON here")
     add_knob_flags(parser)
     parser.set_defaults(func=run)
@@ -391,8 +397,9 @@ class _Progress:
 
 
 def _print_answer(answer: QueryAnswer) -> None:
+    ranked = f"; ranked by {answer.ranked_by}" if answer.ranked_by else ""
     print(
-        f"{answer.text!r}: {answer.mode} in {answer.latency_ms:.1f} ms ({answer.reason})",
+        f"{answer.text!r}: {answer.mode} in {answer.latency_ms:.1f} ms ({answer.reason}{ranked})",
         flush=True,
     )
     if not answer.results:
@@ -520,6 +527,7 @@ async def _run(args: argparse.Namespace, source: FrameSource, recordings: list[R
                 embedding=embedding,
                 local_off_reason=local_off or "",
                 ssl_context=args.tls_ca,
+                rerank=args.rerank,
             ) as router:
                 for text in args.query:
                     answers.append(await router.query(text, args.k))

@@ -356,11 +356,15 @@ class SessionApi:
         *,
         include: str | None = None,
         from_xyz: Sequence[float] | None = None,
+        rerank: bool = False,
     ) -> dict:
         """`query`'s whole answer: {"text", "match", "results" (as `query` gives them),
-        "latency_ms", "now_t"} (now_t: the session's newest frame t, what "last seen ... ago"
-        counts from; None from a server without the living map)."""
+        "latency_ms", "now_t", "ranked_by"} (now_t: the session's newest frame t, what "last
+        seen ... ago" counts from; None from a server without the living map). rerank: on a
+        static-tower session, MiniLM re-ranks on the server (`ranked_by` says which did)."""
         params = _query_params(text, k, include, from_xyz)
+        if rerank:
+            params["rerank"] = "true"
         answer = await self._call("GET", f"{self.session_url}/query", params=params)
         return _result(answer)
 

@@ -151,6 +151,7 @@ def test_the_device_downloads_the_tower_caches_it_and_answers_as_the_server(
     assert len(summary["queries"]) == len(QUESTIONS)
     for text, answer in zip(QUESTIONS, summary["queries"], strict=True):
         assert answer["mode"] == "LQ" and answer["results"], text
+        assert answer["ranked_by"] == static_model_id(sha)
         # The same space as the server's: each of the device's hits scores what the server
         # gives the same object, to within the float16 copy's rounding, and the device's
         # best is the server's best or within that rounding of it (random towers may rate
@@ -231,3 +232,24 @@ def test_a_models_session_cannot_have_a_static_tower(live_server, tiny_models_di
     assert "text_tower" in detail and "only MiniLM sessions" in detail
     ok = httpx.post(f"{server.url}/v1/sessions", json={**body, "perception": "detections"})
     assert ok.status_code == 201 and ok.json()["embedding"]["dim"] == DIM
+
+
+def test_with_rerank_a_connected_device_gets_minilms_ranking_and_says_so(
+    live_server, tower_file, tmp_path, monkeypatch, capsys
+):
+    server = live_server(static_tower=str(tower_file))
+    status, summary = run_device(
+        server.url,
+        tmp_path,
+        monkeypatch,
+        "--rerank",
+        "--tower-cache",
+        str(tmp_path / "towers"),
+        "--net-latency-switch-threshold-ms",
+        "10000",  # any measured RTT is below it: the server answers
+    )
+    assert status == 0, capsys.readouterr().err
+    for text, answer in zip(QUESTIONS, summary["queries"], strict=True):
+        assert answer["mode"] == "SQ" and answer["results"], text
+        assert answer["ranked_by"] == DEFAULT_MODEL_ID, text
+    assert f"ranked by {DEFAULT_MODEL_ID}" in capsys.readouterr().out
