@@ -19,7 +19,7 @@ object, computed rather than allocated.
 
 Targets (2 CPU cores, SI megabytes; docs/evaluation.md "Targets"): 50k objects within 64 MB
 and LQ p50 <= 20 ms at 50k, LQ p50 <= 25 ms at 10k (p50/p95 at 10k and 50k reported); with
-the static tower (issue 37): LQ p50 <= 1 ms at 10k and <= 2 ms at 50k, p95 <= 2x p50,
+the static tower (docs/evaluation.md "Targets"): LQ p50 <= 1 ms at 10k and <= 2 ms at 50k, p95 <= 2x p50,
 64 MB at 50k with the tower held. Results go into local_map.json under the tower's name
 (`towers.minilm`, `towers.static`), the other tower's figures kept. The similarity part should stay near 10 ms or less at 50k, since text encoding takes
 most of the LQ budget. The machine may be shared: p50 and min are both recorded.
@@ -387,7 +387,7 @@ def minilm_targets(by_size: dict[int, dict]) -> list[dict]:
 
 
 def static_targets(by_size: dict[int, dict]) -> list[dict]:
-    """Issue 37's targets for the static tower: LQ end to end, its spread, memory with the
+    """The static tower's targets (docs/evaluation.md "Targets"): LQ end to end, its spread, memory with the
     tower held."""
     targets = []
     for size, p50_ms in ((10_000, 1.0), (50_000, 2.0)):

@@ -24,7 +24,7 @@ hash): every category name and paraphrase and every outside wording; how many th
 answers (the rest it leaves to the server as possibly relational), and of those how many
 have the same ids in the same order, the same top-1 and the same `match`.
 
-Targets (issue 37): LQ p50 <= 10 ms at 10,000 objects; the tower's download <= 10 MB
+Targets (docs/evaluation.md "Targets"): LQ p50 <= 10 ms at 10,000 objects; the tower's download <= 10 MB
 compressed (gzip, as a server or proxy would send it; the raw size is reported too).
 """
 
