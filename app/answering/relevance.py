@@ -147,19 +147,28 @@ def background_embeddings_name(model_id: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]", "_", model_id) + ".npz"
 
 
-def shipped_embeddings(
-    model_id: str, texts: Sequence[str], dim: int
-) -> dict[str, np.ndarray] | None:
-    """{text: float32 [dim]} of the tower's shipped embeddings when they are of exactly these
-    texts at this dimension; None (and a warning when a file is there but stale) otherwise:
-    the rater then embeds them itself."""
+def shipped_rows(model_id: str) -> tuple[list[str], np.ndarray] | None:
+    """(texts, rows [n, dim] as stored: float16) of the tower's shipped background
+    embeddings, or None when this package ships none for it."""
     resource = resources.files("app.answering").joinpath(
         BACKGROUND_EMBEDDINGS_DIR, background_embeddings_name(model_id)
     )
     if not resource.is_file():
         return None
     with np.load(io.BytesIO(resource.read_bytes()), allow_pickle=False) as shipped:
-        shipped_texts, rows = shipped["texts"].tolist(), shipped["embeddings"]
+        return shipped["texts"].tolist(), shipped["embeddings"]
+
+
+def shipped_embeddings(
+    model_id: str, texts: Sequence[str], dim: int
+) -> dict[str, np.ndarray] | None:
+    """{text: float32 [dim]} of the tower's shipped embeddings when they are of exactly these
+    texts at this dimension; None (and a warning when a file is there but stale) otherwise:
+    the rater then embeds them itself."""
+    shipped = shipped_rows(model_id)
+    if shipped is None:
+        return None
+    shipped_texts, rows = shipped
     if shipped_texts != list(texts) or rows.shape != (len(texts), dim):
         log.warning("shipped background embeddings of %r are stale: embedding them", model_id)
         return None

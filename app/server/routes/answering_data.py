@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import base64
 import functools
-import io
-from importlib import resources
 
 import numpy as np
 from fastapi import APIRouter, Response
@@ -31,12 +29,11 @@ from fastapi import Path as PathParam
 from pydantic import BaseModel
 
 from app.answering.relevance import (
-    BACKGROUND_EMBEDDINGS_DIR,
-    background_embeddings_name,
     background_text_list,
     background_texts,
     background_vocabulary,
     rule_for,
+    shipped_rows,
     texts_of,
 )
 from app.protocol.rest import ErrorBody, UnprocessableBody
@@ -145,13 +142,10 @@ def _phrases(table: dict[str, tuple[tuple[str, ...], ...]]) -> list[str]:
 def _shipped_rows(model_id: str) -> dict | None:
     """The tower's shipped background embeddings as the rater reads them (of exactly
     `background_text_list()`), else None."""
-    resource = resources.files("app.answering").joinpath(
-        BACKGROUND_EMBEDDINGS_DIR, background_embeddings_name(model_id)
-    )
-    if not resource.is_file():
+    shipped = shipped_rows(model_id)
+    if shipped is None:
         return None
-    with np.load(io.BytesIO(resource.read_bytes()), allow_pickle=False) as npz:
-        texts, rows = npz["texts"].tolist(), npz["embeddings"]
+    texts, rows = shipped
     if texts != background_text_list() or rows.ndim != 2 or len(rows) != len(texts):
         return None  # stale: the rater embeds the texts itself, and so does the page
     dtype = "float16" if rows.dtype == np.float16 else "float32"
