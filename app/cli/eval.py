@@ -149,6 +149,25 @@ def _encoder(args: argparse.Namespace):
     return text_tower(args.text_tower, args.static_tower)
 
 
+def _modes(args: argparse.Namespace) -> tuple[str, ...]:
+    return tuple(MODES) if args.mode == "both" else (args.mode,)
+
+
+def _seeds(args: argparse.Namespace) -> tuple[int, ...]:
+    return tuple(range(args.seed, args.seed + (args.seeds or DEFAULT_SEEDS[args.scenario])))
+
+
+def _report(args: argparse.Namespace, scenario: Any, cfg: Any, banner: str) -> int:
+    """Print `banner`, run the scenario module's `run(cfg, encoder)`, write its document to
+    --json (first: an hour of mapping is kept whatever printing does), print its table."""
+    print(banner, file=sys.stderr)
+    report = scenario.run(cfg, _encoder(args))
+    if args.json:
+        write_json(args.json, report.document)
+    print(report.table())
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from evaluation import walk
 
@@ -173,23 +192,18 @@ def run(args: argparse.Namespace) -> int:
         width=args.width,
         height=args.height,
         noise=args.noise,
-        modes=tuple(MODES) if args.mode == "both" else (args.mode,),
+        modes=_modes(args),
         knobs=knobs_from_args(args),
         queries=queries,
         sightings=args.sightings,
         upstream=args.upstream,
     )
-    print(
+    banner = (
         f"[eval] scene {cfg.scene} (seed {cfg.seed}), {cfg.frames} frames at "
         f"{cfg.width}x{cfg.height}, depth ÷{cfg.knobs.depth_downsampling_ratio}, "
-        f"noise {cfg.noise}, modes {', '.join(cfg.modes)}",
-        file=sys.stderr,
+        f"noise {cfg.noise}, modes {', '.join(cfg.modes)}"
     )
-    report = walk.run(cfg, _encoder(args))
-    print(report.table())
-    if args.json:
-        write_json(args.json, report.document)
-    return 0
+    return _report(args, walk, cfg, banner)
 
 
 def run_revisit_scenario(args: argparse.Namespace) -> int:
@@ -197,49 +211,38 @@ def run_revisit_scenario(args: argparse.Namespace) -> int:
 
     cfg = revisit.RevisitConfig(
         scene=args.scene,
-        seeds=tuple(range(args.seed, args.seed + (args.seeds or DEFAULT_SEEDS["revisit"]))),
+        seeds=_seeds(args),
         walk_frames=args.walk_frames,
         width=args.width,
         height=args.height,
         noise=args.noise,
-        modes=tuple(MODES) if args.mode == "both" else (args.mode,),
+        modes=_modes(args),
         knobs=knobs_from_args(args),
         sightings=args.sightings,
     )
-    print(
+    banner = (
         f"[revisit] scene {cfg.scene}, seeds {list(cfg.seeds)}, two walks of "
-        f"{cfg.walk_frames} frames at 5 fps {cfg.gap_s:g} s apart, modes {', '.join(cfg.modes)}",
-        file=sys.stderr,
+        f"{cfg.walk_frames} frames at 5 fps {cfg.gap_s:g} s apart, modes {', '.join(cfg.modes)}"
     )
-    report = revisit.run(cfg, _encoder(args))
-    if args.json:  # first: the hour of mapping is kept whatever printing does
-        write_json(args.json, report.document)
-    print(report.table())
-    return 0
+    return _report(args, revisit, cfg, banner)
 
 
 def run_relations_scenario(args: argparse.Namespace) -> int:
     from evaluation import relations
 
-    seeds = args.seeds or DEFAULT_SEEDS["relations"]
     cfg = relations.RelationsConfig(
-        seeds=tuple(range(args.seed, args.seed + seeds)),
+        seeds=_seeds(args),
         frames=args.frames or DEFAULT_FRAMES["relations"],
         width=args.width,
         height=args.height,
         noise=args.noise,
         knobs=knobs_from_args(args),
     )
-    print(
+    banner = (
         f"[relations] relation rooms, seeds {list(cfg.seeds)}, {cfg.frames} frames each at "
-        f"{cfg.width}x{cfg.height}, noise {cfg.noise}",
-        file=sys.stderr,
+        f"{cfg.width}x{cfg.height}, noise {cfg.noise}"
     )
-    report = relations.run(cfg, _encoder(args))
-    if args.json:
-        write_json(args.json, report.document)
-    print(report.table())
-    return 0
+    return _report(args, relations, cfg, banner)
 
 
 def run_geometry_scenario(args: argparse.Namespace) -> int:
@@ -252,17 +255,12 @@ def run_geometry_scenario(args: argparse.Namespace) -> int:
         width=args.width,
         height=args.height,
         noise=args.noise,
-        modes=tuple(MODES) if args.mode == "both" else (args.mode,),
+        modes=_modes(args),
         knobs=knobs_from_args(args),
         sightings=args.sightings,
     )
-    print(
+    banner = (
         f"[geometry] scene {cfg.scene} (seed {cfg.seed}), {cfg.frames} frames at "
-        f"{cfg.width}x{cfg.height}, noise {cfg.noise}, modes {', '.join(cfg.modes)}",
-        file=sys.stderr,
+        f"{cfg.width}x{cfg.height}, noise {cfg.noise}, modes {', '.join(cfg.modes)}"
     )
-    report = geometry.run(cfg, _encoder(args))
-    if args.json:
-        write_json(args.json, report.document)
-    print(report.table())
-    return 0
+    return _report(args, geometry, cfg, banner)
