@@ -547,14 +547,23 @@ class _Parser:
 def question_phrases() -> dict[str, list[str]]:
     """The phrases this reader knows, by role: "scaffolds" (question words before the target:
     "where did i leave", "show me"), "relations" (with and without an anchor: "on top of",
-    "to my left"), "superlatives", "determiners", "fillers" and "tails". A speech recogniser
-    shapes its vocabulary with them, so that what it hears is what the reader reads."""
-    relations = [*_RELATIONS.values(), *_RELATIONS_FROM_ASKER.values()]
+    "to my left"), of which "anchored" take an anchor after them and "from_asker" do not,
+    "superlatives", "determiners", "fillers" and "tails". A speech recogniser shapes its
+    vocabulary with them, so that what it hears is what the reader reads; the page tells a
+    relational question from a plain one with them."""
+    anchored, from_asker = _joined(_RELATIONS), _joined(_RELATIONS_FROM_ASKER)
     return {
         "scaffolds": [" ".join(p) for p in _SCAFFOLDS],
-        "relations": list(dict.fromkeys(" ".join(p) for ps in relations for p in ps)),
+        "relations": list(dict.fromkeys([*anchored, *from_asker])),
+        "anchored": anchored,
+        "from_asker": from_asker,
         "superlatives": list(_SUPERLATIVES),
         "determiners": sorted(_DETERMINERS),
         "fillers": [" ".join(p) for p in _FILLERS],
         "tails": [" ".join(p) for p in _TAILS],
     }
+
+
+def _joined(table: dict[str, tuple[tuple[str, ...], ...]]) -> list[str]:
+    """A relation table, phrase by phrase, each once."""
+    return list(dict.fromkeys(" ".join(p) for phrases in table.values() for p in phrases))

@@ -126,17 +126,11 @@ def _answering_data(model_id: str) -> dict:
         "background": [[label, texts_of(label, shipped)] for label in background_vocabulary()],
         "background_embeddings": _shipped_rows(model_id),
         "relational": {
-            "anchored": _phrases(grammar._RELATIONS),
-            "from_asker": _phrases(grammar._RELATIONS_FROM_ASKER),
+            "anchored": phrases["anchored"],
+            "from_asker": phrases["from_asker"],
             "superlatives": phrases["superlatives"],
         },
     }
-
-
-def _phrases(table: dict[str, tuple[tuple[str, ...], ...]]) -> list[str]:
-    """A relation table of the reader (its private tables: this route and the grammar go
-    together), phrase by phrase, each once."""
-    return list(dict.fromkeys(" ".join(p) for phrases in table.values() for p in phrases))
 
 
 def _shipped_rows(model_id: str) -> dict | None:
