@@ -59,30 +59,37 @@ async def _authorize(ws: WebSocket, manager: SessionManager, sid: str) -> Sessio
     """The session in use for this socket (release it when the socket ends), loaded in a
     thread if need be; None once the handshake was refused: HTTP 403 for a caller who may
     not use it (nothing about the session revealed), 503 with Retry-After when there is no
-    room to load it now."""
+    room to load it now, 409 naming the text tower a static session needs and the server
+    lacks (the caller may use the session: REST gives the same answer)."""
     try:
         return await manager.in_thread(
             authorize_session, manager, sid, bearer(ws.headers, ws.query_params)
         )
     except HTTPException as exc:
-        if exc.status_code == 503:
-            await _refuse_for_now(ws, exc)
+        if exc.status_code in _SAID_IN_HTTP:
+            await _refuse_with_reason(ws, exc)
         else:
             # Before accept(): the client sees an HTTP 403 and nothing about the session.
             await ws.close(code=CLOSE_POLICY, reason=str(exc.detail)[:120])
         return None
 
 
-async def _refuse_for_now(ws: WebSocket, exc: HTTPException) -> None:
-    """Refuse a handshake that may succeed later: HTTP 503 with Retry-After and the reason,
-    as REST answers; where the server cannot send an HTTP answer to a handshake, accept
-    and close with 1013 (try again later) and the reason."""
+_SAID_IN_HTTP = {503: CLOSE_TRY_LATER, 409: CLOSE_POLICY}
+"""Refusals a session's user is told as REST tells them, and the close code that says it
+where a handshake cannot get an HTTP answer."""
+
+
+async def _refuse_with_reason(ws: WebSocket, exc: HTTPException) -> None:
+    """Refuse a handshake as REST answers: the status (503 with Retry-After: try again
+    later; 409: not until the server changes) and the reason; where the server cannot send
+    an HTTP answer to a handshake, accept and close with `_SAID_IN_HTTP`'s code and the
+    reason."""
     if "websocket.http.response" in ws.scope.get("extensions", {}):
-        answer = JSONResponse({"detail": exc.detail}, 503, headers=exc.headers)
+        answer = JSONResponse({"detail": exc.detail}, exc.status_code, headers=exc.headers)
         await ws.send_denial_response(answer)
         return
     await ws.accept()
-    await ws.close(code=CLOSE_TRY_LATER, reason=str(exc.detail)[:120])
+    await ws.close(code=_SAID_IN_HTTP[exc.status_code], reason=str(exc.detail)[:120])
 
 
 @dataclass

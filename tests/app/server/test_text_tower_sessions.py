@@ -11,13 +11,16 @@ quality; no distillation runs here.
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
+import json
 import shutil
 from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
+import websockets
 from relation_scene import SCENE, map_export
 
 from app.semantics import DEFAULT_MODEL_ID
@@ -237,10 +240,26 @@ def test_a_restart_loads_a_static_session_with_the_tower_it_was_created_with(
         assert refused.status_code == 409
         detail = refused.json()["detail"]
         assert embedding["sha256"] in detail and "--static-tower" in detail
+        for socket in ("stream", "updates"):  # the sockets say it as REST does
+            url = f"{third.ws_url}/v1/sessions/{sid}/{socket}?token={API_KEY}"
+            assert _handshake(url) == (409, detail)
         # new static sessions get the tower this server was started with
         new = create(http, text_tower="static").json()["embedding"]
         assert new["sha256"] == hashlib.sha256(other.read_bytes()).hexdigest()
         assert http.get("/v1/sessions").status_code == 200  # listing needs no map
+
+
+def _handshake(url: str) -> tuple[int, str] | str:
+    """A socket's handshake: "open", or the HTTP status and detail it was refused with."""
+
+    async def go():
+        try:
+            async with websockets.connect(url, open_timeout=10):
+                return "open"
+        except websockets.InvalidStatus as exc:
+            return exc.response.status_code, json.loads(exc.response.body)["detail"]
+
+    return asyncio.run(go())
 
 
 def test_a_tower_file_from_another_teacher_stops_the_server_from_starting(tmp_path):
