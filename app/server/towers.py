@@ -5,6 +5,7 @@ labels of the sessions created with it (`text_tower: "static"`)."""
 
 from __future__ import annotations
 
+import gzip
 import logging
 import threading
 from collections.abc import Callable
@@ -77,6 +78,7 @@ class TowerService:
         self._towers: dict[str, StaticTower] = {}
         self._encoders: dict[str, TextEncoder] = {}
         self._files: dict[str, bytes] = {}
+        self._gzipped: dict[str, bytes] = {}
         self._current: StaticTower | None = None
         self._distilling: Future[StaticTower] | None = None
         if static_tower is not None:
@@ -165,6 +167,19 @@ class TowerService:
             with self._lock:
                 self._files[sha256] = data
         return data
+
+    def gzipped_bytes(self, sha256: str) -> bytes | None:
+        """`file_bytes` gzipped (level 6, no timestamp: the same bytes on every server; a
+        distilled tower's 7.8 MB go as 5.4 in 0.3 s, once per tower); None as file_bytes."""
+        with self._lock:
+            if sha256 in self._gzipped:
+                return self._gzipped[sha256]
+        data = self.file_bytes(sha256)
+        if data is None:
+            return None
+        packed = gzip.compress(data, compresslevel=6, mtime=0)
+        with self._lock:
+            return self._gzipped.setdefault(sha256, packed)
 
     def encoder(self, sha256: str) -> TextEncoder:
         """The encoder of the stored tower of that hash (one per tower, shared by its

@@ -12,6 +12,7 @@ quality; no distillation runs here.
 from __future__ import annotations
 
 import asyncio
+import gzip
 import hashlib
 import json
 import shutil
@@ -108,16 +109,24 @@ def test_a_static_session_names_its_tower_by_hash_and_the_server_serves_it(serve
         plain = create(http).json()["embedding"]
         assert plain == {"model": DEFAULT_MODEL_ID, "dim": 384}
     # the tower by its hash: public (no credentials), the file's bytes, cacheable for good
-    got = httpx.get(f"{server.url}/v1/text-towers/{sha}", timeout=30)
+    url = f"{server.url}/v1/text-towers/{sha}"
+    got = httpx.get(url, headers={"Accept-Encoding": "identity"}, timeout=30)
     assert got.status_code == 200
     assert got.content == data and hashlib.sha256(got.content).hexdigest() == sha
     assert got.headers["content-type"] == "application/octet-stream"
+    assert "content-encoding" not in got.headers
     assert got.headers["etag"] == f'"{sha}"'
     assert got.headers["cache-control"] == "public, max-age=31536000, immutable"
-    again = httpx.get(
-        f"{server.url}/v1/text-towers/{sha}", headers={"If-None-Match": f'"{sha}"'}, timeout=30
-    )
-    assert again.status_code == 304 and again.content == b""
+    # gzipped for a client that takes it (httpx, browsers), its own ETag; the same file
+    with httpx.stream("GET", url, headers={"Accept-Encoding": "br, gzip;q=0.8"}) as packed:
+        assert packed.headers["content-encoding"] == "gzip"
+        assert packed.headers["etag"] == f'"{sha}.gz"'
+        assert gzip.decompress(b"".join(packed.iter_raw())) == data
+    refused = httpx.get(url, headers={"Accept-Encoding": "gzip;q=0, br"}, timeout=30)
+    assert "content-encoding" not in refused.headers and refused.content == data
+    for held in (f'"{sha}"', f'W/"{sha}.gz"', f'"other", "{sha}.gz"'):
+        again = httpx.get(url, headers={"If-None-Match": held}, timeout=30)
+        assert again.status_code == 304 and again.content == b"", held
     unknown = "0" * 64
     missing = httpx.get(f"{server.url}/v1/text-towers/{unknown}", timeout=30)
     assert missing.status_code == 404 and unknown in missing.json()["detail"]
