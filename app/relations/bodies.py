@@ -38,7 +38,7 @@ class Footprint:
     directions @ p <= extents); area: m².
     """
 
-    __slots__ = ("_area", "directions", "extents")
+    __slots__ = ("_area", "_bounds", "directions", "extents")
 
     def __init__(self, plane: np.ndarray, centre: np.ndarray | None = None):
         """plane: float [2, N >= 1], the points seen from above (one row per axis); centre:
@@ -53,17 +53,34 @@ class Footprint:
         )
         self.extents = (self.directions @ plane).max(axis=1, keepdims=True)
         self._area: float | None = None
+        self._bounds: tuple[float, float, float, float] | None = None
+
+    def _corners(self) -> tuple[np.ndarray, np.ndarray]:
+        """The polygon's corners (x float64 [K], y float64 [K]): where consecutive extent
+        lines meet."""
+        (cos, sin), e = self.directions.T, self.extents[:, 0]
+        cos_next, sin_next, e_next = cos[_NEXT], sin[_NEXT], e[_NEXT]
+        x = (e * sin_next - e_next * sin) / _SIN_STEP
+        y = (cos * e_next - cos_next * e) / _SIN_STEP
+        return x, y
 
     @property
     def area(self) -> float:
-        """m²: consecutive extent lines meet at the polygon's corners."""
+        """m²."""
         if self._area is None:
-            (cos, sin), e = self.directions.T, self.extents[:, 0]
-            cos_next, sin_next, e_next = cos[_NEXT], sin[_NEXT], e[_NEXT]
-            x = (e * sin_next - e_next * sin) / _SIN_STEP
-            y = (cos * e_next - cos_next * e) / _SIN_STEP
+            x, y = self._corners()
             self._area = float(0.5 * abs(np.dot(x, y[_NEXT]) - np.dot(x[_NEXT], y)))
         return self._area
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(x min, y min, x max, y max) of the polygon. Wider than its points' box where a
+        corner of the polygon stands past it (its sides are turned with the thing, not with
+        the axes): a test of points against the polygon must not be cut short by the box."""
+        if self._bounds is None:
+            x, y = self._corners()
+            self._bounds = (float(x.min()), float(y.min()), float(x.max()), float(y.max()))
+        return self._bounds
 
     def outside_m(self, plane: np.ndarray) -> np.ndarray:
         """float64 [N]: how far each point (plane float [2, N]) lies outside the polygon
@@ -260,10 +277,11 @@ def _min_distance(p: np.ndarray, q: np.ndarray) -> float:
 
 
 def footprints_overlap(a: Body, b: Body, margin_m: float) -> bool:
-    """The boxes seen from above overlap when grown by margin_m (a prefilter for any
-    footprint test)."""
-    g0, g1, _ = box_gaps(a, b)
-    return g0 <= margin_m and g1 <= margin_m
+    """The footprints' bounds overlap when grown by margin_m (a prefilter for any footprint
+    test: each footprint's bounds hold its points and its polygon)."""
+    a0, a1, a2, a3 = a.footprint.bounds
+    b0, b1, b2, b3 = b.footprint.bounds
+    return max(a0 - b2, b0 - a2) <= margin_m and max(a1 - b3, b1 - a3) <= margin_m
 
 
 def share_over(a: Body, b: Body, margin_m: float = 0.0) -> float:

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from relation_scene import chair, faces
 
-from app.relations import pairwise, superlatives, viewpoint
+from app.relations import bodies, pairwise, superlatives, viewpoint
 from app.relations.between import between
 from app.relations.bodies import Body, snap_to_axis
 from app.relations.index import ObjectGeometry, RelationIndex
@@ -594,3 +594,29 @@ def test_a_y_up_index_answers_like_a_z_up_one():
     )
     ids = z_up.ids()
     assert index_degrees(y_up, ids) == pytest.approx(index_degrees(z_up, ids), abs=1e-9)
+
+
+def test_a_thing_over_a_corner_of_a_footprint_past_the_points_box_is_over_it_however_turned():
+    # A right triangle's footprint (its sides turned with its principal axis) stands up to
+    # 8 cm past its points' box beside the long leg; a small box there is over the
+    # footprint. The prefilter once compared the points' boxes and said 0 at some turns only
+    # (a hypothesis run: next_to 0.99 for 1.0 after a turn).
+    grid = np.linspace(0.0, 1.0, 25)
+    triangle = np.array(
+        [(x, 0.8 * y, z) for x in grid for y in grid if x + y <= 1.0 for z in (0.0, 0.5)]
+    )
+    xs, ys, zs = np.meshgrid(
+        np.linspace(-0.05, -0.01, 5), np.linspace(0.36, 0.44, 5), np.linspace(0.0, 0.1, 3)
+    )
+    small = np.stack([xs.ravel(), ys.ravel(), zs.ravel()], axis=1)
+    assert small[:, 0].max() < triangle[:, 0].min()  # outside the triangle's points' box
+    expected = None
+    for angle in np.linspace(0.0, 2 * np.pi, 13):
+        turn = rotation_about_z(angle)
+        a, b = Body(triangle @ turn.T), Body(small @ turn.T)
+        share = bodies.share_over(b, a)
+        inside = np.count_nonzero(a.footprint.contains(b.local[:2])) / b.local.shape[1]
+        assert share == pytest.approx(inside)
+        expected = share if expected is None else expected
+        assert share == pytest.approx(expected, abs=1e-9), angle
+    assert expected > 0.5
