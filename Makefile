@@ -13,8 +13,10 @@ demo: setup
 eval: setup
 	$(PY) -m app.cli eval --scene apartment --json out/eval.json
 
+# Two workers: most tests wait on servers, sockets and browsers, so the suite takes ~16 min
+# on two cores instead of ~21; every cluster test goes to one worker (one Ray head).
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadgroup
 
 lint: setup
 	.venv/bin/ruff check . && .venv/bin/ruff format --check .

@@ -16,7 +16,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   # pip.conf on this machine lists local indexes that may be absent; drop that noise.
   .venv/bin/pip install -q --disable-pip-version-check torch==2.13.0 2>&1 | grep -v "is ignored" || true
   .venv/bin/pip install -q --disable-pip-version-check -e ".[dev]" 2>&1 | grep -v "is ignored" || true
-  .venv/bin/python -c "import torch, numpy, fastapi, msgpack, av, lzfse, pocketsphinx" # fail loudly if the install failed
+  .venv/bin/python -c "import torch, numpy, fastapi, msgpack, av, lzfse, pocketsphinx, xdist" # fail loudly if the install failed
   touch "$stamp"
 fi
 

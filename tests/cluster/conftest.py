@@ -25,6 +25,14 @@ LEASE_S = 3.0
 START_TIMEOUT_S = 240.0
 
 
+def pytest_collection_modifyitems(items):
+    """Run in parallel (pytest-xdist), every cluster test goes to the same worker: one local
+    Ray head per test session, not one per worker."""
+    for item in items:
+        if "tests/cluster/" in item.nodeid:
+            item.add_marker(pytest.mark.xdist_group("ray"))
+
+
 def poll(condition, timeout_s: float, what: str, every_s: float = 0.1):
     """condition()'s first truthy value, polled; AssertionError naming `what` past timeout_s."""
     deadline = time.monotonic() + timeout_s
