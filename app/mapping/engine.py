@@ -39,6 +39,12 @@ MERGE_OVERLAP = 0.7
 """Clean-up merges two objects when this fraction of the smaller one lies on the larger..."""
 MERGE_SEMANTIC = 0.8
 """...and their embeddings agree at least this much (ConceptGraphs' defaults)."""
+SAME_SPACE_BOX_IOU = 0.5
+"""Two objects whose boxes overlap this much are also compared whatever their labels say..."""
+SAME_SPACE_OVERLAP = 0.8
+"""...and merged as two readings of one thing when this fraction of each lies on the other
+(a sofa read as a loveseat in some views: the map said "the sofa, on the loveseat"). A
+blanket on a bed stays apart: most of the bed does not lie on the blanket."""
 OUTLIER_EPS_M = 0.1
 """DBSCAN radius for outlier removal on changed objects."""
 RECENT_CHANGES = 256
@@ -366,6 +372,20 @@ class MappingEngine:
         self._at_cap = stats.over_cap > 0
         return touched
 
+    def _one_thing(self, a: MapObject, b: MapObject) -> bool:
+        """Whether two objects whose boxes overlap are readings of one thing: the smaller
+        lies on the larger (MERGE_OVERLAP) and their embeddings agree (MERGE_SEMANTIC), or
+        each lies on the other (SAME_SPACE_OVERLAP), whatever their labels."""
+        voxel_m = self.knobs.voxel_size_m
+        small, large = (a, b) if len(a.points) <= len(b.points) else (b, a)
+        on_large = geo.overlap_fraction(small.points, large.tree, voxel_m)
+        if on_large >= MERGE_OVERLAP and float(a.embedding @ b.embedding) >= MERGE_SEMANTIC:
+            return True
+        return (
+            on_large >= SAME_SPACE_OVERLAP
+            and geo.overlap_fraction(large.points, small.tree, voxel_m) >= SAME_SPACE_OVERLAP
+        )
+
     def _merge_objects(self, keep: MapObject, gone: MapObject) -> None:
         keep.set_points(
             *self._cap(
@@ -442,9 +462,10 @@ class MappingEngine:
             rows = [k for k, o in enumerate(objects) if o.id in changed]
             overlapping = geo.bbox_intersects_matrix(boxes[rows], boxes, 0.0)
             embeddings = np.stack([o.embedding for o in objects])
-            semantic = embeddings[rows] @ embeddings.T
+            alike = (embeddings[rows] @ embeddings.T) >= MERGE_SEMANTIC
+            same_space = geo.bbox_iou_matrix(boxes[rows], boxes) >= SAME_SPACE_BOX_IOU
             pairs = set()
-            for r, j in zip(*np.nonzero(overlapping & (semantic >= MERGE_SEMANTIC)), strict=True):
+            for r, j in zip(*np.nonzero(overlapping & (alike | same_space)), strict=True):
                 i = rows[r]
                 if i != j:
                     pairs.add((min(i, j), max(i, j)))  # a pair of two changed objects once
@@ -452,11 +473,7 @@ class MappingEngine:
                 a, b = objects[i], objects[j]
                 if a.id not in self.objects or b.id not in self.objects:
                     continue
-                small, large = (a, b) if len(a.points) <= len(b.points) else (b, a)
-                if (
-                    geo.overlap_fraction(small.points, large.tree, self.knobs.voxel_size_m)
-                    < MERGE_OVERLAP
-                ):
+                if not self._one_thing(a, b):
                     continue
                 keep, gone = (a, b) if a.id < b.id else (b, a)  # the older id survives
                 self._merge_objects(keep, gone)

@@ -417,6 +417,17 @@ def bbox_inside_fraction(a: np.ndarray, b: np.ndarray) -> float:
     return float(inter / np.prod(a_hi - a_lo))
 
 
+def bbox_iou_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
+    """float [n, m]: `bbox_iou` of box a_i and box b_j. boxes: [n, 6], [m, 6]."""
+    a_lo, b_lo = boxes_a[:, :3], boxes_b[:, :3]
+    a_hi = np.maximum(boxes_a[:, 3:], a_lo + 1e-3)
+    b_hi = np.maximum(boxes_b[:, 3:], b_lo + 1e-3)
+    sides = np.minimum(a_hi[:, None], b_hi[None]) - np.maximum(a_lo[:, None], b_lo[None])
+    inter = np.prod(np.clip(sides, 0, None), axis=2)
+    union = np.prod(a_hi - a_lo, axis=1)[:, None] + np.prod(b_hi - b_lo, axis=1)[None] - inter
+    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+
+
 def bbox_intersects_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray, margin_m: float) -> np.ndarray:
     """bool [n, m]: box a_i grown by margin_m intersects box b_j. boxes: [n, 6], [m, 6]."""
     if len(boxes_a) == 0 or len(boxes_b) == 0:

@@ -128,3 +128,18 @@ def test_duplicates_still_merge_when_only_one_of_them_changed(encoder):
     for _ in range(2):
         engine.integrate(render_rects([]))
     assert len(engine.objects) == 1
+
+
+def test_one_thing_read_under_two_labels_becomes_one_object_a_thing_on_another_does_not(encoder):
+    engine = make_engine(encoder, association_threshold=2.0)  # never associate: duplicates
+    sofa = Rect(1, "sofa", -0.8, -0.4, 0.8, 0.4, 2.5)
+    loveseat = Rect(5, "loveseat", -0.8, -0.4, 0.8, 0.4, 2.5)  # the same thing, read otherwise
+    bed = Rect(6, "bed", 1.2, -0.5, 2.4, 0.5, 2.5)
+    blanket = Rect(7, "blanket", 1.4, -0.3, 2.0, 0.3, 2.5)  # lies on the bed: all of it on it
+    for frame in ([sofa, bed], [loveseat, blanket], [sofa, bed], [loveseat, blanket]):
+        engine.integrate(render_rects(frame))
+    labels = sorted(o.label for o in engine.objects.values())
+    assert labels.count("blanket") == 1 and labels.count("bed") == 1
+    seats = [o for o in engine.objects.values() if o.label in ("sofa", "loveseat")]
+    assert len(seats) == 1, labels
+    assert seats[0].n_obs == 4  # both readings' observations
