@@ -113,30 +113,6 @@ def depth_edge_keep(ids_d: np.ndarray, depth_m: np.ndarray, valid: np.ndarray) -
     return inside & ~(edge & np.where(judged, residual > tolerance, behind))
 
 
-def smooth_depth(ids_d: np.ndarray, depth_m: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """float [h, w]: each kept sample's depth averaged with its kept 3x3 neighbours of the same
-    mask whose depth continues its surface (within DEPTH_EDGE_MIN_M + DEPTH_EDGE_PER_M *
-    depth); every other pixel as it was.
-
-    ids_d: int [h, w] the mask (instance id, 0 = none); keep: bool [h, w] the samples lifted
-    (`depth_edge_keep`). A depth sensor's range noise is per pixel and grows with the square
-    of the range (docs/architecture.md): a far view's samples scatter a surface into a skin
-    several centimetres thick, and its outermost samples set the box. The mean of up to 9
-    samples of one surface cuts that scatter about threefold; on a plane (a slanted one too)
-    it has no bias, and a neighbour across a depth step (another thing, the wall behind) is
-    not averaged in."""
-    ids = np.where(keep, ids_d, 0).astype(np.int64)
-    z = np.where(keep, depth_m, 0.0).astype(np.float64)
-    tolerance = DEPTH_EDGE_MIN_M + DEPTH_EDGE_PER_M * z
-    total, count = z.copy(), keep.astype(np.float64)
-    for dv, du in _NEIGHBOURS:
-        zn = _shifted(z, dv, du, 0.0)
-        same = keep & (_shifted(ids, dv, du, 0) == ids) & (np.abs(zn - z) <= tolerance)
-        total += np.where(same, zn, 0.0)
-        count += same
-    return np.where(keep, total / np.maximum(count, 1.0), depth_m)
-
-
 def lift_detection(
     mask_rgb: np.ndarray,
     depth_m: np.ndarray,
@@ -157,7 +133,6 @@ def lift_detection(
     mask_d = mask_rgb[np.ix_(v_rgb, u_rgb)] & valid
     if edge_test:
         mask_d = depth_edge_keep(mask_d, depth_m, valid)
-    depth_m = smooth_depth(mask_d, depth_m, mask_d)
     vd, ud = np.nonzero(mask_d)
     return backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
 
@@ -179,7 +154,6 @@ def lift_instances_batched(
     u_rgb, v_rgb = depth_to_rgb_pixel_grid((depth_m.shape[1], depth_m.shape[0]), (width, height))
     ids_d = instance_image[np.ix_(v_rgb, u_rgb)]
     keep = depth_edge_keep(ids_d, depth_m, valid_depth_mask(depth_m, max_depth_m))
-    depth_m = smooth_depth(ids_d, depth_m, keep)
     vd, ud = np.nonzero(keep)
     ids = ids_d[vd, ud]
     points = backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
@@ -212,9 +186,7 @@ def lift_in_patch(
     inner = ndimage.binary_erosion(mask, iterations=PATCH_EROSION_PX)
     if inner.sum() >= PATCH_MIN_INNER_PX:
         mask = inner
-    mask = mask & valid_depth_mask(patch_depth_m, max_depth_m)
-    patch_depth_m = smooth_depth(mask, patch_depth_m, mask)
-    v, u = np.nonzero(mask)
+    v, u = np.nonzero(mask & valid_depth_mask(patch_depth_m, max_depth_m))
     return backproject(u + x0, v + y0, patch_depth_m[v, u], intrinsics, pose)
 
 
