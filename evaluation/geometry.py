@@ -27,7 +27,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from app.config import MODES, Knobs
-from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine
 from app.mapping.geometry import EMPTY_POINTS, backproject, voxel_downsample
 from app.mapping.publish import client_points
@@ -35,8 +34,7 @@ from app.semantics import TextEncoder
 from client_sim.sources.synthetic import SyntheticSource
 from evaluation.pipeline import Progress, stderr_progress
 from evaluation.report import Report
-from evaluation.walk import EvalConfig, run_eval
-from world.render import default_camera
+from evaluation.walk import EvalConfig, run_eval, walk_keyframes, walk_source
 from world.scene import Scene
 
 TRUTH_VOXEL_M = 0.01
@@ -231,14 +229,8 @@ def run_geometry(
     )
     engines: dict[str, MappingEngine] = {}
     walk = run_eval(walk_cfg, encoder, progress, engines_out=engines)
-    source = SyntheticSource(
-        cfg.scene,
-        n_frames=cfg.frames,
-        camera=default_camera(cfg.width, cfg.height),
-        noise=cfg.noise,
-        seed=cfg.seed,
-    )
-    keyframes = [i for i in range(cfg.frames) if is_keyframe(i, cfg.knobs.keyframe_interval)]
+    source = walk_source(walk_cfg)
+    keyframes = walk_keyframes(walk_cfg)
     truth = seen_truth(source.scene, source, keyframes)
     progress(f"[geometry] seen truth: {len(truth.points)} points over {len(keyframes)} keyframes")
     result: dict = {

@@ -141,6 +141,22 @@ def _in_view(detector: DetectionModel, view, frame_index: int) -> set[str]:
 UPSTREAMS: tuple[str, ...] = ("frames", "sightings")
 
 
+def walk_source(cfg: EvalConfig) -> SyntheticSource:
+    """The synthetic source of the walk `cfg` describes (scene, frames, camera, noise, seed)."""
+    return SyntheticSource(
+        cfg.scene,
+        n_frames=cfg.frames,
+        camera=default_camera(cfg.width, cfg.height),
+        noise=cfg.noise,
+        seed=cfg.seed,
+    )
+
+
+def walk_keyframes(cfg: EvalConfig) -> list[int]:
+    """The indices of the walk's keyframes (every `knobs.keyframe_interval`-th frame)."""
+    return [index for index in range(cfg.frames) if is_keyframe(index, cfg.knobs.keyframe_interval)]
+
+
 def encode_keyframes(
     cfg: EvalConfig, ratios: list[int], progress: Progress
 ) -> tuple[
@@ -151,13 +167,7 @@ def encode_keyframes(
     visibility count and, with `cfg.sightings`, its detections. Returns (messages by ratio,
     scene, upstream bytes at the configured ratio, frames in view by category: see the
     module docstring, the non-keyframes by the keyframe they follow)."""
-    source = SyntheticSource(
-        cfg.scene,
-        n_frames=cfg.frames,
-        camera=default_camera(cfg.width, cfg.height),
-        noise=cfg.noise,
-        seed=cfg.seed,
-    )
+    source = walk_source(cfg)
     options = session_encoder_options(cfg.knobs, cfg.encoder_options)
     encoders = {ratio: FrameEncoder(ratio, **options) for ratio in ratios}
     messages: dict[int, list] = {ratio: [] for ratio in ratios}
@@ -165,7 +175,7 @@ def encode_keyframes(
         (RGB_FIELD, DEPTH_FIELD, DETECTIONS_FIELD, DEPTH_PATCHES_FIELD, "total"), 0
     )  # payload bytes by message part, and the whole messages
     interval = cfg.knobs.keyframe_interval
-    keyframes = [index for index in range(cfg.frames) if is_keyframe(index, interval)]
+    keyframes = walk_keyframes(cfg)
     n_keyframes = len(keyframes)
     noise_free = DetectionModel(source.scene, "none", cfg.seed)
     in_view: dict[str, int] = dict.fromkeys(source.scene.categories_present, 0)

@@ -15,6 +15,7 @@ import numpy as np
 from app.errors import InputError
 from app.mapping.deltas import DeltaLog
 from app.mapping.engine import RECENT_CHANGES
+from app.mapping.stats import IntegrationStats
 from app.perception.base import FrameDetections
 from app.protocol import Ack, ErrorReply, FrameInput
 from app.server.metrics import Metrics
@@ -219,21 +220,12 @@ class KeyframePipeline:
                     else None,
                 )
                 self.store.commit_keyframe(
-                    KeyframeCommit(
-                        session.id,
-                        stats.seq,
-                        [engine.objects[i] for i in stats.published_ids],
-                        stats.removed_ids,
-                        counters=session.counters(),
-                        next_object_id=engine.next_object_id,
-                        last_used_at=rec.last_used_at,
+                    _map_commit(
+                        session,
+                        stats,
                         retired=stats.retired,
                         changes=stats.changes,
-                        retracted_added=stats.retracted_added,
                         retracted_removed=stats.retracted_removed,
-                        last_t=engine.last_t,
-                        last_pose=engine.last_pose,
-                        epoch=session.epoch,
                         done=None
                         if pending.stream is None
                         else (pending.stream, frame.seq, _ack_record(ack)),
@@ -300,21 +292,7 @@ class KeyframePipeline:
                 stats = engine.settle()
                 if not stats.published_ids and not stats.removed_ids:
                     return
-                self.store.commit_keyframe(
-                    KeyframeCommit(
-                        session.id,
-                        stats.seq,
-                        [engine.objects[i] for i in stats.published_ids],
-                        stats.removed_ids,
-                        counters=session.counters(),
-                        next_object_id=engine.next_object_id,
-                        last_used_at=session.record.last_used_at,
-                        retracted_added=stats.retracted_added,
-                        last_t=engine.last_t,
-                        last_pose=engine.last_pose,
-                        epoch=session.epoch,
-                    )
-                )
+                self.store.commit_keyframe(_map_commit(session, stats))
             except SessionFenced:
                 self.claims.drop_taken_over(session, close=False)
             except Exception:
@@ -377,6 +355,27 @@ class KeyframePipeline:
         session.record.next_object_id = engine.next_object_id
         session.stored_floor = stored.floor
         session.rolled_back(delta_log.seq)
+
+
+def _map_commit(session: Session, stats: IntegrationStats, **more) -> KeyframeCommit:
+    """The store commit of what a keyframe or a settle changed in the session's map: the
+    published objects, the removed ids, the counters and the engine's state; `more`: the
+    keyframe's own fields (its ack, retirements, changes, up)."""
+    engine = session.engine
+    return KeyframeCommit(
+        session.id,
+        stats.seq,
+        [engine.objects[i] for i in stats.published_ids],
+        stats.removed_ids,
+        counters=session.counters(),
+        next_object_id=engine.next_object_id,
+        last_used_at=session.record.last_used_at,
+        retracted_added=stats.retracted_added,
+        last_t=engine.last_t,
+        last_pose=engine.last_pose,
+        epoch=session.epoch,
+        **more,
+    )
 
 
 def _ack_record(ack: Ack) -> bytes:
