@@ -61,12 +61,6 @@ class WatchedMap(Protocol):
         """Object `oid` changed: denoised and compared for a merge again."""
 
 
-THIN_DOUBT_MIN_UNSEEN_S = 30.0
-"""A place doubted on thin evidence alone is sent to the device (a keyframe pick) only when
-its thing had not been seen for this long before that evidence: a return to it, not a glance
-in which the detector missed it."""
-
-
 class ChangeDetector:
     """What the keyframes say changed in the world: suspicion gathered by negative evidence,
     removals, moves, appearances. Its state is in memory (like sightings, it starts over
@@ -397,40 +391,26 @@ class ChangeDetector:
         )
 
     def doubted_places(self) -> np.ndarray:
-        """float64 [K, 5]: (x, y, z, radius, t_ready) of the place of each suspect object,
-        the places the map doubts; metres, and the device time from which a keyframe showing
-        it can complete its evidence (with depth evidence, its first + `removal_min_span_s`,
-        the least span of a removal's evidence; with thin evidence only, its first: that
-        removal waits for keyframes from a second viewpoint, not for time) (docs/protocol.md,
-        the ack's `doubted`: a device that picks its keyframes makes one when such a place
-        comes into view, so the evidence that settles the doubt arrives within a glance). The
-        centre is the median of a sample of its points and the radius the 90th percentile of
-        their distances from it (strays do not stretch the place)."""
+        """float64 [K, 5]: (x, y, z, radius, t_ready) of the place of each suspect object
+        with depth evidence (a keyframe saw through it), the places the map doubts; metres,
+        and the device time from which a keyframe seeing through it can complete its evidence
+        (its first depth evidence + `removal_min_span_s`, the least span of a removal's
+        evidence) (docs/protocol.md, the ack's `doubted`: a device that picks its
+        keyframes makes one when such a place comes into view, so the evidence that settles
+        the doubt arrives within a glance). The centre is the median of a sample of its
+        points and the radius the 90th percentile of their distances from it (strays do not
+        stretch the place)."""
         places = []
         for obj in self._suspected_objects():
-            evidence = self.suspects[obj.id]
-            if not len(obj.points) or not evidence:
+            # thin evidence alone is weak (a detector missing a big thing gives it) and
+            # needs two viewpoints anyway: only a place seen through is worth a keyframe
+            if not len(obj.points) or not any(e.kind == "depth" for e in self.suspects[obj.id]):
                 continue
             sample = living.object_sample(obj.points).astype(np.float64)
             centre = np.median(sample, axis=0)
             radius = float(np.percentile(np.linalg.norm(sample - centre, axis=1), 90))
-            depth = [e.t for e in evidence if e.kind == "depth"]
-            if depth:
-                ready = min(depth) + self.map.knobs.removal_min_span_s
-            else:
-                # thin evidence only (a thing lifted off a surface): its removal needs more
-                # keyframes from two viewpoints, not a span of time, so any keyframe showing
-                # the place from here on counts; but only on a return to a thing not seen
-                # for a while: within one visit thin evidence is mostly the detector missing
-                # a thing it has just seen, which the regular keyframes settle
-                first = min(e.t for e in evidence)
-                if (
-                    obj.last_seen_t is not None
-                    and first - obj.last_seen_t < THIN_DOUBT_MIN_UNSEEN_S
-                ):
-                    continue
-                ready = first
-            places.append((*centre, radius, ready))
+            first = min(e.t for e in self.suspects[obj.id] if e.kind == "depth")
+            places.append((*centre, radius, first + self.map.knobs.removal_min_span_s))
         return np.asarray(places, np.float64).reshape(-1, 5)
 
     def clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
