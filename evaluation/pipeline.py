@@ -145,6 +145,39 @@ class MappedRun:
         self.stages_ms.setdefault(stage, []).append(ms)
 
 
+def map_keyframe(
+    engine: MappingEngine,
+    message: dict,
+    run: MappedRun,
+    published: dict[str, int],
+    name: str,
+) -> None:
+    """One keyframe's wire message through decode + mapping + the downstream update into
+    `run` (docs/evaluation.md "Evaluation definitions": mapping latency): its changes, the
+    objects it retired or retracted, its latency and stages; `published[name]` is the seq the
+    engine's last downstream update went out at."""
+    t0 = time.perf_counter()
+    frame = parse_frame(message, engine.backend.needs_rgb)
+    t1 = time.perf_counter()
+    stats = engine.integrate(frame)
+    run.changes.extend(stats.changes)
+    run.retired.extend(stats.retired)
+    run.retracted_added.update(stats.retracted_added)
+    run.retracted_removed.update(stats.retracted_removed)
+    t2 = time.perf_counter()
+    if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
+        update = update_message(engine, published[name])
+        run.update_bytes.append(len(msgpack.packb(update)))
+        published[name] = update[SEQ_FIELD]
+    t3 = time.perf_counter()
+    run.latencies_ms.append((t3 - t0) * 1e3)
+    run.add_stage("decode", (t1 - t0) * 1e3)
+    for stage, ms in stats.timings_ms.items():
+        if stage != "total":
+            run.add_stage(stage, ms)
+    run.add_stage("update", (t3 - t2) * 1e3)
+
+
 def map_keyframes(
     messages: dict[str, list[dict]],
     engines: dict[str, MappingEngine],
@@ -166,26 +199,7 @@ def map_keyframes(
     for i in range(n_keyframes):
         for name, engine in engines.items():
             run = runs[name]
-            t0 = time.perf_counter()
-            frame = parse_frame(messages[name][i], engine.backend.needs_rgb)
-            t1 = time.perf_counter()
-            stats = engine.integrate(frame)
-            run.changes.extend(stats.changes)
-            run.retired.extend(stats.retired)
-            run.retracted_added.update(stats.retracted_added)
-            run.retracted_removed.update(stats.retracted_removed)
-            t2 = time.perf_counter()
-            if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
-                update = update_message(engine, published[name])
-                run.update_bytes.append(len(msgpack.packb(update)))
-                published[name] = update[SEQ_FIELD]
-            t3 = time.perf_counter()
-            run.latencies_ms.append((t3 - t0) * 1e3)
-            run.add_stage("decode", (t1 - t0) * 1e3)
-            for stage, ms in stats.timings_ms.items():
-                if stage != "total":
-                    run.add_stage(stage, ms)
-            run.add_stage("update", (t3 - t2) * 1e3)
+            map_keyframe(engine, messages[name][i], run, published, name)
             for sighting in sightings.get(i, []):
                 t4 = time.perf_counter()
                 engine.sight(*sighting.decode(engine, ratios[name]))  # type: ignore[index]

@@ -37,7 +37,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import msgpack
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -45,15 +44,19 @@ from app.config import MODES, Knobs
 from app.keyframes import is_keyframe
 from app.mapping.engine import MappingEngine, make_perception
 from app.mapping.object import MapObject
-from app.mapping.publish import update_message
-from app.protocol import parse_frame
-from app.protocol.delta import SEQ_FIELD
 from app.semantics import TextEncoder
 from client_sim.encoder import FrameEncoder, session_encoder_options
 from client_sim.keyframe_pick import KeyframePick
 from client_sim.sources.revisit import RevisitSource
 from evaluation.change_scores import ConcludedChange, TrueChange, score_changes
-from evaluation.pipeline import MappedRun, Progress, Sighting, labels_of, stderr_progress
+from evaluation.pipeline import (
+    MappedRun,
+    Progress,
+    Sighting,
+    labels_of,
+    map_keyframe,
+    stderr_progress,
+)
 from evaluation.report import Report
 from world.changes import DEFAULT_GAP_S, DEFAULT_WALK_FRAMES, RevisitScenario
 from world.gt import gt_point_cloud
@@ -209,7 +212,7 @@ def _walk_and_map(
             next(iter(engines.values())).encoder.encode(labels_of([message]))
         for name, engine in engines.items():
             if whole[name]:
-                _map_one(engine, message, runs[name], published, name)
+                map_keyframe(engine, message, runs[name], published, name)
                 if cfg.doubt_keyframes and engine.knobs.negative_evidence:
                     picks[name].doubted = engine.changes.doubted_places()
             elif sighting is not None:
@@ -222,30 +225,6 @@ def _walk_and_map(
                 + ", ".join(f"{name} {len(run.latencies_ms)}" for name, run in runs.items())
             )
     return walks, runs, picks
-
-
-def _map_one(
-    engine: MappingEngine, message: dict, run: MappedRun, published: dict[str, int], name: str
-) -> None:
-    """One keyframe through decode + mapping + the downstream update, timed (as
-    `evaluation.pipeline.map_keyframes`)."""
-    t0 = time.perf_counter()
-    frame = parse_frame(message, engine.backend.needs_rgb)
-    t1 = time.perf_counter()
-    stats = engine.integrate(frame)
-    run.changes.extend(stats.changes)
-    run.retired.extend(stats.retired)
-    run.retracted_added.update(stats.retracted_added)
-    run.retracted_removed.update(stats.retracted_removed)
-    t2 = time.perf_counter()
-    if stats.keyframe % engine.knobs.local_map_update_frequency == 0:
-        update = update_message(engine, published[name])
-        run.update_bytes.append(len(msgpack.packb(update)))
-        published[name] = update[SEQ_FIELD]
-    t3 = time.perf_counter()
-    run.latencies_ms.append((t3 - t0) * 1e3)
-    run.add_stage("decode", (t1 - t0) * 1e3)
-    run.add_stage("update", (t3 - t2) * 1e3)
 
 
 def _true_change(walks: _Walks, change, key: int, min_evidence: int) -> TrueChange:
