@@ -130,7 +130,7 @@ def open_answers_page(page, server_url: str) -> None:
         ),
     )
     page.goto(f"{server_url}{PAGE_PATH}")
-    page.wait_for_function("document.documentElement.dataset.ready === 'yes'")
+    page.wait_for_function("() => document.documentElement.dataset.ready === 'yes'")
 
 
 def image_of(rendered: dict) -> np.ndarray:

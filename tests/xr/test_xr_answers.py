@@ -199,7 +199,9 @@ def test_the_follower_holds_the_servers_map_and_resumes_after_a_restart(live_ser
 
     # The server goes away and comes back on the same port and data dir; the room changes.
     server.stop()
-    page.wait_for_function("window.follower.state === 'waiting'")
+    page.wait_for_function(
+        "() => window.follower.state === 'waiting'"
+    )  # a function: a string is eval'd, which the CSP forbids
     restarted = ServerThread(server.settings, encoder).start()
     try:
         stream(restarted, sid, walk(AFTER, WALK_2_T))
