@@ -86,6 +86,8 @@ class Asked:
     top: list[str]
     """The top-5 labels, best first."""
     standings: list[Standing]
+    text: str = ""
+    """The query."""
 
 
 def outside_wordings() -> tuple[dict[str, str], list[str]]:
@@ -139,7 +141,8 @@ def ask(
                 kind = "absent"
             else:
                 continue
-            out.append(Asked(kind, top, rater.standing(embeddings[text], top, texts) or []))
+            standings = rater.standing(embeddings[text], top, texts) or []
+            out.append(Asked(kind, top, standings, text))
     return out
 
 
@@ -169,6 +172,42 @@ def figures(asked: list[Asked], rule: MatchRule) -> dict:
         "negatives_false_match_rate": negatives,
         "negatives": n_negatives,
     }
+
+
+def failures(asked: list[Asked], rule: MatchRule) -> list[dict]:
+    """The answers `rule` gets wrong, each once with how many maps gave it: a right top-1
+    without match ("right_unmatched"), or a match for a thing the map lacks or a negative
+    ("false_match"), with the standings (z, gap, z_name) and relevance of `label`: the hit
+    that says match, else the top-1."""
+    seen: dict[tuple[str, str, str], dict] = {}
+    for a in asked:
+        relevance = [s.relevance(rule) for s in a.standings]
+        matched = any(r >= CONFIDENT for r in relevance)
+        if a.kind == "right" and not matched:
+            kind = "right_unmatched"
+        elif a.kind in ("absent", "negative") and matched:
+            kind = "false_match"
+        else:
+            continue
+        key = (kind, a.text, a.top[0])
+        if key in seen:
+            seen[key]["maps"] += 1
+            continue
+        # the hit that says match (false_match), else the top-1
+        shown = next((i for i, r in enumerate(relevance) if r >= CONFIDENT), 0)
+        standing = a.standings[shown] if a.standings else Standing(0.0, 0.0, 0.0)
+        seen[key] = {
+            "kind": kind,
+            "query": a.text,
+            "top": a.top,
+            "label": a.top[shown],
+            "z": round(standing.z, 3),
+            "gap": round(standing.gap, 3),
+            "z_name": round(standing.z_name, 3),
+            "relevance": float(relevance[shown]) if relevance else 0.0,  # unrounded: vs 0.5
+            "maps": 1,
+        }
+    return sorted(seen.values(), key=lambda f: (f["kind"], -f["maps"], f["query"]))
 
 
 def calibrate(encoder: TextEncoder, maps: int, objects: int) -> tuple[MatchRule, dict]:
@@ -279,6 +318,11 @@ def main(argv: list[str] | None = None) -> dict:
         metavar="FILE",
         help="with --tower static: this tower file (default: the tower cache's)",
     )
+    parser.add_argument(
+        "--failures",
+        action="store_true",
+        help="print every answer the rule gets wrong with its standings (always in the JSON)",
+    )
     args = parser.parse_args(argv)
     encoder = text_tower(args.tower, args.static_tower)
     if args.calibrate:
@@ -287,10 +331,9 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"written to {write_calibration(encoder, rule, training)}")
     rater = QueryRater(encoder)  # the shipped rule and background texts
     outside, negatives = outside_wordings()
-    training = figures(
-        ask(encoder, rater, training_wordings(), [], args.maps, args.objects), rater.rule
-    )
-    held_out = figures(ask(encoder, rater, outside, negatives, args.maps, args.objects), rater.rule)
+    asked_training = ask(encoder, rater, training_wordings(), [], args.maps, args.objects)
+    asked_outside = ask(encoder, rater, outside, negatives, args.maps, args.objects)
+    training, held_out = figures(asked_training, rater.rule), figures(asked_outside, rater.rule)
     no_keys = [c for c in _categories() if c != "keys"]
     no_keys_embeddings = encoder.encode_labels(no_keys)
     fixed = {}
@@ -311,6 +354,9 @@ def main(argv: list[str] | None = None) -> dict:
         "recall": training["recall"],
         "right_answers_match": training["right_answers_match"],
         "false_match_rate": training["false_match_rate"],
+        # what the rule gets wrong, query by query, with the top-1's standings
+        "training_failures": failures(asked_training, rater.rule),
+        "outside_failures": failures(asked_outside, rater.rule),
         "fixed_queries_match": fixed,
         "fixed_queries_right": all(fixed[t] for t in MUST_MATCH)
         and not any(fixed[t] for t in MUST_NOT_MATCH),
@@ -323,6 +369,14 @@ def main(argv: list[str] | None = None) -> dict:
             f"{got['queries_absent_or_negative']} (negatives {got['negatives_false_match_rate']:.1%}"
             f" over {got['negatives']})"
         )
+    if args.failures:
+        for name in ("training", "outside"):
+            for f in document[f"{name}_failures"]:
+                print(
+                    f"{name:>8} {f['kind']:<15} {f['query']!r} -> {f['label']} (top-1 {f['top'][0]}) "
+                    f"(z {f['z']:.2f}, gap {f['gap']:.2f}, z_name {f['z_name']:.2f}, "
+                    f"relevance {f['relevance']:.2f}; {f['maps']} of {args.maps} maps)"
+                )
     print(f"fixed queries right: {document['fixed_queries_right']} {fixed}")
     write_outputs(args.out, "relevance" if args.tower == "minilm" else "relevance_static", document)
     return document
