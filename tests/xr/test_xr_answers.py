@@ -33,29 +33,6 @@ from relation_scene import scene_export
 from app.protocol.delta import UPSERT_KEYS, DeltaMessage, UpsertEntry
 from app.server.runner import ServerThread
 
-BROWSER_TIMEOUT_MS = 30_000
-
-
-@pytest.fixture
-def context(xr_browser):
-    # The test page is fulfilled by Playwright, not fetched from 127.0.0.1, so Chromium's Local
-    # Network Access checks would take its calls to the server as reaching into the local
-    # network and block them (the real /xr page is served by the server itself).
-    context = xr_browser.new_context(permissions=["local-network-access"])
-    yield context
-    context.close()
-
-
-@pytest.fixture
-def page(context):
-    page = context.new_page()
-    page.set_default_timeout(BROWSER_TIMEOUT_MS)
-    errors: list[str] = []
-    page.on("pageerror", lambda exc: errors.append(str(exc)))
-    yield page
-    assert not errors, f"JavaScript errors on the page: {errors}"
-
-
 # --- helpers ----------------------------------------------------------------------------------
 
 

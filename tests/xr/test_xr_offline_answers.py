@@ -58,25 +58,6 @@ def tower() -> StaticTower:
     return StaticTower.build(vocab, rows, teacher="all-MiniLM-L6-v2")
 
 
-@pytest.fixture
-def context(xr_browser):
-    # The test page is fulfilled by Playwright, not fetched from the server: Chromium's Local
-    # Network Access checks must let it call the server (test_xr_answers.py says why).
-    context = xr_browser.new_context(permissions=["local-network-access"])
-    yield context
-    context.close()
-
-
-@pytest.fixture
-def page(context):
-    page = context.new_page()
-    page.set_default_timeout(30_000)
-    errors: list[str] = []
-    page.on("pageerror", lambda exc: errors.append(str(exc)))
-    yield page
-    assert not errors, f"JavaScript errors on the page: {errors}"
-
-
 def tied_groups(hits: list[dict]) -> list[list[dict]]:
     """The hits in runs of scores within 2 FLOAT16_SCORE of the next: what float16 may swap."""
     groups: list[list[dict]] = []
