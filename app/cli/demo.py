@@ -242,18 +242,30 @@ def _distance_m(a, b) -> float:
 
 async def _caught_up(api, device, timeout_s: float = SYNC_TIMEOUT_S) -> tuple[bool, str]:
     """Wait for the device to apply the server's newest update; (its map equals the server's,
-    "N objects locally, M on the server" and the first differences)."""
-    server_seq = (await api.fetch()).update_seq
-    _say(f"waiting for the device to apply the server's updates up to {server_seq}...")
-    synced = await device.wait_synced(server_seq, timeout_s=timeout_s)
-    server_map = {o["id"]: o["version"] for o in await api.objects()}
-    local = {oid: version for oid, (version, _label) in device.local_map.snapshot().items()}
+    "N objects locally, M on the server" and the first differences).
+
+    The server may still commit after the walk (a closed stream settles its map), so a
+    difference read together with a newer server seq is waited out, not reported."""
+    deadline = time.monotonic() + timeout_s
+    waited_for = -1
+    while True:
+        server_seq = (await api.fetch()).update_seq
+        if server_seq != waited_for:
+            _say(f"waiting for the device to apply the server's updates up to {server_seq}...")
+        remaining = max(0.0, deadline - time.monotonic())
+        synced = await device.wait_synced(server_seq, timeout_s=remaining)
+        server_map = {o["id"]: o["version"] for o in await api.objects()}
+        local = {oid: version for oid, (version, _label) in device.local_map.snapshot().items()}
+        differ = sorted(
+            oid for oid in local.keys() | server_map.keys() if local.get(oid) != server_map.get(oid)
+        )
+        newer = (await api.fetch()).update_seq > server_seq  # committed while we compared
+        if not (synced and differ and newer) or time.monotonic() >= deadline:
+            break
+        waited_for = server_seq
     words = f"{len(local)} objects locally, {len(server_map)} on the server"
     if not synced:
         words += f" (the device's updates stopped at {device.local_map.seq} of {server_seq})"
-    differ = sorted(
-        oid for oid in local.keys() | server_map.keys() if local.get(oid) != server_map.get(oid)
-    )
     if differ:
         shown = ", ".join(
             f"#{oid} version {local.get(oid, '-')} locally, {server_map.get(oid, '-')} on the server"
