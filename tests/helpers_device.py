@@ -13,6 +13,8 @@ import httpx
 import numpy as np
 
 WAIT_S = 20.0
+STATE_READS = 5
+"""How many times `server_state` reads the objects while commits land between its reads."""
 
 FAST_KNOBS = {
     "keyframe_interval": 1,
@@ -38,15 +40,40 @@ async def wait_until(
 async def server_state(
     server_url: str, sid: str, token: str, verify: ssl.SSLContext | bool = True
 ) -> tuple[int, list[dict]]:
-    """(update_seq, confirmed objects with points) straight from the server (no proxy);
-    verify: what an https:// server's certificate is checked against."""
+    """(update_seq, confirmed objects with points) straight from the server (no proxy), one
+    state: the seq is read before and after the objects, and again if a commit came between
+    (a closed stream settles its map after its last ack). verify: what an https:// server's
+    certificate is checked against."""
     headers = {"Authorization": f"Bearer {token}"}
     async with httpx.AsyncClient(
         base_url=server_url, headers=headers, timeout=10, verify=verify
     ) as http:
-        stats = (await http.get(f"/v1/sessions/{sid}")).json()
-        objects = (await http.get(f"/v1/sessions/{sid}/objects", params={"points": True})).json()
-    return stats["update_seq"], objects
+        seq = (await http.get(f"/v1/sessions/{sid}")).json()["update_seq"]
+        for _ in range(STATE_READS):
+            objects = (
+                await http.get(f"/v1/sessions/{sid}/objects", params={"points": True})
+            ).json()
+            seq, before = (await http.get(f"/v1/sessions/{sid}")).json()["update_seq"], seq
+            if seq == before:
+                break
+    return seq, objects
+
+
+async def synced_state(
+    device, server_url: str, sid: str, token: str, verify: ssl.SSLContext | bool = True
+) -> tuple[int, list[dict]]:
+    """The server's (update_seq, objects) once `device` has applied exactly that seq: an
+    update the device applied past it (the settle) is read again. AssertionError if the
+    device does not catch up within WAIT_S."""
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        seq, objects = await server_state(server_url, sid, token, verify)
+        remaining = deadline - time.monotonic()
+        assert await device.wait_synced(seq, max(0.0, remaining)), (
+            f"local seq {device.local_map.seq} < {seq}"
+        )
+        if device.local_map.seq == seq or time.monotonic() > deadline:
+            return seq, objects
 
 
 def assert_local_map_equals(local_map, objects: list[dict], max_points: int) -> None:

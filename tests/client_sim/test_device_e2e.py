@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import websockets
 from analytic_world import BATHROOM, KITCHEN, Rect, RectSource
-from helpers_device import FAST_KNOBS, assert_local_map_equals, server_state, wait_until
+from helpers_device import FAST_KNOBS, assert_local_map_equals, synced_state, wait_until
 
 from app.config import Knobs, updated_knobs
 from app.protocol import UpsertEntry, pack_delta
@@ -60,8 +60,7 @@ async def assert_synced_with_server(
     device: DeviceClient, server_url: str, sid: str, token: str
 ) -> tuple[int, list[dict]]:
     """Wait until the device holds the server's current map, then compare them."""
-    seq, objects = await server_state(server_url, sid, token)
-    assert await device.wait_synced(seq, 15), f"local seq {device.local_map.seq} < {seq}"
+    seq, objects = await synced_state(device, server_url, sid, token)
     assert_local_map_equals(device.local_map, objects, device.knobs.max_object_points_client)
     return seq, objects
 
@@ -397,8 +396,7 @@ def test_the_local_map_never_exceeds_a_tiny_memory_budget(live_server):
         device = DeviceClient(server.url, sid, token, knobs=knobs, local_map=local_map)
         async with following(device):
             await device.stream(RectSource(SHOWROOM, 10), fps=None, max_in_flight=1)
-            seq, objects = await server_state(server.url, sid, token)
-            assert await device.wait_synced(seq, 15)
+            seq, objects = await synced_state(device, server.url, sid, token)
         return local_map, objects
 
     local_map, objects = asyncio.run(scenario())

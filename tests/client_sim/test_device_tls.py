@@ -8,7 +8,7 @@ import asyncio
 
 import pytest
 from analytic_world import KITCHEN, RectSource
-from helpers_device import FAST_KNOBS, assert_local_map_equals, server_state, wait_until
+from helpers_device import FAST_KNOBS, assert_local_map_equals, synced_state, wait_until
 
 from app.client import trusting
 from app.config import Knobs, updated_knobs
@@ -30,8 +30,7 @@ def test_a_device_streams_over_wss_and_its_local_map_equals_the_servers(live_ser
         following = asyncio.create_task(device.follow_updates())
         try:
             stats = await device.stream(RectSource(KITCHEN, 8), fps=None, max_in_flight=1)
-            seq, objects = await server_state(server.url, sid, token, verify=trust)
-            assert await device.wait_synced(seq, 15), f"local seq {device.local_map.seq} < {seq}"
+            seq, objects = await synced_state(device, server.url, sid, token, verify=trust)
         finally:
             await device.stop()
             await asyncio.wait_for(following, 15)
