@@ -45,6 +45,16 @@ SAME_SPACE_OVERLAP = 0.8
 """...and merged as two readings of one thing when this fraction of each lies on the other
 (a sofa read as a loveseat in some views: the map said "the sofa, on the loveseat"). A
 blanket on a bed stays apart: most of the bed does not lie on the blanket."""
+FRAGMENT_REACH_VOXELS = 2
+"""A piece of a thing: an object alike another (MERGE_SEMANTIC) that lies within this many
+voxels of the other's points..."""
+FRAGMENT_ON = 0.8
+"""...for this fraction of its points..."""
+FRAGMENT_GROWTH = 1.25
+"""...and that widens the other's box (both grown by a voxel) at most this many times in
+volume, is a piece of it: the part of a sofa or a fridge a view showed alone, not found on
+the rest, whose surface it continues more than it overlaps. A like thing beside it (the next
+book on a shelf, a mug by a mug, a book lying on a book) widens the box by its own size."""
 OUTLIER_EPS_M = 0.1
 """DBSCAN radius for outlier removal on changed objects."""
 RECENT_CHANGES = 256
@@ -375,15 +385,28 @@ class MappingEngine:
     def _one_thing(self, a: MapObject, b: MapObject) -> bool:
         """Whether two objects whose boxes overlap are readings of one thing: the smaller
         lies on the larger (MERGE_OVERLAP) and their embeddings agree (MERGE_SEMANTIC), or
-        each lies on the other (SAME_SPACE_OVERLAP), whatever their labels."""
+        it is a piece of the larger (`_piece_of`), or each lies on the other
+        (SAME_SPACE_OVERLAP), whatever their labels."""
         voxel_m = self.knobs.voxel_size_m
         small, large = (a, b) if len(a.points) <= len(b.points) else (b, a)
         on_large = geo.overlap_fraction(small.points, large.tree, voxel_m)
-        if on_large >= MERGE_OVERLAP and float(a.embedding @ b.embedding) >= MERGE_SEMANTIC:
+        if float(a.embedding @ b.embedding) >= MERGE_SEMANTIC and (
+            on_large >= MERGE_OVERLAP or self._piece_of(small, large)
+        ):
             return True
         return (
             on_large >= SAME_SPACE_OVERLAP
             and geo.overlap_fraction(large.points, small.tree, voxel_m) >= SAME_SPACE_OVERLAP
+        )
+
+    def _piece_of(self, small: MapObject, large: MapObject) -> bool:
+        """Whether `small` is a piece of `large`: it lies close to its points (FRAGMENT_ON
+        within FRAGMENT_REACH_VOXELS voxels) and hardly widens its box (FRAGMENT_GROWTH)."""
+        voxel_m = self.knobs.voxel_size_m
+        return (
+            geo.box_growth(small.bbox, large.bbox, voxel_m) <= FRAGMENT_GROWTH
+            and geo.overlap_fraction(small.points, large.tree, FRAGMENT_REACH_VOXELS * voxel_m)
+            >= FRAGMENT_ON
         )
 
     def _merge_objects(self, keep: MapObject, gone: MapObject) -> None:
@@ -460,7 +483,8 @@ class MappingEngine:
             objects = sorted(self.objects.values(), key=lambda o: o.id)
             boxes = np.stack([o.bbox for o in objects])
             rows = [k for k, o in enumerate(objects) if o.id in changed]
-            overlapping = geo.bbox_intersects_matrix(boxes[rows], boxes, 0.0)
+            reach_m = FRAGMENT_REACH_VOXELS * self.knobs.voxel_size_m
+            overlapping = geo.bbox_intersects_matrix(boxes[rows], boxes, reach_m)
             embeddings = np.stack([o.embedding for o in objects])
             alike = (embeddings[rows] @ embeddings.T) >= MERGE_SEMANTIC
             same_space = geo.bbox_iou_matrix(boxes[rows], boxes) >= SAME_SPACE_BOX_IOU

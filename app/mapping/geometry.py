@@ -417,6 +417,16 @@ def bbox_inside_fraction(a: np.ndarray, b: np.ndarray) -> float:
     return float(inter / np.prod(a_hi - a_lo))
 
 
+def box_growth(a: np.ndarray, b: np.ndarray, margin_m: float) -> float:
+    """How many times box `b` grows in volume when it takes in box `a` (boxes as in
+    `bbox_iou`, both grown by margin_m on every side first, so that a flat box has a
+    volume): 1.0 when `a` lies inside `b`."""
+    lo_a, hi_a = a[:3] - margin_m, np.maximum(a[3:], a[:3]) + margin_m
+    lo_b, hi_b = b[:3] - margin_m, np.maximum(b[3:], b[:3]) + margin_m
+    union = np.maximum(hi_a, hi_b) - np.minimum(lo_a, lo_b)
+    return float(np.prod(union) / max(float(np.prod(hi_b - lo_b)), 1e-12))
+
+
 def bbox_iou_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     """float [n, m]: `bbox_iou` of box a_i and box b_j. boxes: [n, 6], [m, 6]."""
     a_lo, b_lo = boxes_a[:, :3], boxes_b[:, :3]
