@@ -368,6 +368,7 @@ class MappingEngine:
             obj.version += 1
             if obj.id not in seen_this_frame:
                 obj.frames_seen += 1
+                obj.seen_at(self.keyframes)
                 seen_this_frame.add(obj.id)
             touched.add(obj.id)
         self._changed_since_cleanup |= touched
@@ -383,16 +384,18 @@ class MappingEngine:
         return touched
 
     def _one_thing(self, a: MapObject, b: MapObject) -> bool:
-        """Whether two objects whose boxes overlap are readings of one thing: the smaller
-        lies on the larger (MERGE_OVERLAP) and their embeddings agree (MERGE_SEMANTIC), or
-        it is a piece of the larger (`_piece_of`), or each lies on the other
-        (SAME_SPACE_OVERLAP), whatever their labels."""
+        """Whether two objects whose boxes overlap (or come within FRAGMENT_REACH_VOXELS of
+        each other: then only a piece) are readings of one thing: their embeddings agree
+        (MERGE_SEMANTIC) and the smaller lies on the larger (MERGE_OVERLAP) or is a piece of
+        it (`_piece_of`), or each lies on the other (SAME_SPACE_OVERLAP), whatever their
+        labels."""
         voxel_m = self.knobs.voxel_size_m
         small, large = (a, b) if len(a.points) <= len(b.points) else (b, a)
+        alike = float(a.embedding @ b.embedding) >= MERGE_SEMANTIC
+        if not geo.bbox_intersects_matrix(a.bbox[None], b.bbox[None], 0.0)[0, 0]:
+            return alike and self._piece_of(small, large)  # boxes apart: only a piece
         on_large = geo.overlap_fraction(small.points, large.tree, voxel_m)
-        if float(a.embedding @ b.embedding) >= MERGE_SEMANTIC and (
-            on_large >= MERGE_OVERLAP or self._piece_of(small, large)
-        ):
+        if alike and (on_large >= MERGE_OVERLAP or self._piece_of(small, large)):
             return True
         return (
             on_large >= SAME_SPACE_OVERLAP
@@ -401,10 +404,14 @@ class MappingEngine:
 
     def _piece_of(self, small: MapObject, large: MapObject) -> bool:
         """Whether `small` is a piece of `large`: it lies close to its points (FRAGMENT_ON
-        within FRAGMENT_REACH_VOXELS voxels) and hardly widens its box (FRAGMENT_GROWTH)."""
+        within FRAGMENT_REACH_VOXELS voxels), hardly widens its box (FRAGMENT_GROWTH), and no
+        keyframe saw the two as two detections (`MapObject.keyframes_seen`): the next book on
+        a shelf is detected beside its neighbour, a piece of a sofa in a view that saw it
+        alone."""
         voxel_m = self.knobs.voxel_size_m
         return (
-            geo.box_growth(small.bbox, large.bbox, voxel_m) <= FRAGMENT_GROWTH
+            not small.keyframes_seen & large.keyframes_seen
+            and geo.box_growth(small.bbox, large.bbox, voxel_m) <= FRAGMENT_GROWTH
             and geo.overlap_fraction(small.points, large.tree, FRAGMENT_REACH_VOXELS * voxel_m)
             >= FRAGMENT_ON
         )
@@ -420,6 +427,7 @@ class MappingEngine:
         keep.absorb_labels(gone)
         keep.n_obs += gone.n_obs
         keep.frames_seen += gone.frames_seen
+        keep.seen_at(gone.keyframes_seen)
         if gone.first_seen < keep.first_seen:
             keep.first_seen, keep.first_seen_t = gone.first_seen, gone.first_seen_t
         if gone.last_seen > keep.last_seen:

@@ -18,6 +18,10 @@ MAX_STAYS = 32
 binary stays, <= 2 KB; docs/architecture.md "The store")."""
 
 
+KEYFRAMES_SEEN_KEPT = 64
+"""Keyframe numbers an object keeps in `MapObject.keyframes_seen` (the newest)."""
+
+
 @dataclass
 class Stay:
     """One place an object stayed at, on the device clock (frame `t`, seconds).
@@ -109,6 +113,10 @@ class MapObject:
     support: np.ndarray | None = None
     """float32 [N]: how many keyframes' views each point stands for (the views whose points
     fell in its voxel); None where unknown (a stored, imported or re-placed object)."""
+    keyframes_seen: set[int] = field(default_factory=set, repr=False)
+    """The numbers of the newest keyframes (at most KEYFRAMES_SEEN_KEPT) whose detections mapped
+    to it, in this process (not stored): two objects one keyframe saw as two detections are
+    two things."""
     _tree: cKDTree | None = field(default=None, repr=False)
     _bbox: np.ndarray | None = field(default=None, repr=False)
     _client_cache: tuple | None = field(default=None, repr=False)
@@ -151,6 +159,13 @@ class MapObject:
         for label, vector in other.label_embeddings.items():
             held = self.label_embeddings.get(label)
             self.label_embeddings[label] = vector.copy() if held is None else held + vector
+
+    def seen_at(self, keyframes: set[int] | int) -> None:
+        """Note keyframe number(s) whose detections mapped to it (the newest
+        KEYFRAMES_SEEN_KEPT are kept)."""
+        self.keyframes_seen |= {keyframes} if isinstance(keyframes, int) else keyframes
+        if len(self.keyframes_seen) > KEYFRAMES_SEEN_KEPT:
+            self.keyframes_seen = set(sorted(self.keyframes_seen)[-KEYFRAMES_SEEN_KEPT:])
 
     def place(self) -> tuple[tuple[float, float, float], tuple[float, ...]]:
         """(centroid, bbox) as plain floats: where the object is now."""

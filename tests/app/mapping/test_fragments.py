@@ -11,6 +11,7 @@ from analytic_world import Rect, render_rects
 from app.config import Knobs
 from app.mapping import geometry as geo
 from app.mapping.engine import MappingEngine, make_perception
+from app.mapping.object import KEYFRAMES_SEEN_KEPT, MapObject
 
 # A sofa of two faces: its back at 2.5 m and its seat's front 20 cm nearer, one mask.
 BACK = Rect(1, "sofa", -0.8, -0.4, 0.8, 0.4, 2.5)
@@ -85,3 +86,30 @@ def test_like_things_side_by_side_stay_apart(encoder):
     assert [o.label for o in books] == ["book", "book"]
     # each book's own: the left one ends where the right one starts
     assert books[0].bbox[3] < 0.36 and books[1].bbox[0] > 0.34
+
+
+def test_two_things_one_keyframe_saw_apart_are_not_pieces_of_one(encoder):
+    """The piece's geometry test passes, but a keyframe showed it and the sofa as two
+    detections: two things (the next book on a shelf), kept apart."""
+    engine = _engine(encoder)
+    engine.integrate(_whole_sofa())
+    for _ in range(2):
+        engine.integrate(_whole_sofa([PIECE]))  # now a thing stands in front of the back
+    sofas = sorted((o for o in engine.objects.values() if o.label == "sofa"), key=lambda o: o.id)
+    assert len(sofas) == 2
+    assert sofas[0].keyframes_seen & sofas[1].keyframes_seen == {2, 3}
+    engine.settle()
+    assert len([o for o in engine.objects.values() if o.label == "sofa"]) == 2
+
+
+def test_keyframes_seen_keeps_the_newest_and_merges_carry_them(encoder):
+    obj = MapObject(id=1)
+    obj.seen_at(set(range(200)))
+    obj.seen_at(7)  # an old one is not kept
+    assert obj.keyframes_seen == set(range(200 - KEYFRAMES_SEEN_KEPT, 200))
+    engine = _engine(encoder, cleanup_interval=100)
+    engine.integrate(_whole_sofa())
+    engine.integrate(render_rects([PIECE]))
+    engine.settle()
+    (sofa,) = [o for o in engine.objects.values() if o.label == "sofa"]
+    assert sofa.keyframes_seen == {1, 2}
