@@ -413,6 +413,7 @@ def run_revisit(
     concluded: dict[str, list[ConcludedChange]] = {m: [] for m in cfg.modes}
     truth: list[TrueChange] = []
     latencies: dict[str, list[float]] = {}
+    sightings_ms: dict[str, list[float]] = {}
     occluded_removals = dict.fromkeys(cfg.modes, 0)
     stale = dict.fromkeys(cfg.modes, 0)
     stale_shown_enough = dict.fromkeys(cfg.modes, 0)
@@ -453,6 +454,7 @@ def run_revisit(
         after_tree = cKDTree(after_gt.points)
         for name in engines:
             latencies.setdefault(name, []).extend(runs[name].latencies_ms)
+            sightings_ms.setdefault(name, []).extend(runs[name].sightings_ms)
             doubt_keyframes[name] = doubt_keyframes.get(name, 0) + picks[name].doubt_picks
         for change in scenario.changes:
             truth.append(_true_change(walks, change, key, cfg.knobs.removal_min_evidence))
@@ -571,6 +573,13 @@ def run_revisit(
         scores["mapping_cost_pct"] = 100.0 * (with_total / without_total - 1.0)
         scores["mapping_cost_per_keyframe_pct"] = 100.0 * (with_ms / without_ms - 1.0)
         scores["latency_ms"] = {"with_evidence_mean": with_ms, "without_evidence_mean": without_ms}
+        # beside it, what the change work adds to the frames between keyframes (sightings)
+        on, off = sightings_ms.get(mode, []), sightings_ms.get(mode + NO_EVIDENCE, [])
+        scores["sightings_ms"] = {
+            "with_evidence_mean": float(np.mean(on)) if on else None,
+            "without_evidence_mean": float(np.mean(off)) if off else None,
+            "cost_pct": 100.0 * (sum(on) / sum(off) - 1.0) if on and sum(off) > 0 else None,
+        }
         scores["keyframes"] = {
             "with_evidence": len(latencies[mode]),
             "without_evidence": len(latencies[mode + NO_EVIDENCE]),
