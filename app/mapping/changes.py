@@ -191,7 +191,9 @@ class ChangeDetector:
             )
             if living.removal_due(evidence, self.map.knobs):
                 due.append(obj)
-            else:
+            elif kind == "depth":
+                # a place seen through; thin evidence alone is mostly a detector miss,
+                # and a like thing added elsewhere would make that miss a false move
                 doubted.append(obj)
         removed: set[int] = set()
         # the most observed first: a second reading of the same thing (a confused label)
@@ -208,8 +210,8 @@ class ChangeDetector:
         return removed
 
     def _found_already_elsewhere(self, obj: MapObject, stats: IntegrationStats) -> set[int]:
-        """A keyframe showed `obj`'s place without it (evidence of either kind), or a
-        sighting since the last keyframe saw through it (`sight_moved_places`), while a like
+        """A keyframe saw through `obj`'s place (depth evidence), or a
+        sighting since the last keyframe did (`sight_moved_places`), while a like
         object had appeared elsewhere since `obj` was last seen (`_like_object`: its `added`
         change stands): `obj` moved there, concluded now. The same evidence as a candidate
         confirmed while a like object is suspect (`found_moved`), met in the other order: the

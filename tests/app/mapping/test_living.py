@@ -262,6 +262,24 @@ def test_a_move_seen_new_place_first_is_concluded_by_the_first_keyframe_seeing_t
     assert np.allclose(engine.objects[mug].centroid[:2], [0.5, -0.1], atol=0.05)
 
 
+POSTER = Rect(2, "poster", -0.6, -0.3, -0.2, 0.1, 2.99)
+"""Flat on the wall: taken away, its place is not seen through (thin evidence only)."""
+POSTER_MOVED = Rect(2, "poster", 0.3, -0.3, 0.7, 0.1, 2.99)
+
+
+def test_thin_evidence_alone_does_not_conclude_a_move_found_from_the_new_place(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, POSTER], 4, step_m=0.3)  # two viewpoints saw the new place empty
+    (poster,) = [o.id for o in engine.objects.values() if o.label == "poster" and o.confirmed]
+    walk.t = 600.0
+    first = walk.walk([WALL, POSTER_MOVED], 4, start_x=1.6, step_m=0.0)  # old place out
+    assert [k for _, k in changes(first)] == ["added"]
+    back = walk.see([WALL, POSTER_MOVED])  # the old place without it, not seen through
+    assert [e.kind for e in engine.changes.suspects[poster]] == ["thin"]
+    assert changes([back]) == []  # a detector missing it would look the same
+
+
 def test_a_place_seen_through_with_no_like_thing_appeared_waits_for_the_removal_rule(encoder):
     engine = make_engine(encoder)
     walk = Walk(engine)
