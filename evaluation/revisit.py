@@ -117,6 +117,43 @@ class _Walks:
     """Instance -> t of the first walk-2 frame (any) showing it at its new place."""
     last_seen_walk1_t: dict[int, float] = field(default_factory=dict)
     """Instance -> t of the last walk-1 keyframe showing it."""
+    new_place_frames: dict[int, list[dict]] = field(default_factory=dict)
+    """Instance -> the walk-2 frames showing it (SEEN_PX or more): t, keyframe, its pixels, the
+    share of them its device's detector covered, the share with sensed depth."""
+    old_place_frames: dict[int, list[dict]] = field(default_factory=dict)
+    """Instance -> the walk-2 frames in range of its old place with some of it visible: t,
+    keyframe, the share of its walk-1 pixels now showing what lies at or behind it."""
+
+
+@dataclass
+class _MapTrace:
+    """When one engine's map doubted, first saw and confirmed its objects on walk 2 (device
+    time of the keyframe), read after each keyframe: where a change's time goes."""
+
+    doubted_t: dict[int, float] = field(default_factory=dict)
+    """Object id -> first keyframe t with negative evidence standing for it."""
+    depth_doubted_t: dict[int, float] = field(default_factory=dict)
+    """Object id -> first keyframe t with depth evidence (seen through) standing for it."""
+    first_seen: dict[int, tuple[float, str, list[float]]] = field(default_factory=dict)
+    """New object id -> (t, label, centroid) of the keyframe it appeared in."""
+    confirmed_t: dict[int, float] = field(default_factory=dict)
+    """Object id -> t of the keyframe it was confirmed (published) at."""
+    picks_t: list[float] = field(default_factory=list)
+    """t of the frames the device picked for a doubted place."""
+
+    def read(self, engine: MappingEngine, t: float, walk2: bool) -> None:
+        """Note what the engine's map holds after the keyframe at `t`."""
+        for oid, obj in engine.objects.items():
+            if oid not in self.first_seen:
+                self.first_seen[oid] = (t if walk2 else -1.0, obj.label, obj.centroid.tolist())
+            if obj.confirmed and oid not in self.confirmed_t:
+                self.confirmed_t[oid] = t if walk2 else -1.0
+        if not walk2:
+            return
+        for oid, evidence in engine.changes.suspects.items():
+            self.doubted_t.setdefault(oid, t)
+            if any(e.kind == "depth" for e in evidence):
+                self.depth_doubted_t.setdefault(oid, t)
 
 
 def _walk_and_map(
@@ -152,6 +189,7 @@ def _walk_and_map(
         name: KeyframePick(interval, cfg.knobs.absence_min_depth_m, cfg.knobs.absence_max_depth_m)
         for name in engines
     }
+    traces = {name: _MapTrace() for name in engines if engines[name].knobs.negative_evidence}
     first_walk_pixels: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
     """Walk-1 frame index -> instance -> (its pixels on the PLACE_GRID_PX grid, its depth
     there)."""
@@ -177,10 +215,24 @@ def _walk_and_map(
             first_walk_pixels[index] = pixels
         else:
             same_pose = index - scenario.walk1_frames
+            sources = frame.detections.sources if frame.detections is not None else {}
+            detected_ids = [d for d, src in sources.items() if src in shown]
             for instance in shown:
                 walks.new_place_first_frame_t.setdefault(instance, frame.t)
                 if keyframe:
                     walks.new_place_seen_t.setdefault(instance, frame.t)
+                mask = ids_image == instance
+                dets = [d for d in detected_ids if sources[d] == instance]
+                det = np.isin(frame.detections.instance_ids, dets) if dets else None
+                walks.new_place_frames.setdefault(instance, []).append(
+                    {
+                        "t": round(frame.t, 2),
+                        "keyframe": keyframe,
+                        "px": int(counts[instance]),
+                        "detected": 0.0 if det is None else round(float(det[mask].mean()), 2),
+                        "depth": round(float((frame.depth_m[mask] > 0).mean()), 2),
+                    }
+                )
             for instance, (where, before) in first_walk_pixels.get(same_pose, {}).items():
                 now = depth[where]
                 behind = (now >= before - 0.05) & (ids[where] != instance)
@@ -189,6 +241,15 @@ def _walk_and_map(
                     <= float(np.median(before))
                     <= cfg.knobs.absence_max_depth_m
                 )
+                if in_range and behind.mean() >= 0.3:
+                    walks.old_place_frames.setdefault(instance, []).append(
+                        {
+                            "t": round(frame.t, 2),
+                            "keyframe": keyframe,
+                            "visible": round(float(behind.mean()), 2),
+                            "px": int(len(where) * PLACE_GRID_PX * PLACE_GRID_PX),
+                        }
+                    )
                 if in_range and behind.mean() >= PLACE_VISIBLE_FRACTION:
                     walks.old_place_first_frame_t.setdefault(instance, frame.t)
                     if keyframe:
@@ -213,6 +274,10 @@ def _walk_and_map(
         for name, engine in engines.items():
             if whole[name]:
                 map_keyframe(engine, message, runs[name], published, name)
+                if name in traces:
+                    traces[name].read(engine, frame.t, walk == 2)
+                    if walk == 2 and not keyframe:
+                        traces[name].picks_t.append(frame.t)
                 if cfg.doubt_keyframes and engine.knobs.negative_evidence:
                     picks[name].doubted = engine.changes.doubted_places()
             elif sighting is not None:
@@ -224,7 +289,70 @@ def _walk_and_map(
                 f"[revisit] seed {seed}: walked {index + 1}/{len(scenario)} frames; keyframes "
                 + ", ".join(f"{name} {len(run.latencies_ms)}" for name, run in runs.items())
             )
-    return walks, runs, picks
+    return walks, runs, picks, traces
+
+
+def _timeline(
+    walks: _Walks,
+    change,
+    trace: _MapTrace,
+    before_identity: dict[int, int],
+    concluded: list,
+    t_walk2: float,
+) -> dict:
+    """Where one scripted change's time went on one engine's map (device times, walk 2 from
+    `t_walk2`): the first frame that showed its evidence and how well (pixels, detector
+    cover, depth cover), the first regular keyframe that did, when the map doubted the
+    thing's old place, when a candidate appeared and was confirmed near its new place, and
+    what the map concluded when."""
+    i = change.instance_id
+
+    def rel(t):
+        return None if t is None or t < 0 else round(t - t_walk2, 2)
+
+    mine = sorted(oid for oid, inst in before_identity.items() if inst == i)
+    out: dict = {
+        "instance": i,
+        "kind": change.kind,
+        "category": change.category,
+        "t_evidence_old": rel(walks.old_place_first_frame_t.get(i)),
+        "t_evidence_new": rel(walks.new_place_first_frame_t.get(i)),
+        "t_keyframe_old": rel((walks.old_place_shown_t.get(i) or [None])[0]),
+        "old_place_keyframes": len(walks.old_place_shown_t.get(i, [])),
+        "t_keyframe_new": rel(walks.new_place_seen_t.get(i)),
+        "map_ids": mine,
+        "t_doubted": rel(
+            min((trace.doubted_t[o] for o in mine if o in trace.doubted_t), default=None)
+        ),
+        "t_depth_doubted": rel(
+            min(
+                (trace.depth_doubted_t[o] for o in mine if o in trace.depth_doubted_t), default=None
+            )
+        ),
+        "concluded": [
+            {"id": c.id, "kind": c.kind, "t": rel(c.t)} for c in concluded if c.id in mine
+        ],
+        "old_place_frames": [
+            {**f, "t": rel(f["t"])} for f in walks.old_place_frames.get(i, [])[:12]
+        ],
+        "new_place_frames": [
+            {**f, "t": rel(f["t"])} for f in walks.new_place_frames.get(i, [])[:12]
+        ],
+    }
+    if change.to_xyz is not None:
+        to = np.asarray(change.to_xyz)
+        out["candidates"] = [
+            {
+                "id": oid,
+                "label": label,
+                "t_first_seen": rel(t),
+                "t_confirmed": rel(trace.confirmed_t.get(oid)),
+                "distance_m": round(float(np.linalg.norm(np.asarray(c) - to)), 2),
+            }
+            for oid, (t, label, c) in sorted(trace.first_seen.items())
+            if t >= 0 and float(np.linalg.norm(np.asarray(c) - to)) <= STALE_RADIUS_M
+        ]
+    return out
 
 
 def _true_change(walks: _Walks, change, key: int, min_evidence: int) -> TrueChange:
@@ -285,6 +413,7 @@ def run_revisit(
     concluded: dict[str, list[ConcludedChange]] = {m: [] for m in cfg.modes}
     truth: list[TrueChange] = []
     latencies: dict[str, list[float]] = {}
+    sightings_ms: dict[str, list[float]] = {}
     occluded_removals = dict.fromkeys(cfg.modes, 0)
     stale = dict.fromkeys(cfg.modes, 0)
     stale_shown_enough = dict.fromkeys(cfg.modes, 0)
@@ -319,12 +448,13 @@ def run_revisit(
                     engine.confirmed_objects(), tree, gt.instance_ids.astype(np.int64)
                 )
 
-        walks, runs, picks = _walk_and_map(cfg, seed, engines, identify_walk1, progress)
+        walks, runs, picks, traces = _walk_and_map(cfg, seed, engines, identify_walk1, progress)
         scenario = walks.scenario
         after_gt = gt_point_cloud(scenario.after)
         after_tree = cKDTree(after_gt.points)
         for name in engines:
             latencies.setdefault(name, []).extend(runs[name].latencies_ms)
+            sightings_ms.setdefault(name, []).extend(runs[name].sightings_ms)
             doubt_keyframes[name] = doubt_keyframes.get(name, 0) + picks[name].doubt_picks
         for change in scenario.changes:
             truth.append(_true_change(walks, change, key, cfg.knobs.removal_min_evidence))
@@ -395,6 +525,12 @@ def run_revisit(
             seed_report["modes"][mode] = {
                 kind: sum(c.kind == kind for c in run) for kind in ("added", "moved", "removed")
             }
+            t_walk2 = scenario.t_of(scenario.walk1_frames)
+            seed_report.setdefault("timelines", {})[mode] = [
+                _timeline(walks, change, traces[mode], before_identity, run, t_walk2)
+                for change in scenario.changes
+                if change.kind != "added"
+            ]
         per_seed.append(seed_report)
         progress(
             f"[revisit] seed {seed}: {len(scenario.changes)} scripted changes; concluded "
@@ -437,6 +573,13 @@ def run_revisit(
         scores["mapping_cost_pct"] = 100.0 * (with_total / without_total - 1.0)
         scores["mapping_cost_per_keyframe_pct"] = 100.0 * (with_ms / without_ms - 1.0)
         scores["latency_ms"] = {"with_evidence_mean": with_ms, "without_evidence_mean": without_ms}
+        # beside it, what the change work adds to the frames between keyframes (sightings)
+        on, off = sightings_ms.get(mode, []), sightings_ms.get(mode + NO_EVIDENCE, [])
+        scores["sightings_ms"] = {
+            "with_evidence_mean": float(np.mean(on)) if on else None,
+            "without_evidence_mean": float(np.mean(off)) if off else None,
+            "cost_pct": 100.0 * (sum(on) / sum(off) - 1.0) if on and sum(off) > 0 else None,
+        }
         scores["keyframes"] = {
             "with_evidence": len(latencies[mode]),
             "without_evidence": len(latencies[mode + NO_EVIDENCE]),

@@ -80,6 +80,10 @@ class ChangeDetector:
         self.appeared: set[int] = set()
         """Present objects with an `added` change standing (a move found after a restart
         needs a fresh appearance)."""
+        self.sighted_through: dict[int, float] = {}
+        """Object id -> t of a sighting since the last keyframe that saw through its place
+        while a like object had appeared elsewhere (`sight_moved_places`): evidence for that
+        move only, read by the next keyframe."""
 
     def clear(self) -> None:
         """Forget everything (a map restored from the store)."""
@@ -88,11 +92,13 @@ class ChangeDetector:
         self.appeared.clear()
         self.recently_removed.clear()
         self.vacated.clear()
+        self.sighted_through.clear()
 
     def forget(self, oid: int) -> None:
         """Object `oid` left the map without a change of its own (merged into another)."""
         self.suspects.pop(oid, None)
         self.appeared.discard(oid)
+        self.sighted_through.pop(oid, None)
 
     def remember(self, view: living.EvidenceView) -> None:
         """Keep a coarse copy of a mapped keyframe, to tell later whether a new object's
@@ -113,7 +119,8 @@ class ChangeDetector:
     def note_confirmed(self, obj: MapObject, stats: IntegrationStats) -> None:
         """A new object confirmed: `added` when remembered keyframes had shown its place
         empty (`living.place_seen_empty`) and no other object holds it."""
-        if not self._place_taken(obj) and self._place_seen_empty(obj):
+        # the cheaper test first: most new things are found on a first look
+        if self._place_seen_empty(obj) and not self._place_taken(obj):
             self.appeared.add(obj.id)
             centroid, _ = obj.place()
             stats.changes.append(Change(obj.id, "added", self._now, obj.label, to_xyz=centroid))
@@ -147,6 +154,7 @@ class ChangeDetector:
         moved, once `living.removal_due`. Returns the published ids it took out of the present map."""
         for oid in observed:
             self.suspects.pop(oid, None)
+            self.sighted_through.pop(oid, None)
         seen = [self.map.objects[i] for i in sorted(observed) if self.map.objects[i].confirmed]
         worth = living.seen_through_any_batched(
             [living.object_sample(o.points) for o in seen], view, self.map.knobs
@@ -173,7 +181,7 @@ class ChangeDetector:
             view,
             self.map.knobs,
         )
-        due = []
+        due, doubted = [], []
         for obj, kind in zip(tested, kinds, strict=True):
             if kind is None:
                 continue
@@ -183,13 +191,52 @@ class ChangeDetector:
             )
             if living.removal_due(evidence, self.map.knobs):
                 due.append(obj)
+            elif kind == "depth":
+                # a place seen through; thin evidence alone is mostly a detector miss,
+                # and a like thing added elsewhere would make that miss a false move
+                doubted.append(obj)
         removed: set[int] = set()
         # the most observed first: a second reading of the same thing (a confused label)
         # that leaves with it is then seen to share its old place
         for obj in sorted(due, key=lambda o: (-o.n_obs, o.id)):
             if obj.id in self.map.objects:
                 removed |= self._conclude_absent(obj, stats)
+        movers = {o.id: o for o in doubted}
+        movers |= {i: self.map.objects[i] for i in self.sighted_through if i in self.map.objects}
+        self.sighted_through.clear()
+        for obj in sorted(movers.values(), key=lambda o: (-o.n_obs, o.id)):
+            if obj.id in self.map.objects:
+                removed |= self._found_already_elsewhere(obj, stats)
         return removed
+
+    def _found_already_elsewhere(self, obj: MapObject, stats: IntegrationStats) -> set[int]:
+        """A keyframe saw through `obj`'s place (depth evidence), or a
+        sighting since the last keyframe did (`sight_moved_places`), while a like
+        object had appeared elsewhere since `obj` was last seen (`_like_object`: its `added`
+        change stands): `obj` moved there, concluded now. The same evidence as a candidate
+        confirmed while a like object is suspect (`found_moved`), met in the other order: the
+        new place seen first. Without such an object the doubt waits for
+        `living.removal_due`; so does a second reading of a place just vacated
+        (`_second_reading_of_vacated`), which that rule drops. Returns the ids taken out of
+        the present map."""
+        if self._second_reading_of_vacated(obj):
+            return set()
+        new = self._like_object(obj, self._appeared_objects(), obj_is_new=False)
+        if new is None:
+            return set()
+        self.suspects.pop(obj.id, None)
+        self._move(obj, new, stats)
+        stats.retracted_added.append(new.id)
+        return {new.id}
+
+    def _appeared_objects(self) -> list[MapObject]:
+        """Confirmed objects with their `added` change standing, not suspect themselves:
+        where a suspect one may be found (`_like_object` takes no other as the new place)."""
+        return [
+            o
+            for o in self.map.objects.values()
+            if o.id in self.appeared and o.confirmed and o.id not in self.suspects
+        ]
 
     def _own_labels(self, objects: list[MapObject], view: living.EvidenceView) -> list[set[str]]:
         """Per object, the labels a detection of it may carry: every label it has carried,
@@ -240,7 +287,7 @@ class ChangeDetector:
         `added` change; a candidate is checked now."""
         if not as_candidate:
             return new.id in self.appeared
-        return not self._place_taken(new) and self._place_seen_empty(new)
+        return self._place_seen_empty(new) and not self._place_taken(new)
 
     def _move(self, old: MapObject, new: MapObject, stats: IntegrationStats) -> None:
         """`old` is found at `new`'s place: it keeps its id and history, takes `new`'s
@@ -276,10 +323,7 @@ class ChangeDetector:
         if self._second_reading_of_vacated(obj):
             self._drop_second_reading(obj, stats)
             return {obj.id}
-        appeared = [
-            o for o in self.map.objects.values() if o.confirmed and o.id not in self.suspects
-        ]
-        new = self._like_object(obj, appeared, obj_is_new=False)
+        new = self._like_object(obj, self._appeared_objects(), obj_is_new=False)
         if new is not None:
             self._move(obj, new, stats)
             stats.retracted_added.append(new.id)
@@ -412,6 +456,59 @@ class ChangeDetector:
             first = min(e.t for e in self.suspects[obj.id] if e.kind == "depth")
             places.append((*centre, radius, first + self.map.knobs.removal_min_span_s))
         return np.asarray(places, np.float64).reshape(-1, 5)
+
+    def sight_moved_places(self, frame: FrameInput, sent: FrameDetections) -> None:
+        """A sighting that sees through the place of a thing a like object has appeared
+        elsewhere since (depth evidence, `living.absence_evidence`: occlusion is never
+        evidence) notes it in `sighted_through`; the next keyframe concludes the move
+        (`_found_already_elsewhere`). Only such places are tested: a sighting alone never
+        makes a thing suspect or removes it, it only lets a move found elsewhere be
+        concluded at the first glance of the empty old place."""
+        movable = self._movable_objects()
+        if not movable:
+            return
+        view = living.EvidenceView(
+            pose=np.asarray(frame.pose, np.float64),
+            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
+            rgb_size=frame.rgb_size,
+            depth_m=frame.depth_m,
+            label_image=sent.instance_image,
+            labels=sent.labels(),
+            t=float(frame.t),
+        )
+        kinds = living.absence_evidence_batched(
+            [living.object_sample(o.points) for o in movable],
+            self._own_labels(movable, view),
+            view,
+            self.map.knobs,
+        )
+        for obj, kind in zip(movable, kinds, strict=True):
+            if kind == "depth":
+                self.sighted_through[obj.id] = view.t
+
+    def _movable_objects(self) -> list[MapObject]:
+        """Confirmed objects with points that a like object appeared elsewhere since they
+        were last seen (`_like_object`'s test of likeness and times, without its candidate
+        checks): the places a sighting is worth testing for. One matrix product over the
+        map: a sighting comes five times a second."""
+        appeared = [self.map.objects[i] for i in sorted(self.appeared) if i in self.map.objects]
+        appeared = [o for o in appeared if o.confirmed]
+        if not appeared:
+            return []
+        objs = [
+            o
+            for o in self.map.objects.values()
+            if o.confirmed and o.id not in self.appeared and len(o.points)
+        ]
+        if not objs:
+            return []
+        alike = np.stack([o.embedding for o in objs]) @ np.stack([a.embedding for a in appeared]).T
+        alike = alike >= self.map.knobs.move_min_similarity
+        alike |= np.array([o.label for o in objs])[:, None] == np.array([a.label for a in appeared])
+        unseen = np.array([o.last_seen for o in objs])[:, None] < np.array(
+            [a.first_seen for a in appeared]
+        )
+        return [objs[i] for i in np.flatnonzero((alike & unseen).any(axis=1))]
 
     def clear_seen_suspects(self, frame: FrameInput, sent: FrameDetections) -> None:
         """A sighting that shows a suspect object where it was clears its suspicion: at

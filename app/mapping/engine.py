@@ -591,7 +591,9 @@ class MappingEngine:
     def sight(self, frame: FrameInput, sent: FrameDetections | None) -> list[int]:
         """Count a non-keyframe's detections as sightings of candidate objects
         (`Sightings.sight`); a sighting that shows a suspect object where it was also
-        clears its suspicion.
+        clears its suspicion, and one that sees through the place of a thing a like object
+        appeared elsewhere since lets the next keyframe conclude that move
+        (`ChangeDetector.sight_moved_places`).
 
         frame: validated by `validate_sighting` (or `validate_frame`), which returned
         `sent`. A candidate that now qualifies is confirmed, and published, by the next
@@ -600,6 +602,8 @@ class MappingEngine:
             return []
         if self.changes.suspects:
             self.changes.clear_seen_suspects(frame, sent)
+        if self.changes.appeared:
+            self.changes.sight_moved_places(frame, sent)
         return self.sightings.sight(self.objects, self.keyframes, frame, sent, self.knobs)
 
     # ------------------------------------------------------------------ reading the map

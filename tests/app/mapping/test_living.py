@@ -246,6 +246,51 @@ def test_a_move_seen_new_place_first_merges_when_the_old_place_is_contradicted(e
     assert mug in concluded.published_ids  # subscribers get it at its new place
 
 
+def test_a_move_seen_new_place_first_is_concluded_by_the_first_keyframe_seeing_through(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 3)
+    (mug,) = mug_ids(engine)
+    walk.t = 600.0
+    first = walk.walk([WALL, MUG_MOVED], 4, start_x=1.3, step_m=0.0)
+    newcomer = max(mug_ids(engine))
+    assert (newcomer, "added") in changes(first)  # its place had been seen empty
+    back = walk.see([WALL, MUG_MOVED])  # one keyframe sees through the old place
+    assert changes([back]) == [(mug, "moved")]
+    assert mug_ids(engine) == [mug] and newcomer in back.removed_ids
+    assert back.retracted_added == [newcomer] and mug not in engine.changes.suspects
+    assert np.allclose(engine.objects[mug].centroid[:2], [0.5, -0.1], atol=0.05)
+
+
+POSTER = Rect(2, "poster", -0.6, -0.3, -0.2, 0.1, 2.99)
+"""Flat on the wall: taken away, its place is not seen through (thin evidence only)."""
+POSTER_MOVED = Rect(2, "poster", 0.3, -0.3, 0.7, 0.1, 2.99)
+
+
+def test_thin_evidence_alone_does_not_conclude_a_move_found_from_the_new_place(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, POSTER], 4, step_m=0.3)  # two viewpoints saw the new place empty
+    (poster,) = [o.id for o in engine.objects.values() if o.label == "poster" and o.confirmed]
+    walk.t = 600.0
+    first = walk.walk([WALL, POSTER_MOVED], 4, start_x=1.6, step_m=0.0)  # old place out
+    assert [k for _, k in changes(first)] == ["added"]
+    back = walk.see([WALL, POSTER_MOVED])  # the old place without it, not seen through
+    assert [e.kind for e in engine.changes.suspects[poster]] == ["thin"]
+    assert changes([back]) == []  # a detector missing it would look the same
+
+
+def test_a_place_seen_through_with_no_like_thing_appeared_waits_for_the_removal_rule(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG, SECOND_MUG], 3)  # the other mug was there all along: not appeared
+    mug = min(mug_ids(engine))
+    walk.t = 600.0
+    glimpse = walk.see([WALL, SECOND_MUG])
+    assert changes([glimpse]) == [] and mug in engine.changes.suspects
+    assert len(mug_ids(engine)) == 2
+
+
 def test_a_thing_removed_then_found_elsewhere_soon_after_was_moved(encoder):
     engine = make_engine(encoder)
     walk = Walk(engine)
@@ -326,6 +371,53 @@ def test_a_sighting_of_a_like_thing_elsewhere_clears_nothing(encoder):
     frame = render_rects([WALL, MUG_MOVED], seq=999)  # a mug, but not where this one was
     engine.sight(frame, engine.validate_frame(frame))
     assert mug in engine.changes.suspects
+
+
+def _found_elsewhere_first(encoder):
+    """A mug mapped, then on the return only its new place seen: (engine, walk, mug id)."""
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 3)
+    (mug,) = mug_ids(engine)
+    walk.t = 600.0
+    first = walk.walk([WALL, MUG_MOVED], 4, start_x=1.3, step_m=0.0)
+    assert (max(mug_ids(engine)), "added") in changes(first)
+    return engine, walk, mug
+
+
+def _sight(engine, rects, t):
+    frame = dataclasses.replace(render_rects(rects, seq=999), t=t)
+    engine.sight(frame, engine.validate_frame(frame))
+
+
+def test_a_sighting_through_the_old_place_of_a_thing_found_elsewhere_moves_it(encoder):
+    engine, walk, mug = _found_elsewhere_first(encoder)
+    _sight(engine, [WALL, MUG_MOVED], walk.t - 0.6)  # a glance at the empty old place
+    assert mug in engine.changes.sighted_through
+    assert mug not in engine.changes.suspects  # a sighting makes nothing suspect
+    away = walk.see([WALL, MUG_MOVED], cam_x=1.3)  # the next keyframe looks elsewhere
+    assert changes([away]) == [(mug, "moved")] and mug_ids(engine) == [mug]
+    assert np.allclose(engine.objects[mug].centroid[:2], [0.5, -0.1], atol=0.05)
+
+
+def test_a_sighting_of_the_old_place_hidden_is_no_evidence_for_a_move(encoder):
+    engine, walk, mug = _found_elsewhere_first(encoder)
+    _sight(engine, [WALL, BOX, MUG_MOVED], walk.t - 0.6)  # hidden behind a box
+    assert not engine.changes.sighted_through
+    away = walk.see([WALL, MUG_MOVED], cam_x=1.3)
+    assert changes([away]) == [] and len(mug_ids(engine)) == 2
+
+
+def test_a_sighting_through_a_place_is_no_evidence_when_no_like_thing_appeared(encoder):
+    engine = make_engine(encoder)
+    walk = Walk(engine)
+    walk.walk([WALL, MUG], 3)
+    (mug,) = mug_ids(engine)
+    walk.t = 600.0
+    _sight(engine, [WALL], walk.t)
+    assert not engine.changes.sighted_through and mug not in engine.changes.suspects
+    assert changes(walk.walk([WALL], 2, start_x=1.3, step_m=0.0)) == []
+    assert mug_ids(engine) == [mug]
 
 
 def test_negative_evidence_off_keeps_everything(encoder):
