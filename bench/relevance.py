@@ -4,6 +4,7 @@ the calibration of the match rule (app.answering.relevance) per text tower.
     python -m bench.relevance [--tower minilm|static] [--maps 5] [--objects 20] [--out out/]
     python -m bench.relevance --calibrate      # fits the tower's rule, writes the package's
                                                # match_rules.json and background_texts.json
+    python -m bench.relevance --cv             # leave-one-category-out validation of the fit
 
 `--tower static` measures the static tower distilled from MiniLM (app.semantics.static; the
 one in `--static-tower FILE`, else the one in the tower cache, distilled there on first use)
@@ -88,6 +89,8 @@ class Asked:
     standings: list[Standing]
     text: str = ""
     """The query."""
+    category: str = ""
+    """The category it asks for ("" for a negative)."""
 
 
 def outside_wordings() -> tuple[dict[str, str], list[str]]:
@@ -142,7 +145,7 @@ def ask(
             else:
                 continue
             standings = rater.standing(embeddings[text], top, texts) or []
-            out.append(Asked(kind, top, standings, text))
+            out.append(Asked(kind, top, standings, text, category or ""))
     return out
 
 
@@ -210,34 +213,108 @@ def failures(asked: list[Asked], rule: MatchRule) -> list[dict]:
     return sorted(seen.values(), key=lambda f: (f["kind"], -f["maps"], f["query"]))
 
 
-def calibrate(encoder: TextEncoder, maps: int, objects: int) -> tuple[MatchRule, dict]:
-    """The rule for this tower fitted on the training wordings: per alike_cosine, a logistic
-    regression of "right top-1 label" against "a top-5 label of an absent category" on
-    (z, gap, z_name), its bias then moved to the most right answers with match whose false
-    matches stay within FALSE_MATCH_TARGET; the alike_cosine with the most right answers."""
+def calibrate(by_alike: dict[float, list[Asked]]) -> tuple[MatchRule, dict]:
+    """The rule for this tower fitted on the training wordings asked (`asked_per_alike`,
+    `fit_rule`), with its figures on them."""
+    rule = fit_rule(by_alike)
+    if rule is None:
+        raise RuntimeError("no rule keeps the training false matches within the target")
+    return rule, figures(by_alike[rule.alike_cosine], rule)
+
+
+def asked_per_alike(
+    encoder: TextEncoder, maps: int, objects: int, alikes: tuple[float, ...] = ALIKE_COSINES
+) -> dict[float, list[Asked]]:
+    """The training wordings asked (`ask`) under each alike_cosine, the background's texts
+    read from WordNet."""
     vocabulary_texts = {label: label_texts(label) for label in background_vocabulary()}
-    best: tuple[float, MatchRule, dict] | None = None
-    for alike in ALIKE_COSINES:
+    by_alike = {}
+    for alike in alikes:
         rater = QueryRater(
             encoder, vocabulary_texts=vocabulary_texts, rule=MatchRule(alike_cosine=alike)
         )
-        asked = ask(encoder, rater, training_wordings(), [], maps, objects)
+        by_alike[alike] = ask(encoder, rater, training_wordings(), [], maps, objects)
+    return by_alike
+
+
+def fit_rule(by_alike: dict[float, list[Asked]]) -> MatchRule | None:
+    """Per alike_cosine, a logistic regression of "right top-1 label" against "a top-5 label
+    of an absent category" on (z, gap, z_name), its bias then moved to the most right answers
+    with match whose false matches stay within FALSE_MATCH_TARGET; the alike_cosine with the
+    most right answers (None: no rule keeps the false matches within the target)."""
+    best: tuple[float, MatchRule] | None = None
+    for alike, asked in by_alike.items():
         positives = [a.standings[0] for a in asked if a.kind == "right"]
         negatives = [s for a in asked if a.kind == "absent" for s in a.standings]
+        if not positives or not negatives:
+            continue
         x = np.array(positives + negatives, np.float64)
         y = np.r_[np.ones(len(positives)), np.zeros(len(negatives))]
         w = _logistic(x, y)
         rule = MatchRule(w_z=w[0], w_gap=w[1], w_name=w[2], bias=w[3], alike_cosine=alike)
+        # per answer, its best hit's score without the bias: a match from -bias on
+        best_score = np.array(
+            [max((rule.score(*s) - rule.bias for s in a.standings), default=-np.inf) for a in asked]
+        )
+        right = np.array([a.kind == "right" for a in asked])
+        false = np.array([a.kind in ("absent", "negative") for a in asked])
         for shift in np.arange(-4.0, 4.0, 0.05):
-            moved = replace(rule, bias=round(float(rule.bias + shift), 4))
-            got = figures(asked, moved)
-            if got["false_match_rate"] <= FALSE_MATCH_TARGET and (
-                best is None or got["right_answers_match"] > best[0]
-            ):
-                best = (got["right_answers_match"], moved, got)
-    if best is None:
-        raise RuntimeError("no rule keeps the training false matches within the target")
-    return best[1], best[2]
+            bias = round(float(rule.bias + shift), 4)
+            # relevance_of rounds to 5 decimals: a score from -2e-5 reads CONFIDENT
+            match = best_score + bias >= -2e-5
+            false_rate = match[false].sum() / max(false.sum(), 1)
+            right_rate = match[right].sum() / max(right.sum(), 1)
+            if false_rate <= FALSE_MATCH_TARGET and (best is None or right_rate > best[0]):
+                best = (right_rate, replace(rule, bias=bias))
+    return best[1] if best is not None else None
+
+
+def cross_validate(by_alike: dict[float, list[Asked]]) -> dict:
+    """Leave-one-category-out cross-validation of `fit_rule` on the training wordings: per
+    category, the rule fitted on the others' queries rates that category's (its right
+    answers and its absent queries); the figures summed over the folds, and how the fitted
+    weights vary from fold to fold."""
+    categories = sorted({a.category for asked in by_alike.values() for a in asked})
+    held: list[bool] = []  # per held-out answer: matched; with its kind
+    kinds: list[str] = []
+    rules = []
+    for category in categories:
+        rule = fit_rule(
+            {k: [a for a in asked if a.category != category] for k, asked in by_alike.items()}
+        )
+        if rule is None:
+            continue
+        rules.append(rule)
+        for a in by_alike[rule.alike_cosine]:
+            if a.category == category:
+                held.append(any(s.relevance(rule) >= CONFIDENT for s in a.standings))
+                kinds.append(a.kind)
+    matched = np.array(held, bool)
+    kind = np.array(kinds)
+
+    def rate(chosen: np.ndarray) -> float:
+        return round(float(matched[chosen].mean()), 4) if chosen.any() else 0.0
+
+    weights = {
+        f: [getattr(r, f) for r in rules]
+        for f in ("w_z", "w_gap", "w_name", "bias", "alike_cosine")
+    }
+    return {
+        "folds": len(rules),
+        "right_answers_match": rate(kind == "right"),
+        "right_answers": int((kind == "right").sum()),
+        "false_match_rate": rate(np.isin(kind, ("absent", "negative"))),
+        "queries_absent_or_negative": int(np.isin(kind, ("absent", "negative")).sum()),
+        "weights": {
+            f: {
+                "min": round(min(v), 4),
+                "median": round(float(np.median(v)), 4),
+                "max": round(max(v), 4),
+            }
+            for f, v in weights.items()
+        },
+        "folds_w_z_negative": sum(w < 0 for w in weights["w_z"]),
+    }
 
 
 def _logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3, steps: int = 50) -> list[float]:
@@ -308,6 +385,11 @@ def main(argv: list[str] | None = None) -> dict:
         help="fit this tower's match rule on the training wordings and write it to the package",
     )
     parser.add_argument(
+        "--cv",
+        action="store_true",
+        help="cross-validate the calibration, leaving one category out at a time",
+    )
+    parser.add_argument(
         "--tower",
         choices=("minilm", "static"),
         default="minilm",
@@ -325,10 +407,21 @@ def main(argv: list[str] | None = None) -> dict:
     )
     args = parser.parse_args(argv)
     encoder = text_tower(args.tower, args.static_tower)
-    if args.calibrate:
-        rule, training = calibrate(encoder, args.maps, args.objects)
-        print(f"calibrated {encoder.model_id}: {rule}")
-        print(f"written to {write_calibration(encoder, rule, training)}")
+    cv = None
+    if args.calibrate or args.cv:
+        by_alike = asked_per_alike(encoder, args.maps, args.objects)
+        if args.cv:
+            cv = cross_validate(by_alike)
+            print(
+                f"leave-one-category-out ({cv['folds']} folds): right answers match "
+                f"{cv['right_answers_match']:.1%} over {cv['right_answers']}; false matches "
+                f"{cv['false_match_rate']:.1%} over {cv['queries_absent_or_negative']}; "
+                f"w_z < 0 in {cv['folds_w_z_negative']} folds; weights {cv['weights']}"
+            )
+        if args.calibrate:
+            rule, training = calibrate(by_alike)
+            print(f"calibrated {encoder.model_id}: {rule}")
+            print(f"written to {write_calibration(encoder, rule, training)}")
     rater = QueryRater(encoder)  # the shipped rule and background texts
     outside, negatives = outside_wordings()
     asked_training = ask(encoder, rater, training_wordings(), [], args.maps, args.objects)
@@ -357,6 +450,7 @@ def main(argv: list[str] | None = None) -> dict:
         # what the rule gets wrong, query by query, with the top-1's standings
         "training_failures": failures(asked_training, rater.rule),
         "outside_failures": failures(asked_outside, rater.rule),
+        "cross_validation": cv,
         "fixed_queries_match": fixed,
         "fixed_queries_right": all(fixed[t] for t in MUST_MATCH)
         and not any(fixed[t] for t in MUST_NOT_MATCH),
