@@ -31,7 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import random
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -91,6 +91,9 @@ class Asked:
     """The query."""
     category: str = ""
     """The category it asks for ("" for a negative)."""
+    rivals: list[tuple[str, str] | None] = field(default_factory=list)
+    """Per top-5 label, the background label its gap is measured against and the text of it
+    the query scores best (`QueryRater.rival`)."""
 
 
 def outside_wordings() -> tuple[dict[str, str], list[str]]:
@@ -145,7 +148,8 @@ def ask(
             else:
                 continue
             standings = rater.standing(embeddings[text], top, texts) or []
-            out.append(Asked(kind, top, standings, text, category or ""))
+            rivals = [rater.rival(embeddings[text], label) for label in top]
+            out.append(Asked(kind, top, standings, text, category or "", rivals))
     return out
 
 
@@ -208,6 +212,8 @@ def failures(asked: list[Asked], rule: MatchRule) -> list[dict]:
             "gap": round(standing.gap, 3),
             "z_name": round(standing.z_name, 3),
             "relevance": float(relevance[shown]) if relevance else 0.0,  # unrounded: vs 0.5
+            # the background label the gap is measured against, and by which of its texts
+            "rival": list(a.rivals[shown]) if a.rivals and a.rivals[shown] else None,
             "maps": 1,
         }
     return sorted(seen.values(), key=lambda f: (f["kind"], -f["maps"], f["query"]))
@@ -470,6 +476,7 @@ def main(argv: list[str] | None = None) -> dict:
                     f"{name:>8} {f['kind']:<15} {f['query']!r} -> {f['label']} (top-1 {f['top'][0]}) "
                     f"(z {f['z']:.2f}, gap {f['gap']:.2f}, z_name {f['z_name']:.2f}, "
                     f"relevance {f['relevance']:.2f}; {f['maps']} of {args.maps} maps)"
+                    + (f"; rival {f['rival'][0]} by {f['rival'][1]!r}" if f["rival"] else "")
                 )
     print(f"fixed queries right: {document['fixed_queries_right']} {fixed}")
     write_outputs(args.out, "relevance" if args.tower == "minilm" else "relevance_static", document)

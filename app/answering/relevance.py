@@ -235,6 +235,7 @@ class QueryRater:
         self._vocabulary_texts = vocabulary_texts
         texts = [texts_of(label, vocabulary_texts) for label in self.vocabulary]
         self._text_owner = np.repeat(np.arange(len(texts)), [len(t) for t in texts])  # [T]
+        self._texts = [t for ts in texts for t in ts]  # [T]
         shipped = None
         if vocabulary is None and vocabulary_texts is background_texts():
             shipped = shipped_embeddings(encoder.model_id, background_text_list(), encoder.dim)
@@ -292,6 +293,20 @@ class QueryRater:
                 (name_scores[i] - mean) / spread,
             )
         return [by_label[label] for label in labels]
+
+    def rival(self, query_embedding: np.ndarray, label: str) -> tuple[str, str] | None:
+        """The background label the `gap` of `label` is measured against (the best the query
+        scores over its texts, of those not alike `label`) and the text of it the query
+        scores best; None when every background label is alike `label`. For reading
+        failures (bench.relevance --failures): which thing the query seems to name instead."""
+        query = np.asarray(query_embedding, np.float32)
+        alike = self._embed([label]) @ self._name_embeddings.T >= self.rule.alike_cosine  # [1, V]
+        scores = (self._text_embeddings @ query).astype(np.float64)  # [T]
+        scores[alike[0][self._text_owner]] = -np.inf
+        if not np.isfinite(scores).any():
+            return None
+        best = int(np.argmax(scores))
+        return self.vocabulary[self._text_owner[best]], self._texts[best]
 
     def _embed(self, texts: Sequence[str]) -> np.ndarray:
         """float32 [n, dim] unit rows: the shipped rows of background texts, the encoder's for

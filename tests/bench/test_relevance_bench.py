@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from app.answering.relevance import Standing, rule_for
+from app.answering.relevance import Standing, background_texts, rule_for, texts_of
 from bench.relevance import (
     FALSE_MATCH_TARGET,
     cross_validate,
@@ -36,6 +36,9 @@ def test_reports_training_and_outside_wordings_under_the_shipped_rule(tmp_path):
         assert false == round(figures["queries_absent_or_negative"] * figures["false_match_rate"])
         for f in listed:  # the hit shown is the one that says match, or the unmatched top-1
             assert (f["relevance"] >= 0.5) == (f["kind"] == "false_match")
+            # the background label its gap is measured against, by one of that label's texts
+            rival, text = f["rival"]
+            assert text in texts_of(rival, background_texts())
 
 
 def _asked(rng, category: str, n: int, right_mean, absent_mean) -> list:

@@ -94,3 +94,22 @@ def test_a_label_outside_the_background_is_matched_by_the_texts_served_with_it(e
         rater.rate(embedding, ["zebra"], SERVED_LABEL_TEXTS).relevance
         == rater.rate(embedding, ["zebra"], texts).relevance
     )  # the server's texts and the served copy rate alike
+
+
+def test_the_rival_is_the_background_label_the_gap_trails(encoder):
+    rater = QueryRater(
+        encoder,
+        vocabulary=["keys", "keyboard", "sofa", "lamp", "sink"],
+        vocabulary_texts={"sofa": ("couch", "an upholstered seat for more than one person")},
+    )
+    query = encoder.encode_query("where are my keys")
+    # a map without keys answers with the keyboard; the query names the keys outright
+    assert rater.rival(query, "keyboard") == ("keys", "keys")
+    (keyboard,) = rater.standing(query, ["keyboard"])
+    assert keyboard.gap > 0
+    # the keys themselves trail nothing the query names better: their rival is behind them
+    label, _ = rater.rival(query, "keys")
+    assert label != "keys"
+    assert rater.standing(query, ["keys"])[0].gap < 0
+    # a rival is found by any of its texts
+    assert rater.rival(encoder.encode_query("the couch"), "lamp") == ("sofa", "couch")
