@@ -14,7 +14,8 @@ noun.exc); SEMANTICXR_WORDNET_DIR points elsewhere. Without it a label's texts a
 alone (one warning logged). Only nouns are read; of a word's senses, the first
 SENSES_PER_LABEL (WordNet orders them by frequency) that are physical things (artifacts,
 plants, animals, food, natural objects, or the top nouns such as "person"), else its first
-sense. A multiword label missing from WordNet ("wall cabinet") falls back to its head noun
+sense; a later one only when WordNet's tag counts (cntlist.rev) show it common enough
+(SENSE_SHARE), so "box" is the container, not the theater's loge. A multiword label missing from WordNet ("wall cabinet") falls back to its head noun
 ("cabinet"), keeping the label itself first.
 """
 
@@ -37,6 +38,10 @@ WORDNET_DIR_ENV = "SEMANTICXR_WORDNET_DIR"
 SENSES_PER_LABEL = 2
 """Senses of a label read (a word with several physical senses: "plant" the factory and
 the flora)."""
+SENSE_SHARE = 0.5
+"""A later physical sense is read only when WordNet's tagged-corpus count of it (cntlist.rev)
+is at least this share of the label's most counted physical sense's: "box" the loge (8
+tags) is a rare sense beside "box" the container (25). Without counts all are read."""
 SYNONYMS_PER_LABEL = 4
 """Most synonyms (other lemmas of the label's senses) among its texts."""
 MAX_TEXT_CHARS = 120
@@ -54,6 +59,8 @@ class Synset:
     lexicographer_file: int
     lemmas: tuple[str, ...]
     """Its words, spaces for underscores, in WordNet's order."""
+    lex_ids: tuple[int, ...]
+    """Each word's lexicographer id (its sense key's lex_id)."""
     hypernyms: tuple[int, ...]
     """Offsets of its direct hypernyms (kinds it is of)."""
     gloss: str
@@ -89,6 +96,14 @@ class WordNet:
         self._data = open(data_path, "rb")  # noqa: SIM115 (read by offset for the reader's life)
         self._data_lock = threading.Lock()
         self._synsets: dict[int, Synset] = {}
+        self._counts: dict[str, int] = {}
+        counts_path = self.directory / "cntlist.rev"
+        if counts_path.is_file():
+            with open(counts_path, encoding="utf-8") as counts:
+                for line in counts:
+                    fields = line.split()
+                    if len(fields) == 3 and "%1:" in fields[0]:
+                        self._counts[fields[0].casefold()] = int(fields[2])
 
     def close(self) -> None:
         self._data.close()
@@ -113,6 +128,18 @@ class WordNet:
         """The noun senses of an index form, most frequent first."""
         return [self.synset(offset) for offset in self._senses.get(lemma, ())]
 
+    def tag_count(self, lemma: str, synset: Synset) -> int | None:
+        """How often this sense of the index form was tagged in WordNet's corpus (cntlist.rev,
+        by sense key lemma%1:lex_filenum:lex_id::), 0 when never; None without cntlist.rev."""
+        if not self._counts:
+            return None
+        key = lemma.casefold()
+        for word, lex_id in zip(synset.lemmas, synset.lex_ids, strict=True):
+            if "_".join(word.casefold().split()) == key:
+                sense_key = f"{key}%1:{synset.lexicographer_file:02d}:{lex_id:02d}::"
+                return self._counts.get(sense_key, 0)
+        return 0
+
     def synset(self, offset: int) -> Synset:
         """The noun sense at this byte offset of data.noun."""
         synset = self._synsets.get(offset)
@@ -132,6 +159,7 @@ def _parse_synset(line: str) -> Synset:
     word_count = int(fields[3], 16)
     lemmas = tuple(fields[4 + 2 * i].replace("_", " ") for i in range(word_count))
     lemmas = tuple(re.sub(r"\([a-z]+\)$", "", lemma) for lemma in lemmas)  # "(p)", "(a)" markers
+    lex_ids = tuple(int(fields[5 + 2 * i], 16) for i in range(word_count))
     at = 4 + 2 * word_count
     pointer_count = int(fields[at])
     hypernyms = tuple(
@@ -139,7 +167,7 @@ def _parse_synset(line: str) -> Synset:
         for i in range(pointer_count)
         if fields[at + 1 + 4 * i] in ("@", "@i")
     )
-    return Synset(int(fields[0]), int(fields[1]), lemmas, hypernyms, _first_clause(gloss))
+    return Synset(int(fields[0]), int(fields[1]), lemmas, lex_ids, hypernyms, _first_clause(gloss))
 
 
 def _first_clause(gloss: str) -> str:
@@ -160,7 +188,7 @@ def texts_of(wordnet: WordNet, label: str) -> tuple[str, ...]:
         return (label,)
     senses = wordnet.senses(lemma)
     physical = [s for s in senses if s.lexicographer_file in PHYSICAL_LEXICOGRAPHER_FILES]
-    chosen = (physical or senses[:1])[:SENSES_PER_LABEL]
+    chosen = common_senses(wordnet, lemma, physical or senses[:1])[:SENSES_PER_LABEL]
     synonyms = [w for s in chosen for w in s.lemmas]
     glosses = [s.gloss for s in chosen if s.gloss]
     kinds = [wordnet.synset(h).lemmas[0] for s in chosen[:1] for h in s.hypernyms[:1]]
@@ -172,6 +200,20 @@ def texts_of(wordnet: WordNet, label: str) -> tuple[str, ...]:
     for text in glosses + kinds:
         texts.setdefault(text)
     return tuple(t for t in texts if t)
+
+
+def common_senses(wordnet: WordNet, lemma: str, senses: list[Synset]) -> list[Synset]:
+    """Of these senses (in WordNet's order), the first and those tagged at least SENSE_SHARE
+    as often as the most tagged of them; all of them when WordNet has no counts of them."""
+    counts = [wordnet.tag_count(lemma, s) for s in senses]
+    most = max((c for c in counts if c is not None), default=0)
+    if most == 0:
+        return senses
+    return [
+        s
+        for i, (s, c) in enumerate(zip(senses, counts, strict=True))
+        if i == 0 or c >= SENSE_SHARE * most
+    ]
 
 
 _wordnet: WordNet | None = None

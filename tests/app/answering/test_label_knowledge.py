@@ -59,3 +59,26 @@ def test_the_server_sends_texts_only_for_labels_outside_the_shipped_background()
 def test_a_directory_without_wordnet_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="index.noun"):
         WordNet(tmp_path)
+
+
+def test_a_rare_sense_is_left_out_by_its_tag_count(wordnet):
+    box = wordnet.senses("box")
+    assert wordnet.tag_count("box", box[0]) > 2 * wordnet.tag_count("box", box[1])
+    texts = " ".join(texts_of(wordnet, "box"))
+    assert "container" in texts and "theater" not in texts and "loge" not in texts
+
+
+def test_a_second_sense_about_as_common_as_the_first_is_kept(wordnet):
+    texts = " ".join(texts_of(wordnet, "plant"))
+    assert "industrial labor" in texts and "living organism" in texts
+
+
+def test_without_tag_counts_every_physical_sense_up_to_the_limit_is_read(tmp_path):
+    for name in ("index.noun", "data.noun", "noun.exc"):
+        (tmp_path / name).symlink_to(os.path.join(wordnet_dir(), name))
+    reader = WordNet(tmp_path)
+    try:
+        assert reader.tag_count("box", reader.senses("box")[0]) is None
+        assert "theater" in " ".join(texts_of(reader, "box"))
+    finally:
+        reader.close()
