@@ -467,15 +467,7 @@ class ChangeDetector:
         movable = self._movable_objects()
         if not movable:
             return
-        view = living.EvidenceView(
-            pose=np.asarray(frame.pose, np.float64),
-            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
-            rgb_size=frame.rgb_size,
-            depth_m=frame.depth_m,
-            label_image=sent.instance_image,
-            labels=sent.labels(),
-            t=float(frame.t),
-        )
+        view = _sighting_view(frame, sent)
         kinds = living.absence_evidence_batched(
             [living.object_sample(o.points) for o in movable],
             self._own_labels(movable, view),
@@ -518,14 +510,7 @@ class ChangeDetector:
         suspects = [self.map.objects[i] for i in list(self.suspects) if i in self.map.objects]
         if not suspects:
             return
-        view = living.EvidenceView(
-            pose=np.asarray(frame.pose, np.float64),
-            intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
-            rgb_size=frame.rgb_size,
-            depth_m=frame.depth_m,
-            label_image=sent.instance_image,
-            labels=sent.labels(),
-        )
+        view = _sighting_view(frame, sent)
         own = self._own_labels(suspects, view)
         for obj, labels in zip(suspects, own, strict=True):
             sample = living.object_sample(obj.points)
@@ -541,3 +526,16 @@ class ChangeDetector:
             )
             if hits >= SIGHTING_MIN_POINTS:
                 del self.suspects[obj.id]
+
+
+def _sighting_view(frame: FrameInput, sent: FrameDetections) -> living.EvidenceView:
+    """What a sighting shows the evidence tests: its pose, depth and detections at its time."""
+    return living.EvidenceView(
+        pose=np.asarray(frame.pose, np.float64),
+        intrinsics=tuple(frame.intrinsics),  # type: ignore[arg-type]
+        rgb_size=frame.rgb_size,
+        depth_m=frame.depth_m,
+        label_image=sent.instance_image,
+        labels=sent.labels(),
+        t=float(frame.t),
+    )
