@@ -192,51 +192,14 @@ class SessionCreated(Record):
     """Extension: the wire protocol version the server speaks."""
 
 
-class SessionSummary(Record):
-    """One entry of `GET /v1/sessions`."""
+class SessionCounts(Record):
+    """What `GET /v1/sessions` and `GET /v1/sessions/{sid}` both say of a session."""
 
     session_id: str
     name: str
     mode: str
     objects: int
     """Confirmed objects."""
-    frames: int
-    """Frames walked: received whole or as sightings."""
-    frames_whole: int | None = None
-    """Extension: of `frames`, those received whole (None from a server that does not count
-    them apart)."""
-    sightings: int | None = None
-    """Extension: of `frames`, those received as sightings, the sightings extension's frames
-    between keyframes (None from a server that does not count them apart)."""
-    keyframes: int
-    fps: float
-    update_seq: int
-    resident: bool = True
-    """Whether the session's map is in memory now (else it loads on first use)."""
-    last_used_at: float | None = None
-    """Unix time of the session's last frame or use (what retention counts from)."""
-    up: Annotated[UpAxis | None, Field(exclude_if=_none)] = None
-    """Extension: the world axis that is up, what relations and places are measured along
-    (None from a server that does not say; then left out of the body)."""
-    up_source: Annotated[UpSource | None, Field(exclude_if=_none)] = None
-    """Extension: "set" at creation, "inferred" from the device's poses, or "default" (+z)
-    until the poses say (None from a server that does not say; then left out)."""
-
-
-class LatencySummary(Record):
-    p50: float | None
-    p95: float | None
-
-
-class SessionStats(Record):
-    """`GET /v1/sessions/{sid}`: what a session has done so far."""
-
-    session_id: str
-    name: str
-    mode: str
-    perception: str
-    """Perception backend mapping the session's keyframes."""
-    created_at: float
     frames: int
     """Frames walked: valid frames received, whole or as sightings."""
     frames_whole: int | None = None
@@ -247,12 +210,40 @@ class SessionStats(Record):
     between keyframes (None from a server that does not count them apart)."""
     keyframes: int
     """Keyframes mapped."""
-    dropped_frames: int
-    """Keyframes superseded by newer ones before mapping."""
-    objects: int
-    """Confirmed objects."""
     fps: float
     """Frames per second over the last 60 frames."""
+    update_seq: int
+    """Sequence number of the newest map change."""
+    up: Annotated[UpAxis | None, Field(exclude_if=_none)] = None
+    """Extension: the world axis that is up, what relations and places are measured along
+    (None from a server that does not say; then left out of the body)."""
+    up_source: Annotated[UpSource | None, Field(exclude_if=_none)] = None
+    """Extension: "set" at creation, "inferred" from the device's poses, or "default" (+z)
+    until the poses say (None from a server that does not say; then left out)."""
+
+
+class SessionSummary(SessionCounts):
+    """One entry of `GET /v1/sessions`."""
+
+    resident: bool = True
+    """Whether the session's map is in memory now (else it loads on first use)."""
+    last_used_at: float | None = None
+    """Unix time of the session's last frame or use (what retention counts from)."""
+
+
+class LatencySummary(Record):
+    p50: float | None
+    p95: float | None
+
+
+class SessionStats(SessionCounts):
+    """`GET /v1/sessions/{sid}`: what a session has done so far."""
+
+    perception: str
+    """Perception backend mapping the session's keyframes."""
+    created_at: float
+    dropped_frames: int
+    """Keyframes superseded by newer ones before mapping."""
     bytes_in: dict[str, int]
     """Upstream bytes by kind (rgb, depth, detections) and "total"."""
     bytes_out: dict[str, int]
@@ -260,8 +251,6 @@ class SessionStats(Record):
     mapping_latency_ms: LatencySummary
     """Server time per mapped keyframe, p50 and p95 (None before the first keyframe):
     decode + perception + mapping + delta."""
-    update_seq: int
-    """Sequence number of the newest map change."""
     streams: Annotated[int | None, Field(exclude_if=_none)] = None
     """Extension: frame streams open, each counted until its close has settled the map and
     published the result, so a device that closed its stream waits for 0 to read the settled
@@ -272,12 +261,6 @@ class SessionStats(Record):
     warnings: list[str] = Field(default_factory=list)
     """Extension: problems with what the session is fed, each once, with the fix (e.g.
     frames without detections on a backend that needs them)."""
-    up: Annotated[UpAxis | None, Field(exclude_if=_none)] = None
-    """Extension: the world axis that is up, what relations and places are measured along
-    (None from a server that does not say; then left out of the body)."""
-    up_source: Annotated[UpSource | None, Field(exclude_if=_none)] = None
-    """Extension: "set" at creation, "inferred" from the device's poses, or "default" (+z)
-    until the poses say (None from a server that does not say; then left out)."""
 
 
 class ObjectRecord(Record):
