@@ -407,7 +407,7 @@ class QueryRouter:
         rtt = self.rtt_ms()
         try:
             answer = await self.api.query_speech(
-                audio, content_type, k, from_xyz=self.local_map.user_position
+                audio, content_type, k, from_xyz=self.local_map.user_position, rerank=self.rerank
             )
         except Exception as exc:  # refused or unreachable: said, not raised
             return _unanswered("", f"not answered: {exc}", start_s, rtt)

@@ -362,9 +362,7 @@ class SessionApi:
         "latency_ms", "now_t", "ranked_by"} (now_t: the session's newest frame t, what "last
         seen ... ago" counts from; None from a server without the living map). rerank: on a
         static-tower session, MiniLM re-ranks on the server (`ranked_by` says which did)."""
-        params = _query_params(text, k, include, from_xyz)
-        if rerank:
-            params["rerank"] = "true"
+        params = _query_params(text, k, include, from_xyz, rerank)
         answer = await self._call("GET", f"{self.session_url}/query", params=params)
         return _result(answer)
 
@@ -376,13 +374,15 @@ class SessionApi:
         *,
         include: str | None = None,
         from_xyz: Sequence[float] | None = None,
+        rerank: bool = False,
     ) -> dict:
         """POST /v1/sessions/{sid}/query/speech: `audio` (a whole file of `content_type`:
         audio/wav, audio/webm, audio/ogg or audio/mp4; `audio_type` of its name) recognised by
         the server and answered as `query_result` answers the text it heard: that dict plus
         "transcript", "confidence" (None when the recogniser gives none) and "asr_ms" (the
-        recognition's own time). Bounded by SPEECH_TIMEOUT_S, not the session's timeout."""
-        params = _query_params(None, k, include, from_xyz)
+        recognition's own time). Bounded by SPEECH_TIMEOUT_S, not the session's timeout. rerank:
+        as `query_result`'s."""
+        params = _query_params(None, k, include, from_xyz, rerank)
         url = f"{self.session_url}/query/speech"
         answer = await request(
             self._client(),
@@ -469,7 +469,11 @@ def parsed_answer(model: type[R], answer: Any, call: str) -> R:
 
 
 def _query_params(
-    text: str | None, k: int, include: str | None = None, from_xyz: Sequence[float] | None = None
+    text: str | None,
+    k: int,
+    include: str | None = None,
+    from_xyz: Sequence[float] | None = None,
+    rerank: bool = False,
 ) -> dict[str, Any]:
     """A query's parameters; text None for a spoken question (its text is in the audio)."""
     # Points left out: the device and the viewer already hold the geometry they need.
@@ -481,6 +485,8 @@ def _query_params(
         # repr: the shortest text that reads back as the same float, so the server places
         # the asker exactly where the device's own answer does
         params["from"] = ",".join(repr(float(v)) for v in from_xyz)
+    if rerank:
+        params["rerank"] = "true"
     return params
 
 

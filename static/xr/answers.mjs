@@ -39,11 +39,15 @@ const UNREACHABLE_STATUS = new Set([502, 503, 504]); // a gateway or shard that 
  *
  * from: where the asker stands, [x, y, z] world metres (or {x, y, z}), for questions seen from
  * the asker ("the lamp closest to me"); sent as `from=x,y,z`, as the Python device sends it.
+ * rerank: on a static-tower session, the server re-ranks and rates with the tower the static
+ * one was distilled from (MiniLM; the answer's `ranked_by` says which); no effect on others,
+ * nor on a local answer.
  */
-export async function ask(text, { sid, follower = null, offline = null, k = 5, from = null, timeoutMs = ASK_TIMEOUT_MS } = {}) {
+export async function ask(text, { sid, follower = null, offline = null, k = 5, from = null, rerank = false, timeoutMs = ASK_TIMEOUT_MS } = {}) {
   const objects = follower ? follower.objects : new Map();
   const params = { text, k, points: "true" };
   if (from !== null) params.from = fromParam(from);
+  if (rerank) params.rerank = "true";
   const signal = AbortSignal.timeout(timeoutMs);
   let body;
   try {
@@ -61,16 +65,17 @@ export const ASK_ALOUD_TIMEOUT_MS = 30000; // an upload and its recognition take
 /**
  * Ask the map aloud: `audio`, a Blob typed as it was recorded ("audio/webm;codecs=opus"),
  * goes to `POST /v1/sessions/{sid}/query/speech`, which recognises it offline and answers
- * the text it heard as `ask` answers typed text (`k`, `from` as there). Resolves to that
+ * the text it heard as `ask` answers typed text (`k`, `from`, `rerank` as there). Resolves to that
  * answer (`source: "server"`) with what was heard: `transcript`, `confidence` (null when the
  * recogniser gives none), `asr_ms`, and `recognised: "server"`. There is no local answer:
  * the page cannot recognise speech by itself, so a refusal (415 type, 413 size, 400 empty or
  * undecodable, 422 too long or no speech, 503 busy with `retryAfterS`) throws the ApiError,
  * a network down a TypeError, and a server silent for `timeoutMs` a TimeoutError.
  */
-export async function askAloud(audio, { sid, follower = null, k = 5, from = null, timeoutMs = ASK_ALOUD_TIMEOUT_MS } = {}) {
+export async function askAloud(audio, { sid, follower = null, k = 5, from = null, rerank = false, timeoutMs = ASK_ALOUD_TIMEOUT_MS } = {}) {
   const params = { k, points: "true" };
   if (from !== null) params.from = fromParam(from);
+  if (rerank) params.rerank = "true";
   const path = `/v1/sessions/${encodeURIComponent(sid)}/query/speech`;
   const body = await request("POST", path, { sid, params, body: audio, signal: AbortSignal.timeout(timeoutMs) });
   return {
@@ -117,6 +122,7 @@ export function answerFromServer(body, objects = new Map()) {
     note: null,
     now_t: body.now_t ?? null,
     latency_ms: body.latency_ms ?? null,
+    ranked_by: body.ranked_by ?? null,
   };
 }
 

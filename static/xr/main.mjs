@@ -445,9 +445,15 @@ function askerPosition() {
   return state.xr && state.xr.lastPosition ? state.xr.lastPosition : null;
 }
 
+// How the page asks: from where the wearer stands, a static session's answer re-ranked by
+// MiniLM on the server when online (its own tower offline).
+function askOptions() {
+  return { sid: state.sid, follower: state.follower, offline: state.offline, k: 5, from: askerPosition(), rerank: true };
+}
+
 async function onAsk(text) {
   if (!state.sid || !text) return;
-  const answer = await ask(text, { sid: state.sid, follower: state.follower, offline: state.offline, k: 5, from: askerPosition() });
+  const answer = await ask(text, askOptions());
   showHeard(null);
   showAnswer(answer);
 }
@@ -458,7 +464,7 @@ async function onAskAloud(audio) {
   showHeard("recognising on the server…");
   let answer;
   try {
-    answer = await askAloud(audio, { sid: state.sid, follower: state.follower, k: 5, from: askerPosition() });
+    answer = await askAloud(audio, askOptions());
   } catch (error) {
     showHeard(`not answered: ${spokenErrorWords(error)}`, true);
     return;
@@ -470,7 +476,7 @@ async function onAskAloud(audio) {
 // Recognised on the device: asked as typed text is (from the page's copy when offline).
 async function onRecognised({ transcript, confidence }) {
   if (!state.sid) return;
-  const answer = await ask(transcript, { sid: state.sid, follower: state.follower, offline: state.offline, k: 5, from: askerPosition() });
+  const answer = await ask(transcript, askOptions());
   showHeard(heardWords({ transcript, confidence }, "device"));
   showAnswer({ ...answer, transcript, confidence, asr_ms: null, recognised: "device" });
 }

@@ -25,6 +25,7 @@ from xr_device import Phone
 
 from app.protocol.delta import DeltaMessage, UpsertEntry
 from app.relations.grammar import is_relational, parse
+from app.semantics import DEFAULT_MODEL_ID
 from app.semantics.static import StaticTower
 from app.server.settings import ServerSettings
 
@@ -211,6 +212,10 @@ def test_the_xr_page_loads_the_tower_of_its_session_and_answers_a_typed_question
     wait_until(xr_page, f"() => window.semanticxr.objects === {len(SCENE)}")
     assert f"{server.url}/v1/text-towers/{tower.sha256}" in requested
     sq = served(server, sid, "where is my mug")
+    xr_page.fill("#ask-text", "where is my mug")  # online: MiniLM re-ranks the static answer
+    xr_page.press("#ask-text", "Enter")
+    wait_until(xr_page, "() => (window.semanticxr.answer || {}).source === 'server'")
+    assert xr_page.evaluate("window.semanticxr.answer.ranked_by") == DEFAULT_MODEL_ID
     xr_page.context.set_offline(True)
     xr_page.fill("#ask-text", "where is my mug")
     xr_page.press("#ask-text", "Enter")

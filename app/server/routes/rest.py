@@ -357,6 +357,14 @@ QueryFrom = Annotated[
         "default: the camera of the session's newest frame",
     ),
 ]
+QueryRerank = Annotated[
+    bool,
+    Query(
+        description="on a static-tower session: re-rank the static tower's best "
+        f"{RERANK_POOL} with the tower it was distilled from (MiniLM), which then rates them "
+        "too (`ranked_by` says which tower ranked the answer); no effect on other sessions",
+    ),
+]
 """The query parameters a typed and a spoken question share."""
 
 
@@ -385,12 +393,7 @@ def query(
     points: QueryPoints = True,
     include: QueryInclude = None,
     from_: QueryFrom = None,
-    rerank: bool = Query(
-        False,
-        description="on a static-tower session: re-rank the static tower's best "
-        f"{RERANK_POOL} with the tower it was distilled from (MiniLM), which then rates them "
-        "too (`ranked_by` says which tower ranked the answer); no effect on other sessions",
-    ),
+    rerank: QueryRerank = False,
 ) -> protocol.QueryResult:
     asker = checked_query_options(manager, k, from_)
     with session_in_use(manager, request, sid) as session:

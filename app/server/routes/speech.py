@@ -25,6 +25,7 @@ from app.server.routes.rest import (
     QueryInclude,
     QueryK,
     QueryPoints,
+    QueryRerank,
     _errors,
     answer_query,
     checked_query_options,
@@ -77,9 +78,10 @@ def _session_labels(manager: SessionManager, request: Request, sid: str) -> list
         return sorted({o.label for o in session.objects()})
 
 
-def _answer(manager, request, sid, text, k, points, include, asker) -> protocol.QueryResult:
+def _answer(manager, request, sid, text, k, points, include, asker, rerank) -> protocol.QueryResult:
     with session_in_use(manager, request, sid) as session:
-        return answer_query(manager, session, text, k, points, include, asker)
+        teacher = manager.encoder if rerank else None
+        return answer_query(manager, session, text, k, points, include, asker, teacher)
 
 
 @router.post(
@@ -97,6 +99,7 @@ async def query_speech(
     points: QueryPoints = True,
     include: QueryInclude = None,
     from_: QueryFrom = None,
+    rerank: QueryRerank = False,
 ) -> protocol.SpokenQueryResult | Response:
     asker = checked_query_options(manager, k, from_)
     labels = await run_in_threadpool(_session_labels, manager, request, sid)  # auth before the body
@@ -129,7 +132,7 @@ async def query_speech(
             "the microphone",
         )
     result = await run_in_threadpool(
-        _answer, manager, request, sid, text, k, points, include, asker
+        _answer, manager, request, sid, text, k, points, include, asker, rerank
     )
     return protocol.SpokenQueryResult(
         **dict(result), transcript=text, confidence=heard.confidence, asr_ms=asr_ms

@@ -316,3 +316,35 @@ def test_rerank_answers_a_static_session_with_its_teacher_and_says_so(server, to
             params={"text": "the sofa", "rerank": "true"},
         ).json()
         assert plain["ranked_by"] == DEFAULT_MODEL_ID
+
+
+@pytest.mark.slow
+def test_a_spoken_question_is_reranked_as_the_typed_one(live_server, tower_file, tmp_path):
+    """`rerank=true` on `POST .../query/speech` re-ranks as on the typed query: the page asks
+    both ways with it."""
+    from spoken import ASR_TIMEOUT_S, speak
+
+    wav = speak("where is the sofa", tmp_path / "q.wav").read_bytes()
+    server = live_server(api_key=API_KEY, static_tower=str(tower_file), asr_timeout_s=ASR_TIMEOUT_S)
+    with httpx.Client(
+        base_url=server.url, headers={"Authorization": f"Bearer {API_KEY}"}, timeout=120
+    ) as http:
+        sid = http.post("/v1/sessions/import", json=static_export("room")).json()["session_id"]
+        path = f"/v1/sessions/{sid}/query/speech"
+        heard = {}
+        for rerank in ("false", "true"):
+            reply = http.post(
+                path,
+                params={"rerank": rerank, "points": "false"},
+                content=wav,
+                headers={"Content-Type": "audio/wav"},
+            )
+            assert reply.status_code == 200, reply.text
+            heard[rerank] = reply.json()
+        typed = http.get(
+            f"/v1/sessions/{sid}/query",
+            params={"text": heard["true"]["transcript"], "rerank": "true", "points": "false"},
+        ).json()
+    assert heard["false"]["ranked_by"] == StaticEncoderOf(tower_file).model_id
+    assert heard["true"]["ranked_by"] == DEFAULT_MODEL_ID
+    assert [h["id"] for h in heard["true"]["results"]] == [h["id"] for h in typed["results"]]
