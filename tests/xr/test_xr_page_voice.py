@@ -136,7 +136,11 @@ def test_held_and_spoken_the_question_is_answered_as_the_same_words_typed(live_s
     # request, and the feed's routing takes content-length off its headers).
     (blob,) = mic_page.evaluate("window.__blobsSent")
     assert blob["type"] == request.all_headers()["content-type"] and blob["size"] > 2000
-    assert parse_qs(urlsplit(request.url).query) == {"k": ["5"], "points": ["true"]}
+    assert parse_qs(urlsplit(request.url).query) == {
+        "k": ["5"],
+        "points": ["true"],
+        "rerank": ["true"],
+    }
 
     # Typed, the same words get the same answer, said the same way; the heard line goes.
     mic_page.fill("#ask-text", spoken["transcript"])
