@@ -1,11 +1,8 @@
 """The device's keyframe pick with the sightings extension: the shared selector's keyframes
 (`app.keyframes`), and between them a frame in which a place the server doubts comes into
-view once a keyframe could complete its evidence: from its `t_ready` on (the ack's
-`doubted`), or from a viewpoint far enough from the one that doubted it (the ack's
-`doubted_from`), docs/protocol.md.
+view once a keyframe could complete its evidence (the ack's `doubted`, docs/protocol.md).
 
-A removal needs several keyframes showing the empty place, over a span of time or from two
-viewpoints (`app.mapping.living`; evidence that is mostly thin always needs the two); at one
+A removal needs several keyframes showing the empty place (`app.mapping.living`); at one
 keyframe a second the walk often looks away before they are in. Making the frames that
 show a doubted place keyframes brings that evidence in while the place is in view; the
 server judges it as any keyframe (occlusion is never evidence), so the pick only decides
@@ -14,7 +11,6 @@ which frames the server reads, never what it concludes. Pure: no I/O.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,21 +28,28 @@ DOUBT_DEPTH_TOLERANCE_M = 0.05
 something in front of it: occluded, no pick (occlusion is no evidence)."""
 
 
-def _places_in_view(
+def doubted_place_in_view(
     places: np.ndarray,
+    t: float,
     pose: np.ndarray,
     intrinsics: tuple[float, float, float, float],
     rgb_size: tuple[int, int],
     depth_m: np.ndarray,
     min_depth_m: float,
     max_depth_m: float,
-) -> np.ndarray:
-    """bool [K]: which of `places` (float [K, >= 4]: x, y, z, radius metres, ...) the frame
-    shows: the centre inside the image (DOUBT_IMAGE_MARGIN in), at `min_depth_m`..`max_depth_m`
-    from the camera, and the sensed depth there not in front of the place."""
-    shown = np.zeros(len(places), bool)
+) -> bool:
+    """Whether the frame (device time `t`) shows one of `places` (float [K, 5]: x, y, z,
+    radius metres, t_ready) whose t_ready has come: its centre inside the image
+    (DOUBT_IMAGE_MARGIN in), at `min_depth_m`..`max_depth_m` from the camera, and the
+    sensed depth there not in front of the place.
+
+    pose: float [4, 4] camera-to-world (OpenCV frame); intrinsics (fx, fy, cx, cy) and
+    rgb_size (W, H) of the RGB image; depth_m: float [h, w] metres (0: none), the RGB size
+    divided by an integer ratio."""
+    places = np.asarray(places, np.float64).reshape(-1, 5)
+    places = places[places[:, 4] <= t]
     if not len(places):
-        return shown
+        return False
     pose = np.asarray(pose, np.float64)
     camera = (places[:, :3] - pose[:3, 3]) @ pose[:3, :3]  # world -> camera: R^T (p - t)
     z = camera[:, 2]
@@ -65,74 +68,21 @@ def _places_in_view(
         & (v < height - margin_v)
     )
     if not ok.any():
-        return shown
+        return False
     ratio = max(1, round(width / depth_m.shape[1]))
     rows = np.clip(v[ok] // ratio, 0, depth_m.shape[0] - 1).astype(np.int64)
     cols = np.clip(u[ok] // ratio, 0, depth_m.shape[1] - 1).astype(np.int64)
     sensed = depth_m[rows, cols]
     front = z[ok] - places[ok, 3] - DOUBT_DEPTH_TOLERANCE_M
-    shown[ok] = (sensed > 0) & (sensed >= front)
-    return shown
-
-
-def doubted_place_in_view(
-    places: np.ndarray,
-    t: float,
-    pose: np.ndarray,
-    intrinsics: tuple[float, float, float, float],
-    rgb_size: tuple[int, int],
-    depth_m: np.ndarray,
-    min_depth_m: float,
-    max_depth_m: float,
-) -> bool:
-    """Whether the frame (device time `t`) shows one of `places` (float [K, 5]: x, y, z,
-    radius metres, t_ready; the ack's `doubted`) whose t_ready has come: its centre inside
-    the image (DOUBT_IMAGE_MARGIN in), at `min_depth_m`..`max_depth_m` from the camera, and
-    the sensed depth there not in front of the place.
-
-    pose: float [4, 4] camera-to-world (OpenCV frame); intrinsics (fx, fy, cx, cy) and
-    rgb_size (W, H) of the RGB image; depth_m: float [h, w] metres (0: none), the RGB size
-    divided by an integer ratio."""
-    places = np.asarray(places, np.float64).reshape(-1, 5)
-    places = places[places[:, 4] <= t]
-    shown = _places_in_view(places, pose, intrinsics, rgb_size, depth_m, min_depth_m, max_depth_m)
-    return bool(shown.any())
-
-
-def doubted_place_in_view_apart(
-    places: np.ndarray,
-    pose: np.ndarray,
-    intrinsics: tuple[float, float, float, float],
-    rgb_size: tuple[int, int],
-    depth_m: np.ndarray,
-    min_depth_m: float,
-    max_depth_m: float,
-    min_baseline_m: float,
-    min_angle_deg: float,
-) -> bool:
-    """Whether the frame shows one of `places` (float [K, 10]: x, y, z, radius, and the
-    position vx, vy, vz and unit viewing direction dx, dy, dz of the view that doubted it;
-    the ack's `doubted_from`) as `doubted_place_in_view` does, from a viewpoint at least
-    `min_baseline_m` from that one or looking `min_angle_deg` away from its direction (the
-    session's `removal_min_baseline_m`, `removal_min_angle_deg`): a second viewpoint. Frame
-    arguments as `doubted_place_in_view`."""
-    places = np.asarray(places, np.float64).reshape(-1, 10)
-    if not len(places):
-        return False
-    pose = np.asarray(pose, np.float64)
-    baseline = np.linalg.norm(places[:, 4:7] - pose[:3, 3], axis=1)
-    turned = places[:, 7:10] @ pose[:3, 2] <= math.cos(math.radians(min_angle_deg))
-    places = places[(baseline >= min_baseline_m) | turned]
-    shown = _places_in_view(places, pose, intrinsics, rgb_size, depth_m, min_depth_m, max_depth_m)
-    return bool(shown.any())
+    return bool(np.any((sensed > 0) & (sensed >= front)))
 
 
 @dataclass
 class KeyframePick:
     """Which frames a device with the sightings extension sends whole (keyframes): the
     shared selector's, and frames showing a doubted place at least DOUBT_MIN_GAP_FRAMES
-    after the last keyframe. `doubted` and `doubted_from` are the newest keyframe ack's
-    (empty from a server that does not send them: the shared selector's keyframes only)."""
+    after the last keyframe. `doubted` is the newest keyframe ack's `doubted` (empty from a
+    server that does not send it: the shared selector's keyframes only)."""
 
     interval: int
     """The `keyframe_interval` knob."""
@@ -140,14 +90,7 @@ class KeyframePick:
     """The `absence_min_depth_m` knob: nearer, the server reads no absence."""
     max_depth_m: float
     """The `absence_max_depth_m` knob."""
-    min_baseline_m: float
-    """The `removal_min_baseline_m` knob: two viewpoints this far apart..."""
-    min_angle_deg: float
-    """...or looking this far apart (`removal_min_angle_deg`) are two viewpoints."""
     doubted: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
-    """The ack's `doubted`: float [K, 5], x, y, z, radius, t_ready."""
-    doubted_from: np.ndarray = field(default_factory=lambda: np.zeros((0, 10)))
-    """The ack's `doubted_from`: float [K, 10], x, y, z, radius and the doubting viewpoint."""
     last_keyframe: int | None = None
     """Seq of the last frame picked."""
     doubt_picks: int = 0
@@ -168,11 +111,15 @@ class KeyframePick:
         elif self.last_keyframe is not None and seq - self.last_keyframe < DOUBT_MIN_GAP_FRAMES:
             picked = False
         else:
-            frame = (pose, intrinsics, rgb_size, depth_m, self.min_depth_m, self.max_depth_m)
-            picked = doubted_place_in_view(self.doubted, t, *frame) or (
-                doubted_place_in_view_apart(
-                    self.doubted_from, *frame, self.min_baseline_m, self.min_angle_deg
-                )
+            picked = doubted_place_in_view(
+                self.doubted,
+                t,
+                pose,
+                intrinsics,
+                rgb_size,
+                depth_m,
+                self.min_depth_m,
+                self.max_depth_m,
             )
             self.doubt_picks += picked
         if picked:

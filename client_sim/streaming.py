@@ -223,8 +223,6 @@ class DeviceClient:
             self.knobs.keyframe_interval,
             self.knobs.absence_min_depth_m,
             self.knobs.absence_max_depth_m,
-            self.knobs.removal_min_baseline_m,
-            self.knobs.removal_min_angle_deg,
         )
         """Which frames go whole with the sightings extension; its doubted places come
         with keyframe acks."""
@@ -640,10 +638,6 @@ class _StreamLink:
             self.stats.keyframes_acked += 1
             if reply.doubted is not None:
                 self.client._pick.doubted = np.asarray(reply.doubted, np.float64).reshape(-1, 5)
-            if reply.doubted_from is not None:
-                self.client._pick.doubted_from = np.asarray(reply.doubted_from, np.float64).reshape(
-                    -1, 10
-                )
             if self.storage_failing:
                 self.storage_failing = False
                 self.storage_backoff.reset()

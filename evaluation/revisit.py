@@ -186,13 +186,7 @@ def _walk_and_map(
     runs = {name: MappedRun() for name in engines}
     published = dict.fromkeys(engines, 0)
     picks = {
-        name: KeyframePick(
-            interval,
-            cfg.knobs.absence_min_depth_m,
-            cfg.knobs.absence_max_depth_m,
-            cfg.knobs.removal_min_baseline_m,
-            cfg.knobs.removal_min_angle_deg,
-        )
+        name: KeyframePick(interval, cfg.knobs.absence_min_depth_m, cfg.knobs.absence_max_depth_m)
         for name in engines
     }
     traces = {name: _MapTrace() for name in engines if engines[name].knobs.negative_evidence}
@@ -286,7 +280,6 @@ def _walk_and_map(
                         traces[name].picks_t.append(frame.t)
                 if cfg.doubt_keyframes and engine.knobs.negative_evidence:
                     picks[name].doubted = engine.changes.doubted_places()
-                    picks[name].doubted_from = engine.changes.doubted_viewpoints()
             elif sighting is not None:
                 t0 = time.perf_counter()
                 engine.sight(*sighting.decode(engine, ratio))  # type: ignore[arg-type]

@@ -453,41 +453,21 @@ class ChangeDetector:
         (its first depth evidence + `removal_min_span_s`, the least span of a removal's
         evidence) (docs/protocol.md, the ack's `doubted`: a device that picks its
         keyframes makes one when such a place comes into view, so the evidence that settles
-        the doubt arrives within a glance). Centre and radius as `_place_of`."""
+        the doubt arrives within a glance). The centre is the median of a sample of its
+        points and the radius the 90th percentile of their distances from it (strays do not
+        stretch the place)."""
         places = []
         for obj in self._suspected_objects():
             # thin evidence alone is weak (a detector missing a big thing gives it) and
-            # needs two viewpoints anyway: time alone never completes it
+            # needs two viewpoints anyway: only a place seen through is worth a keyframe
             if not len(obj.points) or not any(e.kind == "depth" for e in self.suspects[obj.id]):
                 continue
+            sample = living.object_sample(obj.points).astype(np.float64)
+            centre = np.median(sample, axis=0)
+            radius = float(np.percentile(np.linalg.norm(sample - centre, axis=1), 90))
             first = min(e.t for e in self.suspects[obj.id] if e.kind == "depth")
-            places.append((*self._place_of(obj), first + self.map.knobs.removal_min_span_s))
+            places.append((*centre, radius, first + self.map.knobs.removal_min_span_s))
         return np.asarray(places, np.float64).reshape(-1, 5)
-
-    def doubted_viewpoints(self) -> np.ndarray:
-        """float64 [K, 10]: (x, y, z, radius, vx, vy, vz, dx, dy, dz) of every doubted place
-        (any evidence, thin too) and the viewpoint its oldest standing evidence was seen from:
-        the camera position (metres) and unit viewing direction. A keyframe showing the place
-        from `removal_min_baseline_m` or `removal_min_angle_deg` away from that viewpoint
-        gives its evidence the two viewpoints a removal may need (`living.removal_due`; thin
-        evidence always needs them) (docs/protocol.md, the ack's `doubted_from`)."""
-        places = []
-        for obj in self._suspected_objects():
-            if not len(obj.points):
-                continue
-            first = min(self.suspects[obj.id], key=lambda e: e.t)
-            places.append((*self._place_of(obj), *first.position, *first.direction))
-        return np.asarray(places, np.float64).reshape(-1, 10)
-
-    @staticmethod
-    def _place_of(obj: MapObject) -> tuple[float, float, float, float]:
-        """(x, y, z, radius) of a doubted object's place: the median of a sample of its
-        points and the 90th percentile of their distances from it (strays do not stretch the
-        place)."""
-        sample = living.object_sample(obj.points).astype(np.float64)
-        centre = np.median(sample, axis=0)
-        radius = float(np.percentile(np.linalg.norm(sample - centre, axis=1), 90))
-        return (float(centre[0]), float(centre[1]), float(centre[2]), radius)
 
     def sight_moved_places(self, frame: FrameInput, sent: FrameDetections) -> None:
         """A sighting that sees through the place of a thing a like object has appeared

@@ -2,9 +2,8 @@
 
 Extensions of v1 (optional fields a v1 client may ignore) on acks: `dropped` (a keyframe was
 superseded by a newer one before it was mapped), `update_seq` (the map's seq after mapping
-it), `objects` (confirmed objects after mapping it), `doubted` (the places the map doubts
-after mapping it, for a device that picks its keyframes) and `doubted_from` (every doubted
-place with the viewpoint that doubted it).
+it), `objects` (confirmed objects after mapping it) and `doubted` (the places the map doubts
+after mapping it, for a device that picks its keyframes).
 """
 
 from __future__ import annotations
@@ -18,14 +17,7 @@ from app.errors import InputError
 from app.protocol.limits import REPLY_LIMITS, unpack_limited
 
 MAX_DOUBTED_PLACES = 32
-"""A device accepts at most this many places in an ack's `doubted` (the v1 extension's
-bound; older servers send up to it)..."""
-DOUBTED_PLACES_SENT = 16
-"""...this server sends at most this many, so that with DOUBTED_FROM_SENT entries of
-`doubted_from` an ack stays within `REPLY_LIMITS` (a device that knows only `doubted` keeps
-its limits)."""
-DOUBTED_FROM_SENT = 10
-"""At most this many places go in one ack's `doubted_from`."""
+"""At most this many doubted places go in one ack (within `REPLY_LIMITS`)."""
 
 
 @dataclass
@@ -47,15 +39,9 @@ class Ack:
     doubted: list[list[float]] | None = None
     """Extension: [x, y, z, radius, t_ready] of each place the map doubts after this
     keyframe (a keyframe saw through it): metres, and the device time from which a keyframe
-    seeing through it can complete the evidence a removal needs (packed only when known,
-    [] for none; at most DOUBTED_PLACES_SENT). A device with the sightings extension may
-    make a frame showing one a keyframe (docs/protocol.md)."""
-    doubted_from: list[list[float]] | None = None
-    """Extension: [x, y, z, radius, vx, vy, vz, dx, dy, dz] of each place the map doubts
-    after this keyframe, by any evidence (thin too): the place as in `doubted`, and the
-    position (metres) and unit viewing direction of the keyframe whose evidence first doubted
-    it (packed only when known, [] for none; at most DOUBTED_FROM_SENT). A frame showing it
-    from a second viewpoint may be made a keyframe (docs/protocol.md)."""
+    seeing through it can complete the evidence a removal needs (packed only when known, [] for none; at most
+    MAX_DOUBTED_PLACES). A device with the sightings extension may make a frame showing one
+    a keyframe (docs/protocol.md)."""
 
     def pack(self) -> dict:
         """The v1 `ack` message, ready for `msgpack.packb`."""
@@ -74,11 +60,7 @@ class Ack:
             message["objects"] = self.objects
         if self.doubted is not None:
             message["doubted"] = [
-                [float(v) for v in place] for place in self.doubted[:DOUBTED_PLACES_SENT]
-            ]
-        if self.doubted_from is not None:
-            message["doubted_from"] = [
-                [float(v) for v in place] for place in self.doubted_from[:DOUBTED_FROM_SENT]
+                [float(v) for v in place] for place in self.doubted[:MAX_DOUBTED_PLACES]
             ]
         return message
 
@@ -130,16 +112,9 @@ def _bool(message: dict, key: str, default: bool | None = None) -> bool:
     return value
 
 
-PLACE_FIELDS = {
-    "doubted": "x, y, z, radius, t_ready",
-    "doubted_from": "x, y, z, radius, vx, vy, vz, dx, dy, dz",
-}
-"""The numbers of each entry of the acks' place lists."""
-
-
 def _places(message: dict, key: str) -> list[list[float]] | None:
-    """message[key] as a list of entries of finite numbers, PLACE_FIELDS[key] each; None
-    where absent."""
+    """message[key] as a list of [x, y, z, radius, t_ready] finite numbers; None where
+    absent."""
     value = message.get(key)
     if value is None:
         return None
@@ -147,19 +122,17 @@ def _places(message: dict, key: str) -> list[list[float]] | None:
         raise InputError(key, f"must be a list, got {type(value).__name__}")
     if len(value) > MAX_DOUBTED_PLACES:
         raise InputError(key, f"holds {len(value)} places, at most {MAX_DOUBTED_PLACES}")
-    names = PLACE_FIELDS[key]
-    width = len(names.split(", "))
     places = []
     for i, place in enumerate(value):
         if (
             not isinstance(place, list)
-            or len(place) != width
+            or len(place) != 5
             or not all(
                 not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
                 for v in place
             )
         ):
-            raise InputError(f"{key}[{i}]", f"must be {width} finite numbers [{names}]")
+            raise InputError(f"{key}[{i}]", "must be 5 finite numbers [x, y, z, radius, t_ready]")
         places.append([float(v) for v in place])
     return places
 
@@ -194,7 +167,6 @@ def parse_reply(message: Any) -> Ack | ErrorReply:
         update_seq=_int(message, "update_seq", optional=True),
         objects=_int(message, "objects", optional=True),
         doubted=_places(message, "doubted"),
-        doubted_from=_places(message, "doubted_from"),
     )
 
 

@@ -218,9 +218,6 @@ class KeyframePipeline:
                     doubted=engine.changes.doubted_places().tolist()
                     if engine.knobs.negative_evidence
                     else None,
-                    doubted_from=engine.changes.doubted_viewpoints().tolist()
-                    if engine.knobs.negative_evidence
-                    else None,
                 )
                 self.store.commit_keyframe(
                     _map_commit(

@@ -185,26 +185,6 @@ def test_a_glimpse_of_the_empty_place_makes_it_a_doubted_place_until_it_is_settl
     assert len(engine.changes.doubted_places()) == 1
 
 
-def test_a_doubted_place_comes_with_the_viewpoint_that_doubted_it_thin_evidence_too(encoder):
-    engine = make_engine(encoder)
-    walk = Walk(engine)
-    walk.walk([WALL, MUG, POSTER], 3)
-    (mug,) = mug_ids(engine)
-    assert not len(engine.changes.doubted_viewpoints())
-    walk.t = 600.0
-    walk.see([WALL], cam_x=0.1)  # the mug's place seen through, the poster's not (thin)
-    walk.see([WALL], cam_x=0.2)
-    assert {e.kind for e in engine.changes.suspects[mug]} == {"depth"}
-    (poster,) = set(engine.changes.suspects) - {mug}
-    assert {e.kind for e in engine.changes.suspects[poster]} == {"thin"}
-    assert len(engine.changes.doubted_places()) == 1  # time completes depth evidence only
-    places = engine.changes.doubted_viewpoints()
-    np.testing.assert_allclose(sorted(p[0] for p in places), [-0.4, -0.4], atol=0.05)
-    for place in places:  # the first keyframe of the evidence: at x 0.1, looking along +z
-        np.testing.assert_allclose(place[4:7], [0.1, 0.0, 0.0], atol=1e-6)
-        np.testing.assert_allclose(place[7:10], [0.0, 0.0, 1.0], atol=1e-6)
-
-
 def test_a_thing_hidden_behind_something_new_stays(encoder):
     engine = make_engine(encoder)
     walk = Walk(engine)
