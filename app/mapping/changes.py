@@ -106,18 +106,10 @@ class ChangeDetector:
         self.views.append(living.coarse_view(view, REMEMBERED_VIEW_BLOCK))
 
     def found_moved(self, obj: MapObject, stats: IntegrationStats) -> MapObject | None:
-        """A candidate `obj` that just qualified for confirmation is a suspect object whose
-        place a keyframe saw through (depth evidence), or one removed within
-        REVIVE_WINDOW_S, at a new place: that object takes `obj`'s place (`_move`, a `moved`
-        change) and is returned; `obj` leaves the map. Else None. Thin evidence alone is
-        mostly a detector miss: such a suspect waits for `living.removal_due`, as in
-        `gather_evidence`'s other order."""
-        seen_through = [
-            o
-            for o in self._suspected_objects()
-            if any(e.kind == "depth" for e in self.suspects[o.id])
-        ]
-        old = self._like_object(obj, seen_through, obj_is_new=True)
+        """A candidate `obj` that just qualified for confirmation is a suspect object, or
+        one removed within REVIVE_WINDOW_S, at a new place: that object takes `obj`'s place
+        (`_move`, a `moved` change) and is returned; `obj` leaves the map. Else None."""
+        old = self._like_object(obj, self._suspected_objects(), obj_is_new=True)
         if old is None:
             old = self._revived(obj, stats)
         if old is not None:

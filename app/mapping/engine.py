@@ -565,8 +565,8 @@ class MappingEngine:
         """Confirm objects seen often enough; returns the confirmed ids that changed.
 
         With negative evidence, a candidate that qualifies while a like object is suspect
-        by depth evidence (same label, or embeddings `move_min_similarity` alike, and not
-        seen since the candidate appeared) is that object at its new place: it merges into it as a move and
+        (same label, or embeddings `move_min_similarity` alike, and not seen since the
+        candidate appeared) is that object at its new place: it merges into it as a move and
         its own id is never published (`ChangeDetector.found_moved`). Otherwise it is
         confirmed, `added` when remembered keyframes had shown its place empty
         (`ChangeDetector.note_confirmed`)."""

@@ -280,21 +280,6 @@ def test_thin_evidence_alone_does_not_conclude_a_move_found_from_the_new_place(e
     assert changes([back]) == []  # a detector missing it would look the same
 
 
-def test_thin_evidence_alone_does_not_conclude_a_move_found_from_the_old_place(encoder):
-    engine = make_engine(encoder)
-    walk = Walk(engine)
-    walk.walk([WALL, POSTER], 4, step_m=0.3)
-    (poster,) = [o.id for o in engine.objects.values() if o.label == "poster" and o.confirmed]
-    walk.t = 600.0
-    # both places in view from one viewpoint: the old one not seen through (thin evidence),
-    # a like candidate at the new one confirmed at the second keyframe
-    later = walk.walk([WALL, POSTER_MOVED], 2, step_m=0.0)
-    assert {e.kind for e in engine.changes.suspects[poster]} == {"thin"}
-    posters = [o for o in engine.objects.values() if o.label == "poster" and o.confirmed]
-    assert len(posters) == 2  # a detector missing it would look the same: no move yet
-    assert (poster, "moved") not in changes(later)
-
-
 def test_a_place_seen_through_with_no_like_thing_appeared_waits_for_the_removal_rule(encoder):
     engine = make_engine(encoder)
     walk = Walk(engine)
