@@ -230,12 +230,16 @@ class ChangeDetector:
         return {new.id}
 
     def _appeared_objects(self) -> list[MapObject]:
-        """Confirmed objects with their `added` change standing, not suspect themselves:
-        where a suspect one may be found (`_like_object` takes no other as the new place)."""
+        """Confirmed objects with their `added` change standing, their own place not seen
+        through (depth evidence) since: where a suspect one may be found (`_like_object`
+        takes no other as the new place). Thin evidence alone on the new place is mostly a
+        detector missing the thing there, and does not hold the move back."""
         return [
             o
             for o in self.map.objects.values()
-            if o.id in self.appeared and o.confirmed and o.id not in self.suspects
+            if o.id in self.appeared
+            and o.confirmed
+            and not any(e.kind == "depth" for e in self.suspects.get(o.id, ()))
         ]
 
     def _own_labels(self, objects: list[MapObject], view: living.EvidenceView) -> list[set[str]]:

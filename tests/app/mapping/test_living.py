@@ -390,6 +390,33 @@ def _sight(engine, rects, t):
     engine.sight(frame, engine.validate_frame(frame))
 
 
+def _missed(frame, instance_id: int):
+    """The frame with the detector missing one instance (its depth still there)."""
+    ids = np.where(frame.instance_ids == instance_id, 0, frame.instance_ids)
+    kept = [i for i in frame.instances if i["id"] != instance_id]
+    return dataclasses.replace(frame, instance_ids=ids.astype(np.uint16), instances=kept)
+
+
+def test_a_detector_missing_the_new_place_does_not_hold_back_the_move(encoder):
+    engine, walk, mug = _found_elsewhere_first(encoder)
+    newcomer = max(mug_ids(engine))
+    missed = _missed(
+        dataclasses.replace(render_rects([WALL, MUG_MOVED], cam_xy=(1.3, 0.0), seq=50), t=605.0),
+        MUG_MOVED.instance_id,
+    )
+    engine.integrate(missed)
+    assert {e.kind for e in engine.changes.suspects[newcomer]} == {"thin"}
+    # the old place seen through while the detector misses the new one again
+    both = _missed(
+        dataclasses.replace(render_rects([WALL, MUG_MOVED], seq=55), t=606.0),
+        MUG_MOVED.instance_id,
+    )
+    stats = engine.integrate(both)
+    assert changes([stats]) == [(mug, "moved")]
+    assert mug_ids(engine) == [mug]
+    np.testing.assert_allclose(engine.objects[mug].centroid[:2], [0.5, -0.1], atol=0.05)
+
+
 def test_a_sighting_through_the_old_place_of_a_thing_found_elsewhere_moves_it(encoder):
     engine, walk, mug = _found_elsewhere_first(encoder)
     _sight(engine, [WALL, MUG_MOVED], walk.t - 0.6)  # a glance at the empty old place
