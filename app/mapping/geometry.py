@@ -503,7 +503,12 @@ CORE_MIN_SHARE = 0.25
 """Least share of a cloud's points in core cells for outlier removal to judge it: a sparser
 cloud (150 points over a sofa) is kept whole rather than cut to its one dense corner."""
 PART_SHARE = 0.25
-"""Outlier removal keeps every cluster of at least this share of the largest one's points."""
+"""Outlier removal keeps every cluster of at least this share of the largest one's points..."""
+PART_VIEWS = 3.0
+"""...and, where the points' support is known, every cluster some point of which this many
+views saw: a smaller part that keyframe after keyframe shows (a lamp's base under a big
+shade) is the thing's; a stray that one or two views left is not. (Each clean-up that drops
+a part restarts its count, so the part's best-seen point is the test, not its median.)"""
 
 
 def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.ndarray:
@@ -512,9 +517,13 @@ def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np
     return points if keep.all() else points[keep]
 
 
-def outlier_free(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.ndarray:
+def outlier_free(
+    points: np.ndarray, eps_m: float, min_points: int = 5, support: np.ndarray | None = None
+) -> np.ndarray:
     """bool [N], the points outlier removal keeps: keep the object's DBSCAN clusters of core cells: the largest, any other of at least
-    PART_SHARE of its points (a lamp's base apart from its shade), and the chains of cells
+    PART_SHARE of its points (a lamp's base apart from its shade) or, given the points'
+    support (float [N], views each point stands for), any with a point PART_VIEWS views saw
+    (a smaller part many views showed), and the chains of cells
     too sparse to be core that reach them with `min_points` points or more (a surface's
     rim, a pole, a leg); a stray point or two is dropped even where it touches the thing.
 
@@ -526,6 +535,8 @@ def outlier_free(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.nd
     CORE_MIN_SHARE of its points in core cells (a device's capped copy, an imported map of a
     few hundred points a piece), where nothing tells a stray from the thing's own surface.
     """
+    if support is not None and len(support) != len(points):
+        raise ValueError(f"support has {len(support)} values for {len(points)} points")
     everything = np.ones(len(points), bool)
     if len(points) < 4 * min_points:
         return everything
@@ -545,7 +556,12 @@ def outlier_free(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.nd
     if weight[core].sum() < CORE_MIN_SHARE * len(points):
         return everything  # too sparse at eps_m to tell a stray from the thing's own surface
     mass = np.bincount(labels[core], weights=weight[core], minlength=len(weight))
-    kept_cell = core & (mass[labels] >= PART_SHARE * mass.max())
+    big = mass >= PART_SHARE * mass.max()
+    if support is not None:
+        best = np.zeros(len(weight))
+        np.maximum.at(best, labels[cell_of], np.where(core[cell_of], support, 0))
+        big |= best >= PART_VIEWS
+    kept_cell = core & big[labels]
     # The cells that are not core (a surface's rim, a pole, a leg, a stray) are kept as
     # chains: a chain of at least `min_points` points reaching a kept cluster is a part of
     # the thing; a stray point or two touching it is not.
