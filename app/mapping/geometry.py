@@ -113,6 +113,68 @@ def depth_edge_keep(ids_d: np.ndarray, depth_m: np.ndarray, valid: np.ndarray) -
     return inside & ~(edge & np.where(judged, residual > tolerance, behind))
 
 
+SMOOTH_FROM_M = 2.5
+"""Depth is smoothed (`smooth_depth`) from this range on: nearer, a depth sensor's range
+noise (about a centimetre at 2.5 m on a structured-light sensor, docs/evaluation.md
+"Geometry") is under half the map's voxel, and the views a voxel fuses average it out;
+farther it grows with the square of the range into a skin thicker than the thing."""
+SMOOTH_RIDGE = 1e-3
+"""A slope no neighbour pins down (a pole one sample wide, a lone sample) is taken as flat."""
+_WINDOW = ((0, 0), *_NEIGHBOURS)
+"""(dv, du) of a sample and its 8 neighbours: the window of the plane fit."""
+
+
+def _plane_centre_rows() -> np.ndarray:
+    """float [512, 9]: for each set of a window's samples in the fit (bit k: _WINDOW[k]),
+    the weights that give the least-squares plane's depth at the centre (the first row of
+    the fit's inverse normal matrix times the design), zero for samples not in the fit."""
+    design = np.array([[1.0, du, dv] for dv, du in _WINDOW])
+    rows = np.zeros((512, 9))
+    for pattern in range(512):
+        used = np.array([(pattern >> k) & 1 for k in range(9)], float)
+        normal = design.T @ (used[:, None] * design) + np.diag([0.0, SMOOTH_RIDGE, SMOOTH_RIDGE])
+        if used.any():
+            rows[pattern] = np.linalg.solve(normal, design.T * used)[0]
+    return rows
+
+
+_PLANE_CENTRE = _plane_centre_rows()
+
+
+def smooth_depth(ids_d: np.ndarray, depth_m: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """float [h, w]: each kept sample's depth replaced by the plane fitted (least squares,
+    depth over pixel offsets) to it and its kept 3x3 neighbours of the same mask whose depth
+    continues its surface (within DEPTH_EDGE_MIN_M + DEPTH_EDGE_PER_M * depth), read at the
+    sample, for the samples at SMOOTH_FROM_M or farther; every other pixel as it was.
+
+    ids_d: int [h, w] the mask (instance id, 0 = none); keep: bool [h, w] the samples lifted
+    (`depth_edge_keep`). A depth sensor's range noise is per pixel and grows with the square
+    of the range (docs/architecture.md): a far view's samples scatter a surface into a skin
+    several centimetres thick, and its outermost samples set the box. Inside a mask the
+    plane's value is the mean of the 9 samples, about a third of the scatter; on the mask's
+    edge, where the neighbours lie on one side, the plane (unlike their mean) keeps a slanted
+    surface where it is. A neighbour across a depth step (another thing, the wall behind) is
+    not in the fit. The fit's weights depend only on which samples are in it: one table
+    of 512 rows (`_PLANE_CENTRE`)."""
+    rows = np.nonzero(keep & (depth_m >= SMOOTH_FROM_M))
+    if len(rows[0]) == 0:
+        return depth_m
+    ids = np.where(keep, ids_d, 0).astype(np.int64)
+    z = np.where(keep, depth_m, 0.0).astype(np.float64)
+    tolerance = (DEPTH_EDGE_MIN_M + DEPTH_EDGE_PER_M * z)[rows]
+    centre = z[rows]
+    pattern = np.zeros(len(centre), np.int64)
+    window = np.zeros((len(centre), 9))
+    for k, (dv, du) in enumerate(_WINDOW):
+        zn = _shifted(z, dv, du, 0.0)[rows]
+        same = (_shifted(ids, dv, du, 0)[rows] == ids[rows]) & (np.abs(zn - centre) <= tolerance)
+        pattern |= same.astype(np.int64) << k
+        window[:, k] = zn
+    out = np.array(depth_m, dtype=np.float64, copy=True)
+    out[rows] = np.einsum("nk,nk->n", _PLANE_CENTRE[pattern], window)
+    return out.astype(depth_m.dtype, copy=False)
+
+
 def lift_detection(
     mask_rgb: np.ndarray,
     depth_m: np.ndarray,
@@ -133,6 +195,7 @@ def lift_detection(
     mask_d = mask_rgb[np.ix_(v_rgb, u_rgb)] & valid
     if edge_test:
         mask_d = depth_edge_keep(mask_d, depth_m, valid)
+    depth_m = smooth_depth(mask_d, depth_m, mask_d)
     vd, ud = np.nonzero(mask_d)
     return backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
 
@@ -154,6 +217,7 @@ def lift_instances_batched(
     u_rgb, v_rgb = depth_to_rgb_pixel_grid((depth_m.shape[1], depth_m.shape[0]), (width, height))
     ids_d = instance_image[np.ix_(v_rgb, u_rgb)]
     keep = depth_edge_keep(ids_d, depth_m, valid_depth_mask(depth_m, max_depth_m))
+    depth_m = smooth_depth(ids_d, depth_m, keep)
     vd, ud = np.nonzero(keep)
     ids = ids_d[vd, ud]
     points = backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
@@ -186,7 +250,9 @@ def lift_in_patch(
     inner = ndimage.binary_erosion(mask, iterations=PATCH_EROSION_PX)
     if inner.sum() >= PATCH_MIN_INNER_PX:
         mask = inner
-    v, u = np.nonzero(mask & valid_depth_mask(patch_depth_m, max_depth_m))
+    mask = mask & valid_depth_mask(patch_depth_m, max_depth_m)
+    patch_depth_m = smooth_depth(mask, patch_depth_m, mask)
+    v, u = np.nonzero(mask)
     return backproject(u + x0, v + y0, patch_depth_m[v, u], intrinsics, pose)
 
 
