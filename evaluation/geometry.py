@@ -2,7 +2,8 @@
 points the size and shape of the things they stand for?
 
 The walk scenario (evaluation/walk.py) maps a synthetic scene; its semantic figures (F-mIoU,
-query top-1) are kept in the same document so that no geometry gain hides a semantic loss.
+over every ground-truth point and over the points some keyframe saw, and query top-1) are
+kept in the same document so that no geometry gain hides a semantic loss.
 Each organisation's map is then scored against the truth (docs/evaluation.md "Geometry"):
 
 - truth: each scene object's surface as the walk's keyframes saw it (every keyframe
@@ -246,7 +247,17 @@ def run_geometry(
         scored: dict = {
             "semantic": {
                 key: walk["modes"][mode][key]
-                for key in ("F_mIoU", "mAcc", "query_top1", "query_top1_observed", "objects")
+                for key in (
+                    "F_mIoU",
+                    "F_mIoU_seen",
+                    "mAcc",
+                    "mAcc_seen",
+                    "gt_points_seen",
+                    "gt_points",
+                    "query_top1",
+                    "query_top1_observed",
+                    "objects",
+                )
             }
         }
         scored["walk"] = score_geometry(_clouds(engine, "walk"), truth, source.scene)
@@ -293,7 +304,8 @@ def format_geometry_table(result: dict) -> str:
     for mode, m in result["modes"].items():
         sem = m["semantic"]
         lines.append(
-            f"{mode}: F-mIoU {sem['F_mIoU']:.1f}, mAcc {sem['mAcc']:.1f}, query top-1 "
+            f"{mode}: F-mIoU {sem['F_mIoU']:.1f} (seen surfaces {sem['F_mIoU_seen']:.1f}), "
+            f"mAcc {sem['mAcc']:.1f} (seen {sem['mAcc_seen']:.1f}), query top-1 "
             f"{sem['query_top1']:.1f}% ({sem['query_top1_observed']:.1f}% observed)"
         )
     return "\n".join(lines)

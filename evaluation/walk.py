@@ -49,11 +49,15 @@ from evaluation.semantic_scores import assign_classes_by_text, majority_gt_class
 from world.categories import BACKGROUND_CLASSES, CATEGORIES
 from world.gt import gt_point_cloud
 from world.noise import DetectionModel
-from world.render import default_camera
+from world.render import Camera, default_camera
 
 IN_VIEW_MIN_FRAMES = 8
 """A category counts as observed when the noise-free detector reports it on at least this
 many frames of the walk (1.6 s at 5 fps)."""
+SEEN_DEPTH_M = 0.02
+"""A ground-truth point is seen by a keyframe when it projects into the image no more than
+this far behind the true surface the keyframe's pixel shows (docs/evaluation.md "Geometry":
+F-mIoU over the seen surfaces)."""
 IN_VIEW_DEFINITION = (
     f"the noise-free detector reports an object of the category in at least "
     f"{IN_VIEW_MIN_FRAMES} frames of the walk (every frame counts, keyframe or not)"
@@ -141,6 +145,47 @@ def _in_view(detector: DetectionModel, view, frame_index: int) -> set[str]:
 UPSTREAMS: tuple[str, ...] = ("frames", "sightings")
 
 
+def seen_by_view(
+    points: np.ndarray, depth_m: np.ndarray, pose: np.ndarray, camera: Camera
+) -> np.ndarray:
+    """bool [N]: which of `points` (float [N, 3] world metres) one view shows, from its true
+    (noise-free, rendered) z-depth `depth_m` [H, W] (0 = no surface) at `pose` (4x4
+    camera-to-world, OpenCV axes): the point lies in front of the camera, projects onto a
+    pixel of the image, and lies at most SEEN_DEPTH_M behind the deepest surface the 3x3
+    pixels around it show (a pixel that hits nothing hides nothing), so that a point on a
+    silhouette edge or on a face seen edge-on, where depth jumps from pixel to pixel, counts.
+    A point behind a wall, under a table top or outside the view is not seen."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if depth_m.shape != (camera.height, camera.width):
+        raise ValueError(
+            f"depth_m is {list(depth_m.shape)}, the camera's image is "
+            f"[{camera.height}, {camera.width}]"
+        )
+    pose = np.asarray(pose, dtype=np.float64)
+    local = (points - pose[:3, 3]) @ pose[:3, :3]  # world -> camera: R^T (p - t)
+    z = local[:, 2]
+    seen = np.zeros(len(points), bool)
+    ahead = z > 1e-6
+    fx, fy, cx, cy = camera.intrinsics
+    u = np.rint(fx * local[ahead, 0] / z[ahead] + cx)
+    v = np.rint(fy * local[ahead, 1] / z[ahead] + cy)
+    inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    rows = np.flatnonzero(ahead)[inside]
+    deepest = np.where(depth_m > 0, depth_m, np.inf)
+    deepest = np.pad(deepest, 1, mode="edge")
+    deepest = np.max(
+        [
+            deepest[dv : dv + camera.height, du : du + camera.width]
+            for dv in range(3)
+            for du in range(3)
+        ],
+        axis=0,
+    )
+    surface = deepest[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+    seen[rows] = z[rows] <= surface + SEEN_DEPTH_M
+    return seen
+
+
 def walk_source(cfg: EvalConfig) -> SyntheticSource:
     """The synthetic source of the walk `cfg` describes (scene, frames, camera, noise, seed)."""
     return SyntheticSource(
@@ -157,14 +202,34 @@ def walk_keyframes(cfg: EvalConfig) -> list[int]:
     return [index for index in range(cfg.frames) if is_keyframe(index, cfg.knobs.keyframe_interval)]
 
 
+@dataclass
+class SeenSurface:
+    """Ground-truth points and which of them some keyframe of the walk showed
+    (`seen_by_view` on each keyframe's true depth).
+
+    points: float [N, 3] world metres; seen: bool [N], filled by `look`."""
+
+    points: np.ndarray
+    seen: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.seen = np.zeros(len(self.points), bool)
+
+    def look(self, depth_m: np.ndarray, pose: np.ndarray, camera: Camera) -> None:
+        """Mark the points one view shows (its noise-free depth at its pose)."""
+        rest = np.flatnonzero(~self.seen)
+        self.seen[rest[seen_by_view(self.points[rest], depth_m, pose, camera)]] = True
+
+
 def encode_keyframes(
-    cfg: EvalConfig, ratios: list[int], progress: Progress
+    cfg: EvalConfig, ratios: list[int], progress: Progress, surface: SeenSurface | None = None
 ) -> tuple[
     dict[int, list], object, dict, dict[str, int], dict[int, list[Sighting | SightingMessage]]
 ]:
     """Render the keyframes once and encode them at each depth ratio; every organisation at
     one ratio maps the same bytes. Every other frame of the walk is ray cast for the
-    visibility count and, with `cfg.sightings`, its detections. Returns (messages by ratio,
+    visibility count and, with `cfg.sightings`, its detections. `surface`, if given, is
+    marked with what each keyframe's true depth shows. Returns (messages by ratio,
     scene, upstream bytes at the configured ratio, frames in view by category: see the
     module docstring, the non-keyframes by the keyframe they follow)."""
     source = walk_source(cfg)
@@ -204,6 +269,8 @@ def encode_keyframes(
     for i, frame in enumerate(source.frame(index) for index in keyframes):
         for name in _in_view(noise_free, frame.view, frame.index):
             in_view[name] = in_view.get(name, 0) + 1
+        if surface is not None:
+            surface.look(frame.view.depth_m, frame.pose, source.camera)
         for ratio, encoder in encoders.items():
             encoded = encoder.encode_source_frame(frame)
             messages[ratio].append(encoded.message)
@@ -222,8 +289,13 @@ def score_map(
     categories: list[str],
     observed: set[str] | None = None,
     queries: dict[str, list[str]] | None = None,
+    seen: np.ndarray | None = None,
 ) -> dict:
     """mAcc / F-mIoU of the confirmed map, and paraphrase top-1 accuracy.
+
+    seen: bool [len(gt)], the ground-truth points some keyframe showed (`SeenSurface`);
+    given, `F_mIoU_seen` and `mAcc_seen` score the map against those points only, beside
+    the standard figures over every ground-truth point.
 
     observed: the categories in view (module docstring); query_top1_observed is over their
     queries only (None: every category). queries: phrases by category replacing the
@@ -246,6 +318,19 @@ def score_map(
         class_names,
         ignore_classes=BACKGROUND_CLASSES,
     )
+
+    seen_scores = None
+    if seen is not None:
+        if len(seen) != len(gt.points):
+            raise ValueError(f"seen has {len(seen)} entries for {len(gt.points)} GT points")
+        seen_scores = semantic_scores(
+            map_points,
+            map_class,
+            gt.points[seen],
+            gt.class_idx[seen],
+            class_names,
+            ignore_classes=BACKGROUND_CLASSES,
+        )
 
     true_class = majority_gt_class([o.points for o in objects], gt.points, gt.class_idx)
     by_id = {o.id: c for o, c in zip(objects, true_class, strict=True)}
@@ -272,9 +357,18 @@ def score_map(
                 failures.append({"query": text, "expected": name, "got": got})
         if phrases:
             per_category[name] = 100.0 * hits_here / len(phrases)
+    seen_figures = {}
+    if seen_scores is not None:
+        seen_figures = {
+            "mAcc_seen": seen_scores.mAcc,
+            "F_mIoU_seen": seen_scores.F_mIoU,
+            "gt_points_seen": int(seen.sum()),
+            "gt_points": len(gt.points),
+        }
     return {
         "mAcc": scores.mAcc,
         "F_mIoU": scores.F_mIoU,
+        **seen_figures,
         "objects": len(objects),
         "query_top1": 100.0 * correct / max(asked, 1),
         "query_top1_observed": 100.0 * correct_observed / max(asked_observed, 1),
@@ -347,9 +441,10 @@ def run_eval(
     knobs_of = {mode: (mode, cfg.knobs) for mode in cfg.modes} | variants
     ratio = cfg.knobs.depth_downsampling_ratio
     ratios = sorted({ratio, *(knobs.depth_downsampling_ratio for _, knobs in knobs_of.values())})
-    by_ratio, scene, upstream, in_view, sightings = encode_keyframes(cfg, ratios, progress)
+    gt = gt_point_cloud(walk_source(cfg).scene)
+    surface = SeenSurface(gt.points)
+    by_ratio, scene, upstream, in_view, sightings = encode_keyframes(cfg, ratios, progress, surface)
     n_keyframes = len(by_ratio[ratio])
-    gt = gt_point_cloud(scene)
     categories = scene.categories_present
     observed = {name for name in categories if in_view.get(name, 0) >= IN_VIEW_MIN_FRAMES}
     # Label embeddings are computed once per process and cached (a long-running server has
@@ -392,7 +487,7 @@ def run_eval(
     for mode, engine in engines.items():
         run = mapped[mode]
         latencies, update_bytes = run.latencies_ms, run.update_bytes
-        scored = score_map(engine, gt, encoder, categories, observed, cfg.queries)
+        scored = score_map(engine, gt, encoder, categories, observed, cfg.queries, surface.seen)
         scored["latency_ms"] = _percentiles(latencies)
         scored["mapping_total_ms"] = float(sum(latencies))
         scored["sightings_ms"] = _percentiles(run.sightings_ms) if run.sightings_ms else None
@@ -407,7 +502,8 @@ def run_eval(
             scored["latencies_ms"] = latencies
         result["variants" if mode in variants else "modes"][mode] = scored
         progress(
-            f"[eval] {mode}: mAcc {scored['mAcc']:.1f}  F-mIoU {scored['F_mIoU']:.1f}  "
+            f"[eval] {mode}: mAcc {scored['mAcc']:.1f}  F-mIoU {scored['F_mIoU']:.1f} "
+            f"(seen surfaces {scored['F_mIoU_seen']:.1f})  "
             f"objects {scored['objects']}  p50 {scored['latency_ms']['p50']:.1f} ms  "
             f"query top-1 {scored['query_top1']:.1f}% "
             f"({scored['query_top1_observed']:.1f}% over observed categories)"
@@ -438,17 +534,22 @@ def format_eval_table(result: dict) -> str:
     lines = [
         f"scene {result['scene']}: {result['keyframes']} keyframes of {result['frames']} frames, "
         f"noise {result['noise']}",
-        f"{'mode':<11} {'mAcc':>6} {'F-mIoU':>7} {'objects':>8} {'p50 ms':>7} {'p95 ms':>7} "
-        f"{'mean ms':>8} {'query@1':>8} {'observed':>9}",
+        f"{'mode':<11} {'mAcc':>6} {'F-mIoU':>7} {'seen':>6} {'objects':>8} {'p50 ms':>7} "
+        f"{'p95 ms':>7} {'mean ms':>8} {'query@1':>8} {'observed':>9}",
     ]
     for mode, m in result["modes"].items():
         lat = m["latency_ms"]
         lines.append(
-            f"{mode:<11} {m['mAcc']:6.1f} {m['F_mIoU']:7.1f} {m['objects']:8d} {lat['p50']:7.1f} "
+            f"{mode:<11} {m['mAcc']:6.1f} {m['F_mIoU']:7.1f} {m.get('F_mIoU_seen', float('nan')):6.1f} "
+            f"{m['objects']:8d} {lat['p50']:7.1f} "
             f"{lat['p95']:7.1f} {lat['mean']:8.1f} {m['query_top1']:7.1f}% "
             f"{m['query_top1_observed']:8.1f}%"
         )
     unobserved = result.get("unobserved_categories", [])
+    lines.append(
+        "F-mIoU over every ground-truth point; seen: over the points some keyframe showed "
+        f"(true depth, {100 * SEEN_DEPTH_M:g} cm)"
+    )
     lines.append(
         "query@1 over every category of the scene; observed: over those in view "
         f"(not in view: {', '.join(unobserved) or 'none'})"

@@ -64,7 +64,8 @@ RECENT_CHANGES = 256
 def _denoise(obj: MapObject, settling: bool = False) -> bool:
     """Clean one object's geometry; returns whether its points changed.
 
-    Always: outliers dropped (`geo.outlier_free`). When `settling` (its stream has closed),
+    Always: outliers dropped (`geo.outlier_free`; given the support, a smaller part many
+    views saw is kept). When `settling` (its stream has closed),
     first the points few of its views agree on are dropped where the support is known
     (against their neighbours', `geo.locally_supported`, and the whole object's,
     `geo.well_supported`), and last what is left is moved onto its local surface
@@ -75,7 +76,7 @@ def _denoise(obj: MapObject, settling: bool = False) -> bool:
         agreed = geo.locally_supported(points, support) & geo.well_supported(support)
         if not agreed.all():
             points, support = points[agreed], support[agreed]
-    kept = geo.outlier_free(points, OUTLIER_EPS_M)
+    kept = geo.outlier_free(points, OUTLIER_EPS_M, support=support)
     if not kept.all():
         points, support = points[kept], None if support is None else support[kept]
     if settling:

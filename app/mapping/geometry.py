@@ -113,6 +113,68 @@ def depth_edge_keep(ids_d: np.ndarray, depth_m: np.ndarray, valid: np.ndarray) -
     return inside & ~(edge & np.where(judged, residual > tolerance, behind))
 
 
+SMOOTH_FROM_M = 2.5
+"""Depth is smoothed (`smooth_depth`) from this range on: nearer, a depth sensor's range
+noise (about a centimetre at 2.5 m on a structured-light sensor, docs/evaluation.md
+"Geometry") is under half the map's voxel, and the views a voxel fuses average it out;
+farther it grows with the square of the range into a skin thicker than the thing."""
+SMOOTH_RIDGE = 1e-3
+"""A slope no neighbour pins down (a pole one sample wide, a lone sample) is taken as flat."""
+_WINDOW = ((0, 0), *_NEIGHBOURS)
+"""(dv, du) of a sample and its 8 neighbours: the window of the plane fit."""
+
+
+def _plane_centre_rows() -> np.ndarray:
+    """float [512, 9]: for each set of a window's samples in the fit (bit k: _WINDOW[k]),
+    the weights that give the least-squares plane's depth at the centre (the first row of
+    the fit's inverse normal matrix times the design), zero for samples not in the fit."""
+    design = np.array([[1.0, du, dv] for dv, du in _WINDOW])
+    rows = np.zeros((512, 9))
+    for pattern in range(512):
+        used = np.array([(pattern >> k) & 1 for k in range(9)], float)
+        normal = design.T @ (used[:, None] * design) + np.diag([0.0, SMOOTH_RIDGE, SMOOTH_RIDGE])
+        if used.any():
+            rows[pattern] = np.linalg.solve(normal, design.T * used)[0]
+    return rows
+
+
+_PLANE_CENTRE = _plane_centre_rows()
+
+
+def smooth_depth(ids_d: np.ndarray, depth_m: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """float [h, w]: each kept sample's depth replaced by the plane fitted (least squares,
+    depth over pixel offsets) to it and its kept 3x3 neighbours of the same mask whose depth
+    continues its surface (within DEPTH_EDGE_MIN_M + DEPTH_EDGE_PER_M * depth), read at the
+    sample, for the samples at SMOOTH_FROM_M or farther; every other pixel as it was.
+
+    ids_d: int [h, w] the mask (instance id, 0 = none); keep: bool [h, w] the samples lifted
+    (`depth_edge_keep`). A depth sensor's range noise is per pixel and grows with the square
+    of the range (docs/architecture.md): a far view's samples scatter a surface into a skin
+    several centimetres thick, and its outermost samples set the box. Inside a mask the
+    plane's value is the mean of the 9 samples, about a third of the scatter; on the mask's
+    edge, where the neighbours lie on one side, the plane (unlike their mean) keeps a slanted
+    surface where it is. A neighbour across a depth step (another thing, the wall behind) is
+    not in the fit. The fit's weights depend only on which samples are in it: one table
+    of 512 rows (`_PLANE_CENTRE`)."""
+    rows = np.nonzero(keep & (depth_m >= SMOOTH_FROM_M))
+    if len(rows[0]) == 0:
+        return depth_m
+    ids = np.where(keep, ids_d, 0).astype(np.int64)
+    z = np.where(keep, depth_m, 0.0).astype(np.float64)
+    tolerance = (DEPTH_EDGE_MIN_M + DEPTH_EDGE_PER_M * z)[rows]
+    centre = z[rows]
+    pattern = np.zeros(len(centre), np.int64)
+    window = np.zeros((len(centre), 9))
+    for k, (dv, du) in enumerate(_WINDOW):
+        zn = _shifted(z, dv, du, 0.0)[rows]
+        same = (_shifted(ids, dv, du, 0)[rows] == ids[rows]) & (np.abs(zn - centre) <= tolerance)
+        pattern |= same.astype(np.int64) << k
+        window[:, k] = zn
+    out = np.array(depth_m, dtype=np.float64, copy=True)
+    out[rows] = np.einsum("nk,nk->n", _PLANE_CENTRE[pattern], window)
+    return out.astype(depth_m.dtype, copy=False)
+
+
 def lift_detection(
     mask_rgb: np.ndarray,
     depth_m: np.ndarray,
@@ -133,6 +195,7 @@ def lift_detection(
     mask_d = mask_rgb[np.ix_(v_rgb, u_rgb)] & valid
     if edge_test:
         mask_d = depth_edge_keep(mask_d, depth_m, valid)
+    depth_m = smooth_depth(mask_d, depth_m, mask_d)
     vd, ud = np.nonzero(mask_d)
     return backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
 
@@ -154,6 +217,7 @@ def lift_instances_batched(
     u_rgb, v_rgb = depth_to_rgb_pixel_grid((depth_m.shape[1], depth_m.shape[0]), (width, height))
     ids_d = instance_image[np.ix_(v_rgb, u_rgb)]
     keep = depth_edge_keep(ids_d, depth_m, valid_depth_mask(depth_m, max_depth_m))
+    depth_m = smooth_depth(ids_d, depth_m, keep)
     vd, ud = np.nonzero(keep)
     ids = ids_d[vd, ud]
     points = backproject(u_rgb[ud], v_rgb[vd], depth_m[vd, ud], intrinsics, pose)
@@ -186,7 +250,9 @@ def lift_in_patch(
     inner = ndimage.binary_erosion(mask, iterations=PATCH_EROSION_PX)
     if inner.sum() >= PATCH_MIN_INNER_PX:
         mask = inner
-    v, u = np.nonzero(mask & valid_depth_mask(patch_depth_m, max_depth_m))
+    mask = mask & valid_depth_mask(patch_depth_m, max_depth_m)
+    patch_depth_m = smooth_depth(mask, patch_depth_m, mask)
+    v, u = np.nonzero(mask)
     return backproject(u + x0, v + y0, patch_depth_m[v, u], intrinsics, pose)
 
 
@@ -503,7 +569,12 @@ CORE_MIN_SHARE = 0.25
 """Least share of a cloud's points in core cells for outlier removal to judge it: a sparser
 cloud (150 points over a sofa) is kept whole rather than cut to its one dense corner."""
 PART_SHARE = 0.25
-"""Outlier removal keeps every cluster of at least this share of the largest one's points."""
+"""Outlier removal keeps every cluster of at least this share of the largest one's points..."""
+PART_VIEWS = 3.0
+"""...and, where the points' support is known, every cluster some point of which this many
+views saw: a smaller part that keyframe after keyframe shows (a lamp's base under a big
+shade) is the thing's; a stray that one or two views left is not. (Each clean-up that drops
+a part restarts its count, so the part's best-seen point is the test, not its median.)"""
 
 
 def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.ndarray:
@@ -512,9 +583,13 @@ def remove_outliers(points: np.ndarray, eps_m: float, min_points: int = 5) -> np
     return points if keep.all() else points[keep]
 
 
-def outlier_free(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.ndarray:
+def outlier_free(
+    points: np.ndarray, eps_m: float, min_points: int = 5, support: np.ndarray | None = None
+) -> np.ndarray:
     """bool [N], the points outlier removal keeps: keep the object's DBSCAN clusters of core cells: the largest, any other of at least
-    PART_SHARE of its points (a lamp's base apart from its shade), and the chains of cells
+    PART_SHARE of its points (a lamp's base apart from its shade) or, given the points'
+    support (float [N], views each point stands for), any with a point PART_VIEWS views saw
+    (a smaller part many views showed), and the chains of cells
     too sparse to be core that reach them with `min_points` points or more (a surface's
     rim, a pole, a leg); a stray point or two is dropped even where it touches the thing.
 
@@ -526,6 +601,8 @@ def outlier_free(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.nd
     CORE_MIN_SHARE of its points in core cells (a device's capped copy, an imported map of a
     few hundred points a piece), where nothing tells a stray from the thing's own surface.
     """
+    if support is not None and len(support) != len(points):
+        raise ValueError(f"support has {len(support)} values for {len(points)} points")
     everything = np.ones(len(points), bool)
     if len(points) < 4 * min_points:
         return everything
@@ -545,7 +622,12 @@ def outlier_free(points: np.ndarray, eps_m: float, min_points: int = 5) -> np.nd
     if weight[core].sum() < CORE_MIN_SHARE * len(points):
         return everything  # too sparse at eps_m to tell a stray from the thing's own surface
     mass = np.bincount(labels[core], weights=weight[core], minlength=len(weight))
-    kept_cell = core & (mass[labels] >= PART_SHARE * mass.max())
+    big = mass >= PART_SHARE * mass.max()
+    if support is not None:
+        best = np.zeros(len(weight))
+        np.maximum.at(best, labels[cell_of], np.where(core[cell_of], support, 0))
+        big |= best >= PART_VIEWS
+    kept_cell = core & big[labels]
     # The cells that are not core (a surface's rim, a pole, a leg, a stray) are kept as
     # chains: a chain of at least `min_points` points reaching a kept cluster is a part of
     # the thing; a stray point or two touching it is not.

@@ -45,7 +45,8 @@ def test_batched_lifting_equals_lifting_each_mask(seed, ratio):
 def test_lifted_points_project_back_to_their_pixels_at_their_depth(seed):
     rng = np.random.default_rng(seed)
     pose, intr = random_pose(rng), (60.0, 60.0, 19.5, 14.5)
-    depth = rng.uniform(0.5, 4.0, size=(30, 40)).astype(np.float32)
+    # nearer than the range the lift smooths from: each sample is lifted at its own depth
+    depth = rng.uniform(0.5, geo.SMOOTH_FROM_M, size=(30, 40)).astype(np.float32)
     pts = geo.lift_detection(np.ones((30, 40), bool), depth, intr, pose, 10.0)
     cam = (pts.astype(np.float64) - pose[:3, 3]) @ pose[:3, :3]
     u = cam[:, 0] / cam[:, 2] * intr[0] + intr[2]
