@@ -45,11 +45,21 @@ def test_lifted_points_lie_on_the_rendered_surfaces(living_room, ratio):
     )
     points = np.concatenate(list(lifted.values()))
     assert len(points) > 100
-    # exact renderer depth: every lifted point is on a mesh surface (to float precision)
-    assert np.percentile(distance_to_scene(living_room.scene, points), 99) < 2e-3
+    off = distance_to_scene(living_room.scene, points)
+    near = np.linalg.norm(points - frame.pose[:3, 3], axis=1) < geo.SMOOTH_FROM_M
+    assert near.sum() > 100 and (~near).sum() > 100
+    # exact renderer depth: every point lifted as measured is on a mesh surface (to float
+    # precision); a far one is read at its local plane, which leaves a flat face as it is and
+    # rounds a corner or an edge by millimetres, up to 2 cm where ÷5 pixels span the corner
+    assert np.percentile(off[near], 99) < 2e-3
+    assert np.percentile(off[~near], 90) < 5e-3
+    assert np.percentile(off[~near], 99) < 2.5e-2
     for iid, pts in lifted.items():
         box = living_room.scene.object_by_id(iid).bbox
-        assert np.all(pts >= box[:3] - 0.01) and np.all(pts <= box[3:] + 0.01)
+        slack = np.where(
+            np.linalg.norm(pts - frame.pose[:3, 3], axis=1) < geo.SMOOTH_FROM_M, 0.01, 0.025
+        )
+        assert np.all(pts >= box[:3] - slack[:, None]) and np.all(pts <= box[3:] + slack[:, None])
 
 
 @pytest.mark.slow
