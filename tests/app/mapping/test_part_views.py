@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from clouds import disc
 
 from app.mapping import geometry as geo
 from app.mapping.engine import OUTLIER_EPS_M, _denoise
@@ -13,22 +14,14 @@ from app.mapping.object import MapObject
 RNG = np.random.default_rng(7)
 
 
-def _disc(centre, radius_m: float, n: int) -> np.ndarray:
-    r = radius_m * np.sqrt(RNG.random(n))
-    a = RNG.random(n) * 2 * np.pi
-    return np.stack(
-        [centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), np.full(n, centre[2])], 1
-    )
-
-
 def _lamp_with_stray():
     """A shade of 400 points seen by 20 views; a base apart from it (no pole between: 60
     points, 15 % of the shade's) that views keep showing, most of its points in one or two
     of them and some in up to 5 (as on a walk, where each clean-up that drops it restarts
     its count); and a stray clump of 60 points beside the base that 1 or 2 views left."""
-    shade = _disc((0.0, 0.0, 1.2), 0.2, 400)
-    base = _disc((0.0, 0.0, 0.0), 0.08, 60)
-    stray = _disc((0.5, 0.0, 0.3), 0.08, 60)
+    shade = disc(RNG, (0.0, 0.0, 1.2), 0.2, 400)
+    base = disc(RNG, (0.0, 0.0, 0.0), 0.08, 60)
+    stray = disc(RNG, (0.5, 0.0, 0.3), 0.08, 60)
     points = np.concatenate([shade, base, stray]).astype(np.float32)
     support = np.concatenate(
         [np.full(400, 20.0), RNG.choice([1.0, 1.0, 2.0, 3.0, 5.0], 60), RNG.choice([1.0, 2.0], 60)]

@@ -4,6 +4,7 @@ stream has closed."""
 from __future__ import annotations
 
 import numpy as np
+from clouds import disc
 
 from app.config import Knobs
 from app.mapping import geometry as geo
@@ -13,19 +14,11 @@ from app.mapping.object import MapObject
 RNG = np.random.default_rng(0)
 
 
-def _disc(centre, radius_m: float, n: int) -> np.ndarray:
-    r = radius_m * np.sqrt(RNG.random(n))
-    a = RNG.random(n) * 2 * np.pi
-    return np.stack(
-        [centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), np.full(n, centre[2])], 1
-    )
-
-
 def _lamp() -> np.ndarray:
     """A lamp as a capped cloud: a dense base and shade, a pole of one point per 4 cm."""
-    base = _disc((0.0, 0.0, 0.0), 0.1, 150)
+    base = disc(RNG, (0.0, 0.0, 0.0), 0.1, 150)
     pole = np.stack([np.zeros(30), np.zeros(30), 0.02 + 0.04 * np.arange(30)], 1)
-    shade = _disc((0.0, 0.0, 1.25), 0.15, 150)
+    shade = disc(RNG, (0.0, 0.0, 1.25), 0.15, 150)
     return np.concatenate([base, pole, shade]).astype(np.float32)
 
 
@@ -46,7 +39,7 @@ def test_a_stray_touching_the_thing_does_not_survive_outlier_removal():
 def test_a_far_cluster_under_a_quarter_of_the_thing_is_dropped_even_when_most_is_scattered():
     """No 'keep everything' fallback: a cloud whose largest cluster is a minority still
     loses its strays."""
-    body = _disc((0.0, 0.0, 0.0), 0.1, 100)
+    body = disc(RNG, (0.0, 0.0, 0.0), 0.1, 100)
     strays = RNG.uniform(-3, 3, size=(300, 3))  # scattered single points, far apart
     kept = geo.remove_outliers(np.concatenate([body, strays]).astype(np.float32), OUTLIER_EPS_M)
     assert np.abs(kept).max() <= 0.11
