@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import time
 
+import httpx
 import msgpack
 import numpy as np
 import websockets
@@ -55,3 +57,17 @@ async def stream_in_step(url: str, messages: list, headers=None) -> list[dict]:
     """Send one frame at a time, waiting for its answer (a device at its mapping rate)."""
     async with websockets.connect(url, additional_headers=headers, max_size=None) as ws:
         return [(await send_and_collect(ws, [m]))[0] for m in messages]
+
+
+def wait_settled(server_url: str, sid: str, headers=None, timeout_s: float = TIMEOUT_S) -> None:
+    """Wait until no stream of `sid` is counted: a closed stream's settle (run after its socket
+    closed) has committed and published, so what a reader sees next is the stored map."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        r = httpx.get(f"{server_url}/v1/sessions/{sid}", headers=headers, timeout=timeout_s)
+        assert r.status_code == 200, r.text
+        if r.json()["streams"] == 0:
+            return
+        if time.monotonic() > deadline:
+            raise AssertionError(f"session {sid} still counts a stream after {timeout_s:g} s")
+        time.sleep(0.02)  # a polling period, not synchronisation

@@ -19,7 +19,7 @@ import msgpack
 import pytest
 import websockets
 from analytic_world import KITCHEN, Rect
-from devices import TIMEOUT_S, frame_message, stream_in_step
+from devices import TIMEOUT_S, frame_message, stream_in_step, wait_settled
 from helpers_device import FAST_KNOBS, wait_until
 from prometheus_client.parser import text_string_to_metric_families
 
@@ -66,10 +66,12 @@ def the_map(c: httpx.Client, sid: str) -> tuple[int, int, list[dict]]:
     return stats.json()["update_seq"], stats.json()["frames"], objects
 
 
-def stream_frames(ws_url: str, sid: str, scene, indices: range) -> None:
+def stream_frames(server, sid: str, scene, indices: range) -> None:
+    """Stream the frames one at a time, then wait for the closed stream's settle."""
     frames = [frame_message(list(scene), i, cam_xy=(0.02 * i, 0.0)) for i in indices]
-    replies = asyncio.run(stream_in_step(f"{ws_url}/v1/sessions/{sid}/stream", frames))
+    replies = asyncio.run(stream_in_step(f"{server.ws_url}/v1/sessions/{sid}/stream", frames))
     assert all(r["type"] == "ack" for r in replies), replies
+    wait_settled(server.url, sid)
 
 
 def first_update(ws_url: str, sid: str, since: int | None) -> dict:
@@ -115,11 +117,11 @@ def test_a_session_unloaded_for_room_comes_back_whole_and_its_subscriber_resumes
     server = live_server(max_resident_sessions=2)
     with httpx.Client(base_url=server.url, timeout=30) as c:
         home = create(c, "home")
-        stream_frames(server.ws_url, home, KITCHEN, range(3))
+        stream_frames(server, home, KITCHEN, range(3))
         # A subscriber applies the map so far, then goes away while more is mapped.
         snapshot = first_update(server.ws_url, home, None)
         seen, seen_seq = held(snapshot), snapshot["seq"]
-        stream_frames(server.ws_url, home, (*KITCHEN, LAMP), range(3, 7))
+        stream_frames(server, home, (*KITCHEN, LAMP), range(3, 7))
         seq, frames, objects = the_map(c, home)
         assert seq > seen_seq and len(objects) > len(seen) and frames == 7
 
@@ -143,7 +145,7 @@ def test_a_session_unloaded_for_room_comes_back_whole_and_its_subscriber_resumes
         assert the_map(c, home) == (seq, frames, objects)
         assert_resumes_with_only_what_it_missed(server.ws_url, home, seen, seen_seq, objects, seq)
         # and it maps on from where it was: the seq goes on, no object id is reused
-        stream_frames(server.ws_url, home, (*KITCHEN, LAMP), range(7, 9))
+        stream_frames(server, home, (*KITCHEN, LAMP), range(7, 9))
         seq_after, _, objects_after = the_map(c, home)
         assert seq_after >= seq and {o["id"] for o in objects} <= {o["id"] for o in objects_after}
 
@@ -152,7 +154,7 @@ def test_start_up_loads_no_map_and_concurrent_first_uses_load_a_session_once(liv
     server = live_server()
     with httpx.Client(base_url=server.url, timeout=30) as c:
         sids = [create(c, f"s{i}") for i in range(3)]
-        stream_frames(server.ws_url, sids[0], KITCHEN, range(3))
+        stream_frames(server, sids[0], KITCHEN, range(3))
         objects = c.get(f"/v1/sessions/{sids[0]}/objects", params={"points": True}).json()
     server.stop()
 

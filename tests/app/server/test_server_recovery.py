@@ -9,7 +9,7 @@ import msgpack
 import pytest
 import websockets
 from analytic_world import Rect
-from devices import TIMEOUT_S, frame_message, stream_in_step
+from devices import TIMEOUT_S, frame_message, stream_in_step, wait_settled
 
 from app.server.runner import ServerProcess, free_port
 
@@ -56,6 +56,7 @@ def test_the_server_comes_back_with_everything_it_acknowledged(tmp_path, how):
         frames = [frame_message(SCENE, i, cam_xy=(0.02 * i, 0.0)) for i in range(4)]
         replies = asyncio.run(stream_in_step(f"{ws_base}/v1/sessions/{sid}/stream", frames))
         assert all(r["type"] == "ack" for r in replies)
+        wait_settled(server.url, sid)  # what a reader sees next is what the store keeps
         before = httpx.get(
             f"{server.url}/v1/sessions/{sid}/objects", params={"points": True}
         ).json()

@@ -4,13 +4,12 @@ once the device has stopped."""
 from __future__ import annotations
 
 import asyncio
-import time
 
 import httpx
 import pytest
 import websockets
 from analytic_world import Rect
-from devices import frame_message, send_and_collect
+from devices import frame_message, send_and_collect, wait_settled
 
 from app.protocol.frame import DETECTIONS_FIELD, INSTANCES_FIELD
 
@@ -66,9 +65,6 @@ def test_a_closed_stream_settles_its_map(live_server):
 
     x1_streaming = asyncio.run(stream_then_close())
     assert x1_streaming > 0.75  # the stray is in the mug's box while the device streams
-    deadline = time.monotonic() + 30
-    while _streams(server, sid) and time.monotonic() < deadline:
-        time.sleep(0.05)
     # No stream counted: the close has settled the map, and what a reader sees is settled.
-    assert _streams(server, sid) == 0
+    wait_settled(server.url, sid, timeout_s=30)
     assert _mug_box(server, sid)[3] < 0.1  # the mug's own box
