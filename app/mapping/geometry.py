@@ -693,11 +693,6 @@ PLANAR_SPREAD = 0.25
 """A neighbourhood is a surface when its second-largest spread (variance) is at least this
 share of its largest: a pole's or a leg's neighbours (spread along one line) are not
 moved."""
-SUPPORT_WEIGHT_POWER = 2.0
-"""`onto_local_surface` weighs a point by its support to this power: a voxel's mean of s views
-has 1/s of one view's range variance (power 1), and a voxel few views hit beside ones many
-did is more often a far view's stray than the surface (power 2 also down-weights it: on the
-geometry eval's settled boxes it was the better of the two)."""
 
 
 def onto_local_surface(
@@ -712,9 +707,10 @@ def onto_local_surface(
     by at most its neighbourhood's flattening; a thin part (no second spread) stays.
 
     support: float [N], the views each point stands for (`MapObject.support`); given it, the
-    plane is fitted with each point weighted by the square of its support (SUPPORT_WEIGHT_POWER):
-    a voxel many views agree on pins the plane, and a far view's lone sample off the surface
-    (support 1, next to voxels a dozen views hit) no longer tilts it towards itself."""
+    plane is fitted with each point weighted by its support: a voxel's mean of s views has
+    1/s of one view's range variance, so the voxels many views agree on pin the plane, and a
+    far view's lone sample off the surface (support 1, beside voxels a dozen views hit) no
+    longer tilts it towards itself."""
     if len(points) <= k:
         return points
     if support is not None and len(support) != len(points):
@@ -724,7 +720,7 @@ def onto_local_surface(
     if support is None:
         weight = np.full(nearest.shape, 1.0 / k)
     else:
-        weight = np.maximum(support.astype(np.float64), 1e-6)[nearest] ** SUPPORT_WEIGHT_POWER
+        weight = np.maximum(support.astype(np.float64), 1e-6)[nearest]
         weight /= weight.sum(axis=1, keepdims=True)
     mean = np.einsum("nk,nki->ni", weight, around)
     centred = around - mean[:, None]

@@ -121,5 +121,5 @@ def test_settling_flattens_a_far_views_skin_onto_the_surface_many_views_agree_on
     engine.objects[1].support = support.astype(np.float32)
     engine.settle()
     box = engine.objects[1].bbox
-    assert box[5] - box[2] < 0.02  # 16 cm of skin before; over 3 cm with an unweighted fit
+    assert box[5] - box[2] < 0.03  # 16 cm of skin before; 8 cm with an unweighted fit
     assert box[3] - box[0] > 0.95 and box[4] - box[1] > 0.95
