@@ -69,8 +69,9 @@ def _denoise(obj: MapObject, settling: bool = False) -> bool:
     first the points few of its views agree on are dropped where the support is known
     (against their neighbours', `geo.locally_supported`, and the whole object's,
     `geo.well_supported`), and last what is left is moved onto its local surface
-    (`geo.onto_local_surface`). During the walk both would cost F-mIoU: a part few views have
-    shown yet is still gathering them, and rims and edges would be pulled in."""
+    (`geo.onto_local_surface`, each point weighted by its support where known). During the
+    walk both would cost F-mIoU: a part few views have shown yet is still gathering them,
+    and rims and edges would be pulled in."""
     points, support = obj.points, obj.support
     if support is not None and settling:
         agreed = geo.locally_supported(points, support) & geo.well_supported(support)
@@ -80,7 +81,7 @@ def _denoise(obj: MapObject, settling: bool = False) -> bool:
     if not kept.all():
         points, support = points[kept], None if support is None else support[kept]
     if settling:
-        points = geo.onto_local_surface(points)
+        points = geo.onto_local_surface(points, support=support)
     if len(points) == len(obj.points) and np.abs(points - obj.points).max(initial=0) < 1e-3:
         return False  # under a millimetre: a clean object stays as it is
     obj.set_points(points, obj.resolution_m, support)

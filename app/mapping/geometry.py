@@ -695,21 +695,36 @@ share of its largest: a pole's or a leg's neighbours (spread along one line) are
 moved."""
 
 
-def onto_local_surface(points: np.ndarray, k: int = SURFACE_NEIGHBOURS) -> np.ndarray:
+def onto_local_surface(
+    points: np.ndarray, k: int = SURFACE_NEIGHBOURS, support: np.ndarray | None = None
+) -> np.ndarray:
     """Each point moved onto the plane fitted to its k nearest points (itself included),
     where they form a surface (PLANAR_SPREAD): float32 [N, 3].
 
     A depth sensor's noise lies along its rays, so a surface seen from a few metres grows a
     skin several centimetres thick that sets its box; the local plane of k points is about
     sqrt(k) times closer to the true surface than one noisy point. An edge or a corner moves
-    by at most its neighbourhood's flattening; a thin part (no second spread) stays."""
+    by at most its neighbourhood's flattening; a thin part (no second spread) stays.
+
+    support: float [N], the views each point stands for (`MapObject.support`); given it, the
+    plane is fitted with each point weighted by its support: a voxel's mean of s views has
+    1/s of one view's range variance, so the voxels many views agree on pin the plane, and a
+    far view's lone sample off the surface (support 1, beside voxels a dozen views hit) no
+    longer tilts it towards itself."""
     if len(points) <= k:
         return points
+    if support is not None and len(support) != len(points):
+        raise ValueError(f"support has {len(support)} values for {len(points)} points")
     _, nearest = cKDTree(points).query(points, k=k)
     around = points[nearest].astype(np.float64)
-    mean = around.mean(axis=1)
+    if support is None:
+        weight = np.full(nearest.shape, 1.0 / k)
+    else:
+        weight = np.maximum(support.astype(np.float64), 1e-6)[nearest]
+        weight /= weight.sum(axis=1, keepdims=True)
+    mean = np.einsum("nk,nki->ni", weight, around)
     centred = around - mean[:, None]
-    spread, axes = np.linalg.eigh(centred.transpose(0, 2, 1) @ centred / k)
+    spread, axes = np.linalg.eigh((centred * weight[:, :, None]).transpose(0, 2, 1) @ centred)
     normal = axes[:, :, 0]
     surface = spread[:, 1] >= PLANAR_SPREAD * spread[:, 2]
     offset = np.einsum("ni,ni->n", points - mean, normal) * surface

@@ -107,3 +107,19 @@ def test_settle_visits_only_the_objects_changed_since_the_map_last_settled(encod
     monkeypatch.setattr(geo, "outlier_free", counted)
     engine.settle()
     assert denoised == ["table"]
+
+
+def test_settling_flattens_a_far_views_skin_onto_the_surface_many_views_agree_on(encoder):
+    """The settled box of a wall is the wall's: the voxels a far view or two reached (3 cm
+    range noise) are moved onto the plane the well-seen voxels pin, not tilted towards it."""
+    rng = np.random.default_rng(5)
+    grid = np.stack(np.meshgrid(np.arange(40), np.arange(40)), -1).reshape(-1, 2) * 0.025
+    wall = np.column_stack([grid, rng.normal(0, 0.003, len(grid))])
+    far = np.column_stack([rng.uniform(0, 0.975, (300, 2)), rng.normal(0, 0.03, 300)])
+    engine = _engine_with(encoder, np.concatenate([wall, far]).astype(np.float32))
+    support = np.concatenate([np.full(len(wall), 8.0), np.full(len(far), 2.0)])
+    engine.objects[1].support = support.astype(np.float32)
+    engine.settle()
+    box = engine.objects[1].bbox
+    assert box[5] - box[2] < 0.03  # 16 cm of skin before; 8 cm with an unweighted fit
+    assert box[3] - box[0] > 0.95 and box[4] - box[1] > 0.95
