@@ -148,13 +148,14 @@ def create_gateway_app(settings: ServerSettings, store: Store | None = None) -> 
 
     @app.get("/healthz", include_in_schema=False)
     async def healthz(request: Request) -> JSONResponse:
-        """200 while the store answers and at least one map shard beats; 503 with
-        Retry-After otherwise (the reason says which)."""
+        """200 while the store answers (a read started after the request, in time) and at
+        least one map shard beats; 503 with Retry-After otherwise (the reason says which)."""
         directory: ShardDirectory = request.app.state.directory
-        live = await directory.live(fresh=True)
+        answered = await directory.fresh_read()
+        live = await directory.live()
         reason = (
             "storage unavailable: the cluster's store cannot be read (database down?)"
-            if not directory.store_ok
+            if not (answered and directory.store_ok)
             else None
             if live
             else "no map shard is alive: they may be starting or restarting"

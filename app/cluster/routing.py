@@ -23,6 +23,9 @@ OWNERS_KEPT = 100_000
 """Sessions whose last route a gateway remembers (for when the store cannot be read)."""
 READ_POLL_S = 0.02
 """How often a caller that wants a fresh list checks whether the next read is done."""
+FRESH_WAIT_S = 1.0
+"""How long past DIRECTORY_TTL_S a caller waits for a read that started after it asked
+(a read while the database is down waits out the store's connect timeout, 5 s by default)."""
 
 log = logging.getLogger("semanticxr.gateway")
 
@@ -67,9 +70,8 @@ class ShardDirectory:
         self.store = store
         self.max_age_s = max_age_s
         self._live: dict[str, str] = {}
-        self._reads = 0
-        """Reads finished (successful or not)."""
         self._read_at = -float("inf")
+        """When the last finished read (successful or not) started: what it says is as of then."""
         self._running = False
         self._turn = itertools.count()
         self._owners: OrderedDict[str, str] = OrderedDict()
@@ -80,6 +82,7 @@ class ShardDirectory:
 
     async def refresh(self) -> None:
         """Read the live shards once (in a thread)."""
+        started = time.monotonic()
         try:
             shards: list[ShardRecord] = await asyncio.to_thread(
                 self.store.live_shards, self.max_age_s
@@ -92,8 +95,7 @@ class ShardDirectory:
             self._live = {s.name: s.url for s in shards}
             self.store_ok = True
         finally:
-            self._reads += 1
-            self._read_at = time.monotonic()
+            self._read_at = started
 
     async def run(self) -> None:
         """Refresh every DIRECTORY_TTL_S until cancelled."""
@@ -108,16 +110,29 @@ class ShardDirectory:
         finally:
             self._running = False
 
-    async def live(self, fresh: bool = False) -> dict[str, str]:
-        """Live shards' addresses by name, as last read; `fresh`: after the next read (with
-        `run` going, waiting at most DIRECTORY_TTL_S + 1 s for it)."""
+    async def fresh_read(self) -> bool:
+        """Wait for a read that starts after this call; False when none has finished within
+        DIRECTORY_TTL_S + FRESH_WAIT_S (with `run` going): the store is slow or down, and a
+        read that started before the call (it may have answered just before the database
+        went away) says nothing of now."""
+        asked = time.monotonic()
         if not self._running:
-            if fresh or time.monotonic() - self._read_at > DIRECTORY_TTL_S:
-                await self.refresh()
-        elif fresh:
-            wanted, give_up = self._reads + 1, time.monotonic() + DIRECTORY_TTL_S + 1.0
-            while self._reads < wanted and time.monotonic() < give_up:
-                await asyncio.sleep(READ_POLL_S)
+            await self.refresh()
+            return True
+        give_up = asked + DIRECTORY_TTL_S + FRESH_WAIT_S
+        while self._read_at < asked:
+            if time.monotonic() >= give_up:
+                return False
+            await asyncio.sleep(READ_POLL_S)
+        return True
+
+    async def live(self, fresh: bool = False) -> dict[str, str]:
+        """Live shards' addresses by name, as last read; `fresh`: after a read that started
+        after this call (`fresh_read`), or as last read if none finished in time."""
+        if fresh:
+            await self.fresh_read()
+        elif not self._running and time.monotonic() - self._read_at > DIRECTORY_TTL_S:
+            await self.refresh()
         return dict(self._live)
 
     async def route(self, session_id: str, fresh: bool = False) -> tuple[str, str]:

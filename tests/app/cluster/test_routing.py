@@ -5,7 +5,9 @@ real SQLite store (live owner first, else rendezvous over the shards that beat l
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import random
+import threading
 import time
 import uuid
 from collections import Counter
@@ -262,3 +264,76 @@ def test_while_the_store_cannot_be_read_a_session_goes_to_the_owner_it_was_last_
     assert route(directory, "s1")[0] == owner
     flaky.down = True
     assert route(directory, "s1")[0] == owner  # not where rendezvous would put it
+
+
+class GatedStore(FlakyStore):
+    """A FlakyStore whose reads of the live shards wait at a gate the test opens."""
+
+    def __init__(self, store: Store):
+        super().__init__(store)
+        self.reading = threading.Event()
+        self.gate = threading.Event()
+
+    def live_shards(self, max_age_s: float):
+        self.reading.set()
+        self.gate.wait(10)
+        return super().live_shards(max_age_s)
+
+
+def fresh_read_while_reading(gated: GatedStore, then) -> tuple[bool, bool]:
+    """With the directory's reader going and a read waiting at the gate: ask for a fresh
+    read, do `then()`, open the gate; (the ask's answer, store_ok after it)."""
+
+    async def scenario() -> tuple[bool, bool]:
+        directory = ShardDirectory(gated, MAX_AGE_S)  # type: ignore[arg-type]
+        reader = asyncio.create_task(directory.run())
+        try:
+            await asyncio.to_thread(gated.reading.wait, 10)  # a read is in flight
+            asked = asyncio.create_task(directory.fresh_read())
+            await asyncio.sleep(0)  # the ask starts before the read in flight ends
+            then()
+            gated.gate.set()
+            return await asked, directory.store_ok
+        finally:
+            gated.gate.set()
+            reader.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await reader
+
+    return asyncio.run(scenario())
+
+
+def test_a_fresh_read_is_one_that_started_after_the_ask(store):
+    """The database goes down while a read that began before it is in flight: that read
+    answers, but a fresh read is the next one, which finds the store down (a gateway's
+    /healthz then says 503 at once)."""
+    beat(store, "shard-a")
+    gated = GatedStore(store)
+
+    def database_down() -> None:
+        gated.down = True
+
+    answered, store_ok = fresh_read_while_reading(gated, database_down)
+    assert answered and not store_ok
+
+
+def test_a_fresh_read_that_does_not_answer_in_time_says_so(store):
+    """Reads that wait out the store's connect timeout: the ask gives up, answering False
+    (the store is not answering now), whatever the last read said."""
+    beat(store, "shard-a")
+    gated = GatedStore(store)
+
+    async def scenario() -> tuple[bool, bool]:
+        directory = ShardDirectory(gated, MAX_AGE_S)  # type: ignore[arg-type]
+        reader = asyncio.create_task(directory.run())
+        try:
+            await asyncio.to_thread(gated.reading.wait, 10)  # the reader's read is stuck
+            return await directory.fresh_read(), directory.store_ok
+        finally:
+            gated.gate.set()
+            reader.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await reader
+
+    answered, store_ok = asyncio.run(scenario())
+    assert not answered and store_ok
