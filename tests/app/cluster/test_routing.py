@@ -267,7 +267,8 @@ def test_while_the_store_cannot_be_read_a_session_goes_to_the_owner_it_was_last_
 
 
 class GatedStore(FlakyStore):
-    """A FlakyStore whose reads of the live shards wait at a gate the test opens."""
+    """A FlakyStore whose reads of the live shards answer as of their start, but return only
+    once the test opens a gate."""
 
     def __init__(self, store: Store):
         super().__init__(store)
@@ -276,8 +277,10 @@ class GatedStore(FlakyStore):
 
     def live_shards(self, max_age_s: float):
         self.reading.set()
-        self.gate.wait(10)
-        return super().live_shards(max_age_s)
+        try:
+            return super().live_shards(max_age_s)
+        finally:
+            self.gate.wait(10)
 
 
 def fresh_read_while_reading(gated: GatedStore, then) -> tuple[bool, bool]:
